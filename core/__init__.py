@@ -1,0 +1,24 @@
+"""ringlight.core: variable ring light imaging as a numpy library (no Qt).
+
+    from ringlight.core import open_dataset, transient_stack
+    dataset = open_dataset("sample")
+    stack = transient_stack(dataset, radii=range(0, 12), step=1.0)
+    stack.images            # (12, H, W, 3) float32, NaN where undefined
+"""
+
+from .dataset import ImpulseDataset, effective_max_radius, open_dataset, response_memory_bytes
+from .errors import Cancelled, DatasetError, RinglightError, StackError
+from .exr import read_exr_rgb, write_exr_rgb
+from .manifest import Manifest, read_manifest
+from .rings import RingGeometry, annulus_pixel_area, disc_offsets, ring_geometry
+from .stack_io import read_stack, write_stack
+from .stacks import Stack, needed_radius, parse_radius_range, radius_range, ring_stack, transient_stack
+from .writer import DatasetWriter
+
+__all__ = [
+    "Cancelled", "DatasetError", "DatasetWriter", "ImpulseDataset", "Manifest", "RingGeometry",
+    "RinglightError", "Stack", "StackError", "annulus_pixel_area", "disc_offsets",
+    "effective_max_radius", "needed_radius", "open_dataset", "parse_radius_range",
+    "radius_range", "read_exr_rgb", "read_manifest", "read_stack", "response_memory_bytes",
+    "ring_geometry", "ring_stack", "transient_stack", "write_exr_rgb", "write_stack",
+]

@@ -1,0 +1,45 @@
+"""Atomic creation of output folders: build beside the target, then rename into place."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_folder(final: str | os.PathLike) -> Iterator[Path]:
+    """Yield a staging folder beside ``final``; on a clean exit it replaces ``final``.
+
+    On any exception (KeyboardInterrupt included) the staging folder is removed and ``final`` is
+    untouched. A process killed outright leaves only a hidden ``.NAME.partial-*`` folder, never a
+    half-written ``final``. Callers decide beforehand whether replacing ``final`` is allowed.
+    """
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    try:
+        yield staging
+        replace_folder(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def replace_folder(new: Path, final: Path) -> None:
+    """Move folder ``new`` to ``final``, replacing any folder there; ``final`` is never partial."""
+    if final.exists():
+        trash = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+        os.rename(final, trash / final.name)
+        try:
+            os.rename(new, final)
+        except OSError:
+            os.rename(trash / final.name, final)
+            raise
+        finally:
+            shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.rename(new, final)

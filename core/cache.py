@@ -1,0 +1,119 @@
+"""Packed cache of a dataset's response array, so that a second open skips EXR decoding.
+
+A cache entry is a folder with ``responses.npy``, ``lit_counts.npy``, ``observed.npy`` and
+``meta.json``. ``meta.json`` holds the key (a hash of the manifest's bytes, the size and mtime of
+every frame, dark and mapping file, the effective max radius and this module's layout version)
+and a CRC-32 of each array file. An entry whose key differs, or whose files fail their checks
+(missing, truncated, wrong header, wrong CRC), is ignored and rebuilt: a cache is never trusted.
+
+Entries live in ``DATASET/.ringlight-cache`` when the dataset folder is writable, else under the
+user cache folder (``$RINGLIGHT_CACHE_DIR``, else ``$XDG_CACHE_HOME/ringlight``, else
+``~/.cache/ringlight``) in a folder named by a hash of the dataset's absolute path.
+Entries are written to a temporary folder and renamed into place, so a crash leaves none half-written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_folder
+from .manifest import MANIFEST_NAME, Manifest
+
+LAYOUT_VERSION = 1
+CACHE_FOLDER_NAME = ".ringlight-cache"
+_ARRAYS = ("responses", "lit_counts", "observed")
+
+
+@dataclass(frozen=True, eq=False)
+class CachedArrays:
+    """The arrays a dataset open produces. ``responses`` may be a read-only memory map."""
+
+    responses: np.ndarray
+    lit_counts: np.ndarray
+    observed: np.ndarray
+
+
+def user_cache_root() -> Path:
+    """The per-user cache folder of ringlight (not created)."""
+    if os.environ.get("RINGLIGHT_CACHE_DIR"):
+        return Path(os.environ["RINGLIGHT_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "ringlight"
+
+
+def cache_key(manifest: Manifest, max_radius: float) -> str:
+    """Hash of everything the response array depends on (see the module docstring)."""
+    digest = hashlib.sha256()
+    digest.update(f"layout {LAYOUT_VERSION} radius {max_radius!r}\n".encode())
+    digest.update((manifest.folder / MANIFEST_NAME).read_bytes())
+    for name in manifest.referenced_files():
+        try:
+            stat = (manifest.folder / name).stat()
+            digest.update(f"\n{name} {stat.st_size} {stat.st_mtime_ns}".encode())
+        except OSError:
+            digest.update(f"\n{name} missing".encode())
+    return digest.hexdigest()
+
+
+def cache_location(dataset_folder: Path) -> Path:
+    """Where the cache of a dataset lives: inside it when writable, else in the user cache."""
+    folder = dataset_folder.resolve()
+    inside = folder / CACHE_FOLDER_NAME
+    if inside.is_dir() and os.access(inside, os.W_OK | os.X_OK):
+        return inside
+    if not inside.exists() and os.access(folder, os.W_OK | os.X_OK):
+        return inside
+    tag = hashlib.sha256(str(folder).encode()).hexdigest()[:16]
+    return user_cache_root() / f"{folder.name}-{tag}"
+
+
+def load_cache(location: Path, key: str) -> CachedArrays | None:
+    """Return the cached arrays for ``key``, or None when absent, stale or corrupt."""
+    meta_path = location / "meta.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if meta.get("key") != key:
+            return None
+        arrays = {}
+        for name in _ARRAYS:
+            path = location / f"{name}.npy"
+            if _crc32(path) != meta["crc32"][name]:
+                return None
+            arrays[name] = np.load(path, mmap_mode="r" if name == "responses" else None, allow_pickle=False)
+            if list(arrays[name].shape) != meta["shapes"][name]:
+                return None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return CachedArrays(**arrays)
+
+
+def save_cache(location: Path, key: str, arrays: CachedArrays) -> bool:
+    """Write a cache entry atomically; returns False (and leaves nothing) when it cannot."""
+    try:
+        with atomic_folder(location) as staging:
+            meta = {"key": key, "layout": LAYOUT_VERSION, "crc32": {}, "shapes": {}}
+            for name in _ARRAYS:
+                array = getattr(arrays, name)
+                path = staging / f"{name}.npy"
+                np.save(path, array, allow_pickle=False)
+                meta["crc32"][name] = _crc32(path)
+                meta["shapes"][name] = list(array.shape)
+            (staging / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    except OSError:
+        return False
+    return True
+
+
+def _crc32(path: Path, chunk: int = 1 << 24) -> int:
+    crc = 0
+    with open(path, "rb") as handle:
+        while block := handle.read(chunk):
+            crc = zlib.crc32(block, crc)
+    return crc

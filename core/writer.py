@@ -1,0 +1,161 @@
+"""Writing impulse datasets (FORMAT.md v1) atomically.
+
+    with DatasetWriter("sample", (48, 48), max_radius=16) as writer:
+        writer.add_frame(image, lit=[[8, 8], [8, 41]])
+    # "sample/" appears complete here, or not at all
+
+Everything is written into a hidden staging folder beside the target and renamed into place
+when the ``with`` block ends cleanly; an exception, Ctrl-C or a kill leaves no dataset behind.
+"""
+
+from __future__ import annotations
+
+import json
+from contextlib import ExitStack
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_folder
+from .errors import DatasetError
+from .exr import write_exr_channels, write_exr_rgb
+from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, parse_manifest
+
+
+def is_dataset_folder(path: Path) -> bool:
+    """True when ``path`` holds a manifest of the ringlight impulse format."""
+    try:
+        return json.loads((path / MANIFEST_NAME).read_text(encoding="utf-8")).get("format") == FORMAT_NAME
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+class DatasetWriter:
+    """Writes one impulse dataset; use as a context manager.
+
+    Parameters
+    ----------
+    path
+        Final dataset folder. If it exists it must be a ringlight dataset and ``overwrite`` true,
+        or an empty folder; anything else raises :class:`DatasetError`.
+    grid_shape
+        ``(H, W)`` of the grid.
+    max_radius, pitch_mm, colorspace, notes
+        Manifest keys (FORMAT.md); None leaves a key out.
+    frame_space
+        ``"grid"`` (frames H x W) or ``"camera"`` (call :meth:`set_mapping` first).
+    half
+        Store frames as half floats (smaller, about 3 significant digits).
+    """
+
+    def __init__(
+        self,
+        path,
+        grid_shape: tuple[int, int],
+        *,
+        max_radius: float | None = None,
+        pitch_mm: float | None = None,
+        colorspace: str = "sRGB",
+        frame_space: str = "grid",
+        notes: str | None = None,
+        half: bool = False,
+        overwrite: bool = False,
+    ):
+        self.path = Path(path)
+        if self.path.exists() and not (
+            (self.path.is_dir() and not any(self.path.iterdir()))
+            or (overwrite and is_dataset_folder(self.path))
+        ):
+            raise DatasetError(
+                f"{self.path}: already exists and is not an empty folder"
+                + ("" if overwrite else " (pass overwrite to replace a dataset)")
+                + "; refusing to overwrite it"
+            )
+        self.manifest: dict = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "grid": {"height": int(grid_shape[0]), "width": int(grid_shape[1])},
+            "colorspace": colorspace,
+            "frame_space": frame_space,
+            "frames": [],
+        }
+        if pitch_mm is not None:
+            self.manifest["grid"]["pitch_mm"] = float(pitch_mm)
+        if max_radius is not None:
+            self.manifest["max_radius"] = float(max_radius)
+        if notes is not None:
+            self.manifest["notes"] = notes
+        self.half = half
+        self._exit_stack: ExitStack | None = None
+        self.staging: Path | None = None
+
+    def __enter__(self) -> "DatasetWriter":
+        self._exit_stack = ExitStack()
+        self.staging = self._exit_stack.enter_context(atomic_folder(self.path))
+        (self.staging / "frames").mkdir()
+        return self
+
+    def __exit__(self, kind, error, traceback) -> bool:
+        if kind is None:
+            try:
+                self._finish()
+            except BaseException as failure:
+                self._close(type(failure), failure, failure.__traceback__)
+                raise
+        return self._close(kind, error, traceback)
+
+    def _close(self, kind, error, traceback) -> bool:
+        stack, self._exit_stack, self.staging = self._exit_stack, None, None
+        return bool(stack.__exit__(kind, error, traceback))
+
+    def _require_open(self) -> Path:
+        if self.staging is None or self._exit_stack is None:
+            raise RuntimeError("DatasetWriter must be used inside a 'with' block")
+        return self.staging
+
+    def add_frame(self, image: np.ndarray, lit, exposure: float = 1.0) -> str:
+        """Write one frame: (h, w, 3) radiance x exposure, lighting the ``[y, x]`` points ``lit``.
+
+        Returns the frame's file name relative to the dataset folder.
+        """
+        staging = self._require_open()
+        name = f"frames/{len(self.manifest['frames']):06d}.exr"
+        write_exr_rgb(staging / name, image, half=self.half)
+        self.manifest["frames"].append(
+            {"file": name, "lit": [[int(y), int(x)] for y, x in np.asarray(lit).reshape(-1, 2)],
+             "exposure": float(exposure)}
+        )
+        return name
+
+    def set_dark(self, image: np.ndarray) -> None:
+        """Write the dark frame (exposure-1 units, frame size)."""
+        write_exr_rgb(self._require_open() / "dark.exr", image, half=self.half)
+        self.manifest["dark"] = "dark.exr"
+
+    def set_mapping(self, y: np.ndarray, x: np.ndarray) -> None:
+        """Write ``mapping.exr``: camera pixel -> grid position (float, NaN where none)."""
+        write_exr_channels(self._require_open() / "mapping.exr", {"y": y, "x": x})
+        self.manifest["mapping"] = "mapping.exr"
+
+    def add_path_length_image(self, image: np.ndarray, low: float, high: float) -> str:
+        """Write a ground-truth image of light with path length in ``[low, high)`` grid steps."""
+        truth = self.manifest.setdefault("ground_truth", {})
+        images = truth.setdefault("path_length_images", [])
+        name = f"ground_truth/len_{len(images):03d}.exr"
+        (self._require_open() / "ground_truth").mkdir(exist_ok=True)
+        write_exr_rgb(self._require_open() / name, image)
+        images.append({"file": name, "min": float(low), "max": float(high)})
+        return name
+
+    def set_layers(self, layers: list[dict]) -> None:
+        """Set ``ground_truth.layers``: dicts with ``name``, ``depth`` [top, bottom], ``rgb``."""
+        self.manifest.setdefault("ground_truth", {})["layers"] = [
+            {"name": str(layer["name"]), "depth": [float(v) for v in layer["depth"]],
+             "rgb": [float(v) for v in layer["rgb"]]}
+            for layer in layers
+        ]
+
+    def _finish(self) -> None:
+        staging = self._require_open()
+        parse_manifest(self.manifest, staging)  # never publish a manifest we could not read back
+        (staging / MANIFEST_NAME).write_text(json.dumps(self.manifest, indent=1), encoding="utf-8")

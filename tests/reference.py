@@ -1,0 +1,115 @@
+"""Independent reference implementations for the tests.
+
+Nothing here imports ringlight: datasets are written with OpenEXR and json directly, and ring
+light / transient images are computed by brute force straight from FORMAT.md's definitions.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+
+def write_exr(path: Path, channels: dict[str, np.ndarray], half: bool = False) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dtype = np.float16 if half else np.float32
+    pixels = {name: np.ascontiguousarray(plane, dtype=dtype) for name, plane in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, pixels) as exr:
+        exr.write(str(path))
+
+
+def write_rgb(path: Path, image: np.ndarray, half: bool = False) -> None:
+    write_exr(path, {"R": image[..., 0], "G": image[..., 1], "B": image[..., 2]}, half)
+
+
+def random_impulses(rng, height, width, support, missing=0.0):
+    """Random impulse images {(y, x): (H, W, 3) float32}, zero beyond ``support`` of q.
+
+    A fraction ``missing`` of points gets no entry (a missing point)."""
+    yy, xx = np.mgrid[:height, :width]
+    impulses = {}
+    for y in range(height):
+        for x in range(width):
+            if rng.random() < missing:
+                continue
+            distance = np.hypot(yy - y, xx - x)
+            falloff = np.exp(-distance / 3.0)[..., None]
+            image = (falloff * rng.uniform(0.2, 1.0, (height, width, 3))).astype(np.float32)
+            image[distance > support] = 0.0
+            impulses[(y, x)] = image
+    return impulses
+
+
+def lattice_groups(points, spacing):
+    """Group points into frames whose members are >= ``spacing`` apart on both axes' lattice."""
+    groups = {}
+    for y, x in points:
+        groups.setdefault((y % spacing, x % spacing), []).append((y, x))
+    return list(groups.values())
+
+
+def write_dataset(folder: Path, height, width, impulses, *, max_radius=None, multiplex=False,
+                  half=False, extra=None):
+    """Write impulses as a FORMAT.md dataset, one point per frame or multiplexed on a lattice."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if multiplex:
+        groups = lattice_groups(sorted(impulses), int(math.floor(2 * max_radius)) + 1)
+    else:
+        groups = [[q] for q in sorted(impulses)]
+    frames = []
+    for index, group in enumerate(groups):
+        image = sum(impulses[q] for q in group)
+        name = f"frames/{index:05d}.exr"
+        write_rgb(folder / name, image, half)
+        frames.append({"file": name, "lit": [list(q) for q in group]})
+    manifest = {"format": "ringlight-impulse", "version": 1,
+                "grid": {"height": height, "width": width}, "frames": frames}
+    if max_radius is not None:
+        manifest["max_radius"] = max_radius
+    manifest.update(extra or {})
+    (folder / "dataset.json").write_text(json.dumps(manifest))
+    return manifest
+
+
+def brute_ring_image(impulses, height, width, radius, thickness=1.0, weight=None):
+    """E_r by the definition: loop over every pixel and every lit point.
+
+    ``weight(dy, dx)`` gives anti-aliased weights; None is the default ring (weight 1 inside
+    r - w/2 <= |d| < r + w/2)."""
+    out = np.full((height, width, 3), np.nan)
+    for y in range(height):
+        for x in range(width):
+            total, weights = np.zeros(3), 0.0
+            for (qy, qx), image in impulses.items():
+                dy, dx = qy - y, qx - x
+                if weight is None:
+                    distance = math.hypot(dy, dx)
+                    w = 1.0 if radius - thickness / 2 <= distance < radius + thickness / 2 else 0.0
+                else:
+                    w = weight(dy, dx)
+                if w > 0:
+                    total += w * image[y, x]
+                    weights += w
+            if weights > 0:
+                out[y, x] = total / weights
+    return out
+
+
+def supersampled_annulus_weight(radius, thickness, samples=64):
+    """Pixel coverage of the annulus by supersampling (an independent check of exact areas)."""
+    inner, outer = max(radius - thickness / 2, 0.0), radius + thickness / 2
+    u = (np.arange(samples) + 0.5) / samples - 0.5
+
+    def weight(dy, dx):
+        if math.hypot(dy, dx) > outer + 1 or math.hypot(dy, dx) < inner - 1:
+            return 0.0
+        yy, xx = np.meshgrid(dy + u, dx + u, indexing="ij")
+        distance = np.hypot(yy, xx)
+        return float(((distance >= inner) & (distance < outer)).mean())
+
+    return weight

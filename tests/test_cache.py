@@ -1,0 +1,132 @@
+"""The packed cache: used on reopen, rebuilt when anything changes or it is damaged."""
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+from reference import random_impulses, write_dataset, write_rgb
+
+import ringlight.core.frames as frames_module
+from ringlight.core import open_dataset, ring_stack
+from ringlight.core.cache import CACHE_FOLDER_NAME
+
+
+@pytest.fixture
+def dataset(tmp_path):
+    impulses = random_impulses(np.random.default_rng(0), 7, 6, support=10)
+    write_dataset(tmp_path / "ds", 7, 6, impulses)
+    return tmp_path / "ds"
+
+
+class CountingReads:
+    """Counts EXR frame decodes (the work the cache exists to avoid)."""
+
+    def __init__(self, monkeypatch):
+        self.count = 0
+        original = frames_module.read_exr_rgb
+
+        def counted(path):
+            self.count += 1
+            return original(path)
+
+        monkeypatch.setattr(frames_module, "read_exr_rgb", counted)
+
+
+def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):
+    reads = CountingReads(monkeypatch)
+    first = open_dataset(dataset, radius=4)
+    assert reads.count == 42
+    second = open_dataset(dataset, radius=4)
+    assert reads.count == 42
+    assert isinstance(second.responses, np.memmap)
+    assert_array_equal(first.responses, second.responses)
+    assert_array_equal(first.lit_counts, second.lit_counts)
+
+
+def test_changed_frame_rebuilds_the_cache(dataset, monkeypatch):
+    before = ring_stack(open_dataset(dataset, radius=4), [0]).images
+    reads = CountingReads(monkeypatch)
+    write_rgb(dataset / "frames/00000.exr", np.full((7, 6, 3), 5.0, np.float32))
+    after = ring_stack(open_dataset(dataset, radius=4), [0]).images
+    assert reads.count == 42
+    assert after[0, 0, 0, 0] == 5.0 and before[0, 0, 0, 0] != 5.0
+
+
+def test_touched_frame_with_same_size_rebuilds_the_cache(dataset, monkeypatch):
+    open_dataset(dataset, radius=4)
+    reads = CountingReads(monkeypatch)
+    later = time.time() + 10
+    os.utime(dataset / "frames/00009.exr", (later, later))
+    open_dataset(dataset, radius=4)
+    assert reads.count == 42
+
+
+def test_changed_manifest_rebuilds_the_cache(dataset, monkeypatch):
+    open_dataset(dataset, radius=4)
+    reads = CountingReads(monkeypatch)
+    manifest = json.loads((dataset / "dataset.json").read_text())
+    manifest["frames"] = manifest["frames"][:-1]
+    (dataset / "dataset.json").write_text(json.dumps(manifest))
+    reopened = open_dataset(dataset, radius=4)
+    assert reads.count == 41
+    assert reopened.missing_count == 1
+
+
+def test_a_different_radius_does_not_reuse_the_cache(dataset, monkeypatch):
+    open_dataset(dataset, radius=4)
+    reads = CountingReads(monkeypatch)
+    assert open_dataset(dataset, radius=2).responses.shape[2] == 13
+    assert reads.count == 42
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "garbage-meta", "delete"])
+def test_a_corrupt_cache_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
+    truth = np.array(open_dataset(dataset, radius=4).responses)
+    cache = dataset / CACHE_FOLDER_NAME
+    target = cache / "responses.npy"
+    if damage == "truncate":
+        target.write_bytes(target.read_bytes()[:-100])
+    elif damage == "flip":
+        data = bytearray(target.read_bytes())
+        data[-5] ^= 0xFF
+        target.write_bytes(bytes(data))
+    elif damage == "garbage-meta":
+        (cache / "meta.json").write_text("{")
+    else:
+        (cache / "lit_counts.npy").unlink()
+    reads = CountingReads(monkeypatch)
+    reopened = open_dataset(dataset, radius=4)
+    assert reads.count == 42
+    assert_array_equal(reopened.responses, truth)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores folder permissions")
+def test_read_only_dataset_caches_in_the_user_folder(dataset, private_cache):
+    os.chmod(dataset, 0o555)
+    try:
+        open_dataset(dataset, radius=4)
+    finally:
+        os.chmod(dataset, 0o755)
+    assert not (dataset / CACHE_FOLDER_NAME).exists()
+    assert any(private_cache.iterdir())
+
+
+def test_unwritable_dataset_folder_caches_in_the_user_folder(dataset, private_cache, monkeypatch):
+    """Same as above for root, who ignores permissions: os.access reports the folder read-only."""
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: False if str(path).startswith(str(dataset)) else real_access(path, mode))
+    open_dataset(dataset, radius=4)
+    assert not (dataset / CACHE_FOLDER_NAME).exists()
+    (entry,) = private_cache.iterdir()
+    assert (entry / "responses.npy").is_file()
+    reads = CountingReads(monkeypatch)
+    open_dataset(dataset, radius=4)
+    assert reads.count == 0
+
+
+def test_cache_can_be_bypassed(dataset):
+    open_dataset(dataset, radius=4, use_cache=False)
+    assert not (dataset / CACHE_FOLDER_NAME).exists()

@@ -1,0 +1,79 @@
+"""The command line: info figures and stack exports checked against brute force."""
+
+import json
+
+import numpy as np
+import pytest
+from reference import brute_ring_image, random_impulses, write_dataset
+
+from ringlight.app.main import main
+from ringlight.core import read_exr_rgb, read_stack
+
+
+@pytest.fixture
+def impulses():
+    return random_impulses(np.random.default_rng(21), 11, 8, support=2.5, missing=0.1)
+
+
+def test_stack_export_of_an_independent_dataset_matches_brute_force(tmp_path, impulses, capsys):
+    """The core issue's acceptance check: 1e-4 relative, NaN in the same places."""
+    write_dataset(tmp_path / "ds", 11, 8, impulses, max_radius=2.5, multiplex=True)
+    status = main(["stack", str(tmp_path / "ds"), "--kind", "transient", "--radii", "0:1.5:0.5",
+                   "--out", str(tmp_path / "out")])
+    assert status == 0
+    assert "wrote 4 transient images (11 x 8)" in capsys.readouterr().out
+    manifest = json.loads((tmp_path / "out/stack.json").read_text())
+    assert manifest["radii"] == [0.0, 0.5, 1.0, 1.5]  # STOP is inclusive
+    assert manifest["kind"] == "transient" and manifest["step"] == 0.5 and manifest["thickness"] == 1.0
+    for index, radius in enumerate(manifest["radii"]):
+        expected = (brute_ring_image(impulses, 11, 8, radius)
+                    - brute_ring_image(impulses, 11, 8, radius + 0.5))
+        image = read_exr_rgb(tmp_path / "out" / manifest["images"][index])
+        assert np.array_equal(np.isnan(image), np.isnan(expected))
+        assert np.allclose(np.nan_to_num(image), np.nan_to_num(expected), rtol=1e-4, atol=1e-6)
+
+
+def test_ring_stack_with_thickness_and_antialiasing_exports_and_can_be_redone(tmp_path, impulses):
+    write_dataset(tmp_path / "ds", 11, 8, impulses)
+    args = ["stack", str(tmp_path / "ds"), "--kind", "ring", "--radii", "1:3:1", "--thickness", "1.5",
+            "--antialias", "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    assert main(args) == 0  # an earlier stack export may be replaced
+    manifest, images = read_stack(tmp_path / "out")
+    assert manifest["kind"] == "ring" and manifest["thickness"] == 1.5 and len(images) == 3
+    assert images.shape == (3, 11, 8, 3)
+
+
+def test_transient_step_can_differ_from_the_radius_spacing(tmp_path, impulses):
+    write_dataset(tmp_path / "ds", 11, 8, impulses)
+    assert main(["stack", str(tmp_path / "ds"), "--radii", "0:4:2", "--dr", "1", "--out", str(tmp_path / "o")]) == 0
+    manifest, images = read_stack(tmp_path / "o")
+    expected = brute_ring_image(impulses, 11, 8, 2) - brute_ring_image(impulses, 11, 8, 3)
+    assert manifest["step"] == 1.0
+    assert np.allclose(np.nan_to_num(images[1]), np.nan_to_num(expected), rtol=1e-4, atol=1e-6)
+
+
+def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impulses, capsys):
+    write_dataset(
+        tmp_path / "ds", 11, 8, impulses, max_radius=2.5, multiplex=True,
+        extra={"grid": {"height": 11, "width": 8, "pitch_mm": 0.05},
+               "ground_truth": {"path_length_images": [{"file": "gt/0.exr", "min": 0, "max": 2}],
+                                "layers": [{"name": "top", "depth": [0, 1], "rgb": [0.5, 0.25, 0.125]}]}},
+    )
+    assert main(["info", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    missing = 88 - len(impulses)
+    # 6 x 6 lattice cells of spacing 6 on an 11 x 8 grid: 2 x 2 points per frame at most.
+    assert "grid         11 x 8, pitch 0.05 mm" in out
+    assert f"lit points   {len(impulses)}" in out
+    assert f"missing      {missing} point(s)" in out
+    assert "max radius   2.5 grid steps" in out
+    # 21 offsets within 2.5 steps: 88 * 21 * 3 * 4 bytes.
+    assert f"memory       {88 * 21 * 12 / 2**20:.1f} MiB" in out
+    assert "ground truth 1 path-length images over [0, 2)" in out
+    assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
+
+
+def test_no_command_prints_help(capsys):
+    assert main([]) == 0
+    assert "stack" in capsys.readouterr().out

@@ -1,0 +1,52 @@
+"""Property tests: any manifest either parses or raises DatasetError, never anything else."""
+
+import json
+from pathlib import Path
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ringlight.core import DatasetError
+from ringlight.core.manifest import parse_manifest
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-5, 50) | st.floats(allow_nan=False) | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+    max_leaves=12,
+)
+
+points = st.lists(st.tuples(st.integers(0, 9), st.integers(0, 9)), min_size=1, max_size=4, unique=True)
+
+
+@st.composite
+def manifests(draw):
+    frames = [
+        {"file": f"f{i}.exr", "lit": [list(p) for p in draw(points)]}
+        for i in range(draw(st.integers(1, 4)))
+    ]
+    manifest = {"format": "ringlight-impulse", "version": 1,
+                "grid": {"height": 10, "width": 10}, "frames": frames}
+    if draw(st.booleans()):
+        manifest["max_radius"] = draw(st.floats(0.5, 6))
+    key = draw(st.sampled_from([None, "format", "version", "grid", "frames", "max_radius",
+                                "colorspace", "dark", "ground_truth", "extra"]))
+    if key is not None:
+        manifest[key] = draw(json_values)
+    return manifest
+
+
+@settings(max_examples=300, deadline=None)
+@given(manifests())
+def test_any_manifest_parses_or_raises_a_dataset_error(manifest):
+    try:
+        parsed = parse_manifest(json.loads(json.dumps(manifest)), Path("ds"))
+    except DatasetError as error:
+        assert "ds/dataset.json" in str(error)
+        return
+    # A manifest that parses obeys the multiplexing rule of FORMAT.md.
+    if parsed.multiplexed:
+        for frame in parsed.frames:
+            diff = frame.lit[:, None, :] - frame.lit[None, :, :]
+            dist = (diff ** 2).sum(-1) ** 0.5
+            dist[range(len(dist)), range(len(dist))] = 1e9
+            assert dist.min() > 2 * parsed.max_radius

@@ -1,0 +1,59 @@
+"""The dataset writer: round trip, atomicity, and never overwriting user data."""
+
+import json
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from reference import brute_ring_image, random_impulses
+
+from ringlight.core import DatasetError, DatasetWriter, open_dataset, read_exr_rgb, read_manifest, ring_stack
+
+
+def test_written_dataset_reads_back_with_every_key(tmp_path):
+    rng = np.random.default_rng(0)
+    impulses = random_impulses(rng, 10, 9, support=2)
+    with DatasetWriter(tmp_path / "ds", (10, 9), max_radius=2, pitch_mm=0.1, notes="n") as writer:
+        writer.add_frame(impulses[(1, 1)] + impulses[(6, 7)], lit=[[1, 1], [6, 7]], exposure=1.0)
+        for q, image in impulses.items():
+            if q not in ((1, 1), (6, 7)):
+                writer.add_frame(image * 2, lit=[q], exposure=2.0)
+        writer.set_dark(np.zeros((10, 9, 3), np.float32))
+        writer.add_path_length_image(np.ones((10, 9, 3), np.float32), 0, 1)
+        writer.set_layers([{"name": "top", "depth": [0, 2], "rgb": [0.8, 0.2, 0.1]}])
+    manifest = read_manifest(tmp_path / "ds")
+    assert (manifest.height, manifest.width, manifest.max_radius, manifest.pitch_mm) == (10, 9, 2.0, 0.1)
+    assert manifest.ground_truth.layers[0].rgb == (0.8, 0.2, 0.1)
+    assert manifest.ground_truth.path_length_images[0].max == 1.0
+    stack = ring_stack(open_dataset(tmp_path / "ds"), [0, 1])
+    assert_allclose(stack.images[1], brute_ring_image(impulses, 10, 9, 1), rtol=1e-5, atol=1e-7)
+    assert_allclose(read_exr_rgb(tmp_path / "ds" / manifest.ground_truth.path_length_images[0].file), 1.0)
+
+
+def test_an_error_inside_the_with_block_leaves_no_dataset(tmp_path):
+    with pytest.raises(RuntimeError, match="camera unplugged"):
+        with DatasetWriter(tmp_path / "ds", (4, 4)) as writer:
+            writer.add_frame(np.zeros((4, 4, 3)), lit=[[0, 0]])
+            raise RuntimeError("camera unplugged")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_invalid_dataset_is_never_published(tmp_path):
+    with pytest.raises(DatasetError, match="outside the 4 x 4 grid"):
+        with DatasetWriter(tmp_path / "ds", (4, 4)) as writer:
+            writer.add_frame(np.zeros((4, 4, 3)), lit=[[9, 0]])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_user_folder_is_refused_and_a_dataset_replaced_only_on_request(tmp_path):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.jpg").write_bytes(b"x")
+    with pytest.raises(DatasetError, match="refusing to overwrite"):
+        DatasetWriter(tmp_path / "photos", (2, 2), overwrite=True)
+    for value in (1.0, 3.0):
+        with DatasetWriter(tmp_path / "ds", (2, 2), overwrite=True) as writer:
+            writer.add_frame(np.full((2, 2, 3), value), lit=[[0, 0]])
+    assert read_exr_rgb(tmp_path / "ds/frames/000000.exr")[0, 0, 0] == 3.0
+    with pytest.raises(DatasetError, match="pass overwrite"):
+        DatasetWriter(tmp_path / "ds", (2, 2))
+    assert json.loads((tmp_path / "ds/dataset.json").read_text())["frames"][0]["lit"] == [[0, 0]]
