@@ -22,8 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        parser.print_help()
-        return 0
+        return cli.run_handler(cli.run_demo, args)
     return cli.run_handler(args.handler, args)
 
 

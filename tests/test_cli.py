@@ -74,6 +74,15 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
     assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
 
 
-def test_no_command_prints_help(capsys):
+def test_no_command_makes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):
     assert main([]) == 0
-    assert "stack" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "grid         32 x 32" in out and "lit points   1024" in out
+    assert "ground truth 64 path-length images" in out
+    assert str(private_cache) in out  # made in the user cache folder, not in the package
+
+    def no_second_simulation(*args, **kwargs):
+        raise AssertionError("the demo is made once")
+
+    monkeypatch.setattr("ringlight.core.simulate.simulate_transport", no_second_simulation)
+    assert main([]) == 0

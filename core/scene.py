@@ -1,0 +1,275 @@
+"""Scene descriptions for the Monte Carlo simulator (FORMAT.md "Scene description", v1).
+
+A scene is a voxel volume below a flat surface: ``depth`` grid steps deep, one voxel per grid
+step laterally and in depth, each voxel holding one material. The volume extends sideways
+beyond the grid by repeating its edge voxels (a sample is larger than the scanned region).
+Coefficients are per grid step, or per mm when ``grid.pitch_mm`` is given (converted here).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import RinglightError
+
+SCENE_FORMAT = "ringlight-scene"
+SCENE_VERSION = 1
+MAX_VOXELS = 64 * 2**20
+
+
+class SceneError(RinglightError):
+    """A scene description is malformed or asks for more than can be simulated."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Scattering and absorption coefficients per grid step (R, G, B) and HG anisotropy."""
+
+    name: str
+    mus: tuple[float, float, float]
+    mua: tuple[float, float, float]
+    g: float
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A parsed, voxelised scene.
+
+    Attributes
+    ----------
+    volume
+        (D, H, W) uint8 material index of each voxel; voxel ``[z, y, x]`` spans depth
+        ``[z, z + 1)`` below the surface and is centred laterally on grid point ``[y, x]``.
+    materials
+        The materials, indexed by ``volume``; coefficients per grid step.
+    """
+
+    name: str
+    height: int
+    width: int
+    pitch_mm: float | None
+    depth: float
+    n: float
+    materials: tuple[Material, ...]
+    volume: np.ndarray
+    layers: tuple[tuple[str, float, float], ...]
+    photons_per_point: int
+    max_radius: float
+    bin_step: float
+    bin_count: int
+    seed: int
+
+    @property
+    def grey(self) -> bool:
+        """True when every material has the same coefficients in all three channels."""
+        return all(len(set(m.mus)) == 1 and len(set(m.mua)) == 1 for m in self.materials)
+
+    def material(self, name: str) -> Material:
+        return next(m for m in self.materials if m.name == name)
+
+
+def read_scene(path: str | Path) -> Scene:
+    """Read and validate a scene JSON file; raises :class:`SceneError` naming the file."""
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"{path}: scene file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SceneError(f"{path}: cannot be read ({error})") from None
+    except json.JSONDecodeError as error:
+        raise SceneError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
+    return parse_scene(document, where=str(path), name=path.stem)
+
+
+def parse_scene(document: object, where: str = "scene", name: str = "scene",
+                size: tuple[int, int] | None = None) -> Scene:
+    """Validate a decoded scene and voxelise it.
+
+    ``size = (H, W)`` overrides the grid size; shapes then scale with the grid's width and
+    height (positions and lateral sizes), so a preset can be rendered smaller or larger.
+    """
+    fail = _Fail(where)
+    doc = fail.mapping(document, "scene", {
+        "format", "version", "grid", "depth", "n", "materials", "background", "layers", "shapes",
+        "photons_per_point", "max_radius", "path_length_bins", "seed", "notes",
+    }, {"format", "version", "grid", "depth", "materials", "background"})
+    if doc["format"] != SCENE_FORMAT:
+        raise SceneError(f"{where}: 'format' is {doc['format']!r}, expected {SCENE_FORMAT!r}")
+    if doc["version"] != SCENE_VERSION:
+        raise SceneError(f"{where}: unsupported 'version' {doc['version']!r} (expected {SCENE_VERSION})")
+    grid = fail.mapping(doc["grid"], "grid", {"height", "width", "pitch_mm"}, {"height", "width"})
+    height, width = fail.positive_int(grid["height"], "grid.height"), fail.positive_int(grid["width"], "grid.width")
+    scale_y = scale_x = 1.0
+    if size is not None:
+        scale_y, scale_x = size[0] / height, size[1] / width
+        height, width = size
+    pitch_mm = fail.positive(grid["pitch_mm"], "grid.pitch_mm") if "pitch_mm" in grid else None
+    per_step = pitch_mm if pitch_mm is not None else 1.0
+    depth = fail.positive(doc["depth"], "depth")
+    n = fail.number(doc.get("n", 1.0), "n")
+    if not 1.0 <= n <= 3.0:
+        raise SceneError(f"{where}: refractive index 'n' must be in [1, 3], got {n}")
+
+    materials, index = [], {}
+    for material_name, spec in fail.mapping(doc["materials"], "materials", None, set()).items():
+        key = f"materials.{material_name}"
+        item = fail.mapping(spec, key, {"mus", "mua", "g"}, {"mus", "mua"})
+        mus = fail.rgb(item["mus"], f"{key}.mus")
+        mua = fail.rgb(item["mua"], f"{key}.mua")
+        g = fail.number(item.get("g", 0.0), f"{key}.g")
+        if not -1.0 < g < 1.0:
+            raise SceneError(f"{where}: '{key}.g' must be in (-1, 1), got {g}")
+        if max(m + a for m, a in zip(mus, mua)) * per_step <= 0:
+            raise SceneError(f"{where}: '{key}' neither scatters nor absorbs")
+        index[material_name] = len(materials)
+        materials.append(Material(material_name, tuple(v * per_step for v in mus),
+                                  tuple(v * per_step for v in mua), g))
+    if not materials:
+        raise SceneError(f"{where}: 'materials' is empty")
+    if len(materials) > 255:
+        raise SceneError(f"{where}: at most 255 materials")
+
+    def material_index(value, key):
+        name_ = fail.string(value, key)
+        if name_ not in index:
+            raise SceneError(f"{where}: '{key}' names unknown material {name_!r} (known: {', '.join(index)})")
+        return index[name_]
+
+    voxels = height * width * math.ceil(depth)
+    if voxels > MAX_VOXELS:
+        raise SceneError(
+            f"{where}: the volume {height} x {width} x {math.ceil(depth)} has {voxels} voxels, more than "
+            f"the {MAX_VOXELS} that fit in memory; make the grid smaller or the depth shallower"
+        )
+    volume = np.full((math.ceil(depth), height, width), material_index(doc["background"], "background"), np.uint8)
+    z = np.arange(volume.shape[0]) + 0.5
+    layers = []
+    for i, entry in enumerate(fail.sequence(doc.get("layers", []), "layers")):
+        key = f"layers[{i}]"
+        item = fail.mapping(entry, key, {"material", "top", "bottom"}, {"material", "top", "bottom"})
+        top, bottom = fail.number(item["top"], f"{key}.top"), fail.number(item["bottom"], f"{key}.bottom")
+        if not 0 <= top < bottom <= depth:
+            raise SceneError(f"{where}: '{key}' needs 0 <= top < bottom <= depth ({depth:g}), got [{top}, {bottom}]")
+        volume[(z >= top) & (z < bottom)] = material_index(item["material"], f"{key}.material")
+        layers.append((item["material"], top, bottom))
+    yy, xx = np.mgrid[:height, :width].astype(np.float64)
+    for i, entry in enumerate(fail.sequence(doc.get("shapes", []), "shapes")):
+        key = f"shapes[{i}]"
+        kind = fail.mapping(entry, key, None, {"type", "material"})["type"]
+        material = material_index(entry["material"], f"{key}.material")
+        if kind == "sphere":
+            item = fail.mapping(entry, key, {"type", "material", "center", "radius"}, {"center", "radius"})
+            cy, cx, cz = fail.numbers(item["center"], f"{key}.center", 3)
+            radius = fail.positive(item["radius"], f"{key}.radius")
+            cy, cx = cy * scale_y, cx * scale_x
+            if not (0 <= cy < height and 0 <= cx < width and 0 <= cz < depth):
+                raise SceneError(f"{where}: '{key}' centre [{cy:g}, {cx:g}, {cz:g}] is outside the volume")
+            inside = ((yy - cy) ** 2 + (xx - cx) ** 2)[None] + ((z - cz) ** 2)[:, None, None] <= radius**2
+            volume[inside] = material
+        elif kind == "star":
+            item = fail.mapping(entry, key, {"type", "material", "center", "top", "bottom", "points", "outer", "inner"},
+                                {"center", "top", "bottom", "points", "outer", "inner"})
+            cy, cx = fail.numbers(item["center"], f"{key}.center", 2)
+            cy, cx = cy * scale_y, cx * scale_x
+            top, bottom = fail.number(item["top"], f"{key}.top"), fail.number(item["bottom"], f"{key}.bottom")
+            points = fail.positive_int(item["points"], f"{key}.points")
+            outer, inner = fail.positive(item["outer"], f"{key}.outer"), fail.positive(item["inner"], f"{key}.inner")
+            if not (0 <= cy < height and 0 <= cx < width) or not 0 <= top < bottom <= depth:
+                raise SceneError(f"{where}: '{key}' lies outside the volume")
+            if points < 2 or inner >= outer:
+                raise SceneError(f"{where}: '{key}' needs points >= 2 and inner < outer")
+            mask = star_mask(height, width, cy, cx, points, outer * scale_x, inner * scale_x)
+            volume[((z >= top) & (z < bottom))[:, None, None] & mask[None]] = material
+        else:
+            raise SceneError(f"{where}: '{key}.type' must be \"sphere\" or \"star\", got {kind!r}")
+
+    photons = fail.positive_int(doc.get("photons_per_point", 20000), "photons_per_point")
+    max_radius = fail.positive(doc.get("max_radius", 16), "max_radius")
+    bins = fail.mapping(doc.get("path_length_bins", {"step": 1.0, "count": 64}), "path_length_bins",
+                        {"step", "count"}, {"step", "count"})
+    seed = doc.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SceneError(f"{where}: 'seed' must be a non-negative integer, got {seed!r}")
+    return Scene(
+        name=name, height=height, width=width, pitch_mm=pitch_mm, depth=depth, n=n,
+        materials=tuple(materials), volume=volume, layers=tuple(layers), photons_per_point=photons,
+        max_radius=max_radius, bin_step=fail.positive(bins["step"], "path_length_bins.step"),
+        bin_count=fail.positive_int(bins["count"], "path_length_bins.count"), seed=seed,
+    )
+
+
+def star_mask(height: int, width: int, cy: float, cx: float, points: int, outer: float, inner: float) -> np.ndarray:
+    """(H, W) bool: grid points inside a star polygon of ``points`` tips (even-odd rule)."""
+    angles = np.pi * np.arange(2 * points) / points - np.pi / 2
+    radii = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
+    vy, vx = cy + radii * np.sin(angles), cx + radii * np.cos(angles)
+    yy, xx = np.mgrid[:height, :width].astype(np.float64)
+    inside = np.zeros((height, width), bool)
+    for i in range(len(vy)):
+        y0, x0, y1, x1 = vy[i - 1], vx[i - 1], vy[i], vx[i]
+        crosses = (y0 > yy) != (y1 > yy)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            at = x0 + (yy - y0) * (x1 - x0) / (y1 - y0)
+        inside ^= crosses & (xx < at)
+    return inside
+
+
+class _Fail:
+    def __init__(self, where: str):
+        self.where = where
+
+    def error(self, key, expected, value):
+        return SceneError(f"{self.where}: '{key}' must be {expected}, got {value!r}")
+
+    def mapping(self, value, key, allowed, required):
+        if not isinstance(value, dict):
+            raise self.error(key, "an object", value)
+        if allowed is not None and (unknown := sorted(set(value) - allowed)):
+            raise SceneError(f"{self.where}: unknown key(s) {', '.join(map(repr, unknown))} in {key}")
+        if absent := sorted(required - set(value)):
+            raise SceneError(f"{self.where}: {key} lacks {', '.join(map(repr, absent))}")
+        return value
+
+    def sequence(self, value, key):
+        if not isinstance(value, list):
+            raise self.error(key, "a list", value)
+        return value
+
+    def string(self, value, key):
+        if not isinstance(value, str):
+            raise self.error(key, "a string", value)
+        return value
+
+    def number(self, value, key):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(key, "a finite number", value)
+        return float(value)
+
+    def positive(self, value, key):
+        number = self.number(value, key)
+        if number <= 0:
+            raise self.error(key, "a positive number", value)
+        return number
+
+    def positive_int(self, value, key):
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise self.error(key, "a positive integer", value)
+        return value
+
+    def numbers(self, value, key, count):
+        items = self.sequence(value, key)
+        if len(items) != count:
+            raise self.error(key, f"a list of {count} numbers", value)
+        return tuple(self.number(v, key) for v in items)
+
+    def rgb(self, value, key):
+        values = self.numbers(value, key, 3)
+        if min(values) < 0:
+            raise SceneError(f"{self.where}: '{key}' has a negative coefficient {list(values)}")
+        return values

@@ -1,0 +1,176 @@
+"""Rendering a scene into an impulse dataset with path-length ground truth.
+
+Every grid point is lit with ``photons_per_point`` photons per colour channel (one pass for grey
+scenes). Impulse frames keep each lit point's light within ``max_radius`` (the part a parallel
+capture attributes to it: frames are crosstalk-free) and are multiplexed on a lattice of spacing
+``floor(2 * max_radius) + 1`` when that needs fewer frames than one point per frame. Values are
+reflectance per photon (radiance up to the source's power). The specular reflection at entry,
+((n - 1) / (n + 1))^2, is recorded at the lit pixel with path length 0.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import photon
+from .dataset import ProgressCallback
+from .rings import disc_offsets
+from .scene import Material, Scene
+from .writer import DatasetWriter
+
+TRUTH_BLOCKS = 16
+POINTS_PER_CALL = 64
+
+
+@dataclass(frozen=True, eq=False)
+class Transport:
+    """Simulated light transport of a scene (all grid points lit).
+
+    Attributes
+    ----------
+    windows
+        (H, W, 2R+1, 2R+1, 3) float32: reflectance per photon around each lit point ``[y, x]``,
+        at offset ``[dy + R, dx + R]`` of the exit pixel (R = ceil(max_radius)).
+    path_length_images
+        (bins, H, W, 3) float32: reflectance under uniform illumination of the whole grid, by
+        path-length bin ``[b * step, (b + 1) * step)``.
+    """
+
+    scene: Scene
+    photons: int
+    window_radius: int
+    windows: np.ndarray
+    path_length_images: np.ndarray
+    seconds: float
+
+
+def _channel_tables(materials: tuple[Material, ...], channel: int):
+    mu_t = np.array([m.mus[channel] + m.mua[channel] for m in materials])
+    albedo = np.array([m.mus[channel] / t if t > 0 else 0.0 for m, t in zip(materials, mu_t)])
+    g = np.array([m.g for m in materials])
+    return mu_t, albedo, g
+
+
+def simulate_transport(scene: Scene, photons: int | None = None, seed: int | None = None,
+                       progress: ProgressCallback | None = None, points: np.ndarray | None = None) -> Transport:
+    """Trace photons from every grid point of ``scene``; see :class:`Transport`.
+
+    ``points`` (n, 2) ``[y, x]`` restricts the lit points (their windows alone are filled, and
+    the path-length images are then those of lighting just these points). Deterministic for a
+    seed whatever the number of threads: each point's random stream depends on the seed and
+    its row-major grid index only. ``progress`` gets the fraction done and may raise
+    :class:`Cancelled`.
+    """
+    photons = photons or scene.photons_per_point
+    seed = scene.seed if seed is None else seed
+    height, width = scene.height, scene.width
+    radius = math.ceil(scene.max_radius)
+    size = 2 * radius + 1
+    if points is None:
+        lit = np.stack(np.mgrid[:height, :width], -1).reshape(-1, 2).astype(np.int64)
+    else:
+        lit = np.asarray(points, np.int64).reshape(-1, 2)
+    streams = lit[:, 0] * width + lit[:, 1]
+    channels = (0,) if scene.grey else (0, 1, 2)
+    windows = np.zeros((height * width, size, size, 3), np.float64)
+    truth = np.zeros((scene.bin_count, height, width, 3), np.float64)
+    calls = [(c, start) for c in channels for start in range(0, len(lit), POINTS_PER_CALL)]
+    used = np.unique(scene.volume)
+    started = time.perf_counter()
+    for done, (channel, start) in enumerate(calls):
+        mu_t, albedo, g = _channel_tables(scene.materials, channel)
+        majorant = float(mu_t[used].max())
+        chunk = lit[start:start + POINTS_PER_CALL]
+        chunk_windows = np.zeros((len(chunk), size, size))
+        chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
+        photon.simulate_points(
+            scene.volume, mu_t, albedo, g, majorant, scene.n, scene.depth, chunk, photons, seed,
+            streams[start:start + POINTS_PER_CALL] + channel * height * width, radius,
+            scene.bin_step, chunk_windows, chunk_truth,
+        )
+        windows[streams[start:start + len(chunk)], :, :, channel] = chunk_windows
+        truth[..., channel] += chunk_truth.sum(axis=0)
+        if progress is not None:
+            progress((done + 1) / len(calls))
+    if scene.grey:
+        windows[..., 1:] = windows[..., :1]
+        truth[..., 1:] = truth[..., :1]
+    entry_weight = 1.0 - photon.specular_reflectance(scene.n)
+    windows *= entry_weight / photons
+    truth *= entry_weight / photons
+    specular = photon.specular_reflectance(scene.n)
+    windows[streams, radius, radius, :] += specular
+    truth[0][lit[:, 0], lit[:, 1]] += specular
+    return Transport(
+        scene=scene, photons=photons, window_radius=radius,
+        windows=windows.reshape(height, width, size, size, 3).astype(np.float32),
+        path_length_images=truth.astype(np.float32), seconds=time.perf_counter() - started,
+    )
+
+
+def slab_reflectance(material: Material, n: float, photons: int = 20000, seed: int = 0) -> np.ndarray:
+    """Diffuse reflectance (R, G, B) of a semi-infinite slab of ``material`` under index ``n``
+    at normal incidence, specular excluded: a layer's reference colour (FORMAT.md)."""
+    volume = np.zeros((1, 1, 1), np.uint8)
+    rgb = np.empty(3)
+    for channel in range(3):
+        mu_t, albedo, g = _channel_tables((material,), channel)
+        total, _ = photon.reflectance_run(volume, mu_t, albedo, g, float(mu_t[0]), n, np.inf,
+                                          photons, seed, channel)
+        rgb[channel] = total / photons * (1.0 - photon.specular_reflectance(n))
+    return rgb
+
+
+def lattice_frames(height: int, width: int, max_radius: float) -> list[np.ndarray]:
+    """Lit points per frame: a lattice of spacing floor(2 max_radius) + 1 (> 2 max_radius), or
+    one point per frame when that is no more frames."""
+    spacing = int(math.floor(2 * max_radius)) + 1
+    if spacing * spacing >= height * width:
+        return [np.array([[y, x]]) for y in range(height) for x in range(width)]
+    frames = []
+    for oy in range(min(spacing, height)):
+        for ox in range(min(spacing, width)):
+            ys, xs = np.mgrid[oy:height:spacing, ox:width:spacing]
+            frames.append(np.stack([ys.ravel(), xs.ravel()], 1))
+    return frames
+
+
+def write_transport(transport: Transport, out, *, overwrite: bool = False,
+                    progress: Callable[[float], None] | None = None) -> Path:
+    """Write a :class:`Transport` as a FORMAT.md dataset (atomically)."""
+    scene = transport.scene
+    height, width = scene.height, scene.width
+    radius = transport.window_radius
+    offsets = disc_offsets(scene.max_radius)
+    frames = lattice_frames(height, width, scene.max_radius)
+    notes = (f"simulated by ringlight from scene '{scene.name}': {transport.photons} photons per point "
+             f"per channel, seed {scene.seed}, n {scene.n:g}")
+    with DatasetWriter(out, (height, width), max_radius=scene.max_radius, pitch_mm=scene.pitch_mm,
+                       notes=notes, overwrite=overwrite) as writer:
+        for index, lit in enumerate(frames):
+            image = np.zeros((height, width, 3), np.float32)
+            for qy, qx in lit:
+                py, px = qy + offsets[:, 0], qx + offsets[:, 1]
+                inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
+                image[py[inside], px[inside]] += transport.windows[
+                    qy, qx, offsets[inside, 0] + radius, offsets[inside, 1] + radius]
+            writer.add_frame(image, lit)
+            if progress is not None:
+                progress((index + 1) / (len(frames) + 1))
+        for b, image in enumerate(transport.path_length_images):
+            writer.add_path_length_image(image, b * scene.bin_step, (b + 1) * scene.bin_step)
+        if scene.layers:
+            writer.set_layers([
+                {"name": name, "depth": [top, bottom],
+                 "rgb": slab_reflectance(scene.material(name), scene.n, seed=scene.seed).tolist()}
+                for name, top, bottom in scene.layers
+            ])
+    if progress is not None:
+        progress(1.0)
+    return Path(out)

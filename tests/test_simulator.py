@@ -1,0 +1,212 @@
+"""Monte Carlo simulator against published values, analytic diffusion, and its own bookkeeping."""
+
+import json
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from ringlight.app.main import main
+from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
+from ringlight.core.photon import reflectance_run, specular_reflectance, trace_exits
+from ringlight.core.presets import load_scene, preset_names
+from ringlight.core.scene import SceneError, parse_scene
+from ringlight.core.simulate import lattice_frames, simulate_transport, write_transport
+
+ONE_VOXEL = np.zeros((1, 1, 1), np.uint8)
+
+
+def reflectance(mua, mus, g, n, depth, photons, stream=0):
+    """Total diffuse reflectance (specular excluded, entry loss included) and its standard error."""
+    mu_t = mua + mus
+    total, total_sq = reflectance_run(
+        ONE_VOXEL, np.array([mu_t]), np.array([mus / mu_t]), np.array([g]), mu_t, n, depth,
+        photons, 7, stream)
+    mean = total / photons
+    error = math.sqrt(max(total_sq / photons - mean * mean, 0.0) / photons)
+    keep = 1.0 - specular_reflectance(n)
+    return mean * keep, error * keep
+
+
+def test_mcml_slab_diffuse_reflectance_matches_van_de_hulst():
+    # MCML manual Table 6.1: n = 1, mu_a = 10/cm, mu_s = 90/cm, g = 0.75, d = 0.02 cm (lengths in cm).
+    # van de Hulst (1980): R_d = 0.09739; MCML: 0.09734 +- 0.00035.
+    rd, se = reflectance(10.0, 90.0, 0.75, 1.0, 0.02, 200_000)
+    assert abs(rd - 0.09739) < 3 * se, (rd, se)
+
+
+def test_half_space_total_reflectance_matches_giovanelli():
+    # n = 1.5, mu_a = 10, mu_s = 90, g = 0, semi-infinite: total reflectance 0.2600 including the
+    # 0.04 specular reflection (Giovanelli 1955; MCML's diffuse part is about 0.220).
+    rd, se = reflectance(10.0, 90.0, 0.0, 1.5, np.inf, 150_000)
+    total = rd + specular_reflectance(1.5)
+    assert specular_reflectance(1.5) == pytest.approx(0.04)
+    assert abs(total - 0.2600) < 3 * se, (total, se)
+
+
+def test_matched_isotropic_half_space_matches_adding_doubling():
+    # Albedo 0.9, g = 0, n = 1, semi-infinite: R = 0.41495 (adding-doubling).
+    rd, se = reflectance(0.1, 0.9, 0.0, 1.0, np.inf, 150_000)
+    assert abs(rd - 0.41495) < 3 * se, (rd, se)
+
+
+def farrell_dipole(rho, mua, mus_reduced, n=1.0):
+    """Diffuse reflectance per unit area at distance rho (Farrell 1992, Jensen et al. 2001)."""
+    sigma_t = mua + mus_reduced
+    alpha = mus_reduced / sigma_t
+    sigma_tr = math.sqrt(3 * mua * sigma_t)
+    f_dr = -1.440 / n**2 + 0.710 / n + 0.668 + 0.0636 * n
+    a = (1 + f_dr) / (1 - f_dr)
+    z_r = 1 / sigma_t
+    z_v = z_r * (1 + 4 * a / 3)
+    d_r, d_v = np.hypot(rho, z_r), np.hypot(rho, z_v)
+    return alpha / (4 * math.pi) * (
+        z_r * (1 + sigma_tr * d_r) * np.exp(-sigma_tr * d_r) / d_r**3
+        + z_v * (1 + sigma_tr * d_v) * np.exp(-sigma_tr * d_v) / d_v**3)
+
+
+def test_far_field_radial_profile_follows_the_diffusion_dipole_in_shape():
+    mua, mus = 0.01, 1.0
+    volume = np.zeros((1, 1, 1), np.uint8)
+    records = trace_exits(volume, np.array([mua + mus]), np.array([mus / (mua + mus)]), np.array([0.0]),
+                          mua + mus, 1.0, np.inf, 0.0, 0.0, 300_000, 3, 0)
+    exited = records[:, 0] > 0
+    rho = np.hypot(records[exited, 3] - records[exited, 1], records[exited, 4] - records[exited, 2])
+    edges = np.linspace(4, 16, 9)
+    weights, _ = np.histogram(rho, edges, weights=records[exited, 6])
+    density = weights / (math.pi * np.diff(edges**2)) / len(records)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    ratio = density / farrell_dipole(centres, mua, mus)
+    # Shape: the ratio is flat within 12 % over 4-16 mean free paths, while the profile itself
+    # falls by a factor of about 30 there.
+    assert farrell_dipole(4.0, mua, mus) / farrell_dipole(16.0, mua, mus) > 20
+    assert np.all(np.abs(ratio / np.median(ratio) - 1) < 0.12), ratio
+
+
+def homogeneous_scene(size=11, photons=400, max_radius=3.0, mua=0.2, mus=1.0, n=1.0, bins=200, depth=40):
+    return parse_scene({
+        "format": "ringlight-scene", "version": 1, "grid": {"height": size, "width": size},
+        "depth": depth, "n": n, "materials": {"m": {"mus": [mus] * 3, "mua": [mua, mua * 2, mua * 3]}},
+        "background": "m", "photons_per_point": photons, "max_radius": max_radius,
+        "path_length_bins": {"step": 1.0, "count": bins}, "seed": 5,
+    })
+
+
+def test_path_length_is_never_shorter_than_the_surface_distance():
+    """The paper's Eq. 3 lower bound, checked photon by photon in a layered medium with n = 1.4."""
+    scene = load_scene("layers3", size=(9, 9))
+    channel = 1
+    mu_t = np.array([m.mus[channel] + m.mua[channel] for m in scene.materials])
+    albedo = np.array([m.mus[channel] for m in scene.materials]) / mu_t
+    records = trace_exits(scene.volume, mu_t, albedo, np.zeros(3), mu_t.max(), 1.4, scene.depth,
+                          4.0, 4.0, 20_000, 1, 0)
+    exited = records[:, 0] > 0
+    distance = np.hypot(records[exited, 3] - records[exited, 1], records[exited, 4] - records[exited, 2])
+    assert exited.sum() > 5_000
+    assert np.all(records[exited, 5] >= distance - 1e-9)
+
+
+def test_impulse_reflectance_equals_the_sum_of_its_path_length_images():
+    scene = homogeneous_scene(size=41, photons=3000, max_radius=20, mua=0.3, bins=400)
+    transport_one = simulate_transport(scene, photons=3000, points=[[20, 20]])
+    impulse_total = transport_one.windows[20, 20].sum(axis=(0, 1))
+    truth_total = transport_one.path_length_images.sum(axis=(0, 1, 2))
+    # Every exit lands inside both the window and the bins here (checked on the photons themselves).
+    # The same photons, replayed one by one: point [20, 20]'s random stream is its grid index.
+    records = trace_exits(scene.volume, np.array([1.3]), np.array([1 / 1.3]), np.zeros(1), 1.3, 1.0,
+                          scene.depth, 20.0, 20.0, 3000, 5, 20 * 41 + 20)
+    done = records[records[:, 0] > 0]
+    assert np.abs(np.floor(done[:, 3:5] + 0.5) - 20).max() <= 20 and done[:, 5].max() < 400
+    np.testing.assert_allclose(impulse_total, truth_total, rtol=1e-5)
+    np.testing.assert_allclose(impulse_total[0], done[:, 6].sum() / 3000, rtol=1e-5)
+
+
+def test_simulation_is_deterministic_whatever_the_thread_count():
+    scene = load_scene("red-bead", size=(10, 10))
+    results = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        try:
+            results.append(simulate_transport(scene, photons=60))
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert np.array_equal(results[0].windows, results[1].windows)
+    assert np.array_equal(results[0].path_length_images, results[1].path_length_images)
+    other_seed = simulate_transport(scene, photons=60, seed=99)
+    assert not np.array_equal(other_seed.windows, results[0].windows)
+
+
+def test_written_dataset_holds_the_simulated_transport(tmp_path):
+    scene = homogeneous_scene(size=12, photons=300, max_radius=2.5, n=1.4)
+    transport = simulate_transport(scene)
+    write_transport(transport, tmp_path / "ds")
+    manifest = read_manifest(tmp_path / "ds")
+    assert len(manifest.frames) == len(lattice_frames(12, 12, 2.5)) == 36  # spacing 6 on 12 x 12
+    assert all(len(frame.lit) == 4 for frame in manifest.frames)
+    assert len(manifest.ground_truth.path_length_images) == 200
+    dataset = open_dataset(tmp_path / "ds")
+    # E_0 at every point is its own exit pixel's light, specular included.
+    e0 = ring_stack(dataset, [0.0]).images[0]
+    centre = transport.windows[:, :, 3, 3]
+    np.testing.assert_allclose(e0, centre, rtol=1e-6)
+    assert e0.min() > specular_reflectance(1.4)
+    # The specular reflection is colourless and sits in the first path-length bin.
+    first_bin = transport.path_length_images[0]
+    assert first_bin.min() >= specular_reflectance(1.4)
+
+
+def test_layered_scene_records_each_layer_with_a_reference_colour(tmp_path):
+    scene = load_scene("layers3", size=(6, 6))
+    write_transport(simulate_transport(scene, photons=20), tmp_path / "ds")
+    layers = read_manifest(tmp_path / "ds").ground_truth.layers
+    assert [layer.name for layer in layers] == ["yellow", "magenta"]
+    yellow, magenta = (np.array(layer.rgb) for layer in layers)
+    assert yellow[0] > yellow[2] and yellow[1] > yellow[2]
+    assert magenta[0] > magenta[1] and magenta[2] > magenta[1]
+
+
+def test_an_interrupted_write_leaves_no_dataset(tmp_path):
+    transport = simulate_transport(homogeneous_scene(size=8, photons=20))
+
+    def cancel_midway(fraction):
+        if fraction > 0.3:
+            raise Cancelled("stop")
+
+    with pytest.raises(Cancelled):
+        write_transport(transport, tmp_path / "ds", progress=cancel_midway)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("change, needle", [
+    (lambda s: s.update(background="steel"), "unknown material 'steel'"),
+    (lambda s: s["materials"]["m"].update(mua=[0.1, -0.1, 0.1]), "negative coefficient"),
+    (lambda s: s.update(shapes=[{"type": "sphere", "material": "m", "center": [4, 40, 2], "radius": 2}]), "outside the volume"),
+    (lambda s: s.update(grid={"height": 4096, "width": 4096}), "fit in memory"),
+    (lambda s: s.update(layers=[{"material": "m", "top": 3, "bottom": 1}]), "needs 0 <= top < bottom"),
+    (lambda s: s.update(n=0.5), "refractive index"),
+])
+def test_bad_scenes_are_refused_with_a_clear_message(change, needle):
+    scene = {"format": "ringlight-scene", "version": 1, "grid": {"height": 8, "width": 8}, "depth": 8,
+             "materials": {"m": {"mus": [1, 1, 1], "mua": [0.1, 0.1, 0.1]}}, "background": "m"}
+    change(scene)
+    with pytest.raises(SceneError, match="scene: ") as error:
+        parse_scene(scene)
+    assert needle in str(error.value)
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_every_preset_simulates_into_a_dataset_info_reads(tmp_path, name, capsys):
+    assert main(["simulate", name, "--out", str(tmp_path / name), "--size", "8x8", "--photons", "10"]) == 0
+    assert main(["info", str(tmp_path / name)]) == 0
+    assert "grid         8 x 8" in capsys.readouterr().out
+
+
+def test_simulate_cli_lists_presets_and_refuses_bad_arguments(tmp_path, capsys):
+    assert main(["simulate", "--list"]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in ["layers3", "red-bead", "star", "marble", "skin1", "wholemilk", "homogeneous"])
+    assert main(["simulate", "layers3", "--out", str(tmp_path / "x"), "--size", "big"]) == 2
+    assert "--size 'big' must be HxW" in capsys.readouterr().err
+    assert main(["simulate", "nosuch", "--out", str(tmp_path / "x")]) == 2
+    assert "neither a preset" in capsys.readouterr().err
