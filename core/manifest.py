@@ -10,12 +10,13 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 
 from .colourspaces import is_known_colourspace
 from .errors import DatasetError
+from .validation import Validator
 
 FORMAT_NAME = "ringlight-impulse"
 FORMAT_VERSION = 1
@@ -138,7 +139,7 @@ def read_manifest(folder: str | Path) -> Manifest:
 def parse_manifest(document: object, folder: Path) -> Manifest:
     """Validate a manifest already decoded from JSON; see :func:`read_manifest`."""
     where = folder / MANIFEST_NAME
-    check = _Checker(where)
+    check = Validator(where, DatasetError)
     doc = check.mapping(document, "manifest", _TOP_KEYS, required={"format", "version", "grid", "frames"})
     if doc["format"] != FORMAT_NAME:
         raise DatasetError(f"{where}: 'format' is {doc['format']!r}, expected {FORMAT_NAME!r}")
@@ -185,7 +186,7 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
     return manifest
 
 
-def _parse_frame(check: "_Checker", entry: object, index: int, height: int, width: int) -> FrameEntry:
+def _parse_frame(check: Validator, entry: object, index: int, height: int, width: int) -> FrameEntry:
     name = f"frames[{index}]"
     frame = check.mapping(entry, name, _FRAME_KEYS, required={"file", "lit"})
     file = check.relative_file(frame["file"], f"{name}.file")
@@ -211,7 +212,7 @@ def _parse_frame(check: "_Checker", entry: object, index: int, height: int, widt
     return FrameEntry(file=file, lit=lit, exposure=exposure)
 
 
-def _parse_ground_truth(check: "_Checker", value: object) -> GroundTruth:
+def _parse_ground_truth(check: Validator, value: object) -> GroundTruth:
     truth = check.mapping(value, "ground_truth", _TRUTH_KEYS, required=set())
     images = []
     for index, entry in enumerate(check.sequence(truth.get("path_length_images", []), "ground_truth.path_length_images")):
@@ -249,66 +250,3 @@ def _check_multiplexed_spacing(where: Path, frames: tuple[FrameEntry, ...], max_
                     f"{math.sqrt(dist_sq[a, b]):.3g} apart; multiplexed points must be more than "
                     f"2 * max_radius = {2 * max_radius:g} apart"
                 )
-
-
-class _Checker:
-    """Type checks that raise DatasetError naming the manifest and the key."""
-
-    def __init__(self, where: Path):
-        self.where = where
-
-    def fail(self, key: str, expected: str, value: object) -> DatasetError:
-        return DatasetError(f"{self.where}: '{key}' must be {expected}, got {value!r}")
-
-    def mapping(self, value: object, key: str, allowed: set[str], required: set[str]) -> dict:
-        if not isinstance(value, dict):
-            raise self.fail(key, "an object", value)
-        unknown = sorted(set(value) - allowed)
-        if unknown:
-            raise DatasetError(
-                f"{self.where}: unknown key(s) {', '.join(map(repr, unknown))} in {key} "
-                f"(allowed: {', '.join(sorted(allowed))})"
-            )
-        absent = sorted(required - set(value))
-        if absent:
-            raise DatasetError(f"{self.where}: {key} lacks required key(s) {', '.join(map(repr, absent))}")
-        return value
-
-    def sequence(self, value: object, key: str) -> list:
-        if not isinstance(value, list):
-            raise self.fail(key, "a list", value)
-        return value
-
-    def string(self, value: object, key: str) -> str:
-        if not isinstance(value, str):
-            raise self.fail(key, "a string", value)
-        return value
-
-    def number(self, value: object, key: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.fail(key, "a finite number", value)
-        return float(value)
-
-    def positive_number(self, value: object, key: str) -> float:
-        number = self.number(value, key)
-        if number <= 0:
-            raise self.fail(key, "a positive number", value)
-        return number
-
-    def positive_int(self, value: object, key: str) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise self.fail(key, "a positive integer", value)
-        return value
-
-    def numbers(self, value: object, key: str, count: int) -> tuple[float, ...]:
-        items = self.sequence(value, key)
-        if len(items) != count:
-            raise self.fail(key, f"a list of {count} numbers", value)
-        return tuple(self.number(item, key) for item in items)
-
-    def relative_file(self, value: object, key: str) -> str:
-        name = self.string(value, key)
-        path = PurePosixPath(name)
-        if not name or path.is_absolute() or ".." in path.parts or "\\" in name:
-            raise self.fail(key, "a relative path inside the dataset folder (with '/')", value)
-        return name

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RinglightError
+from .validation import Validator
 
 SCENE_FORMAT = "ringlight-scene"
 SCENE_VERSION = 1
@@ -94,7 +95,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     ``size = (H, W)`` overrides the grid size; shapes then scale with the grid's width and
     height (positions and lateral sizes), so a preset can be rendered smaller or larger.
     """
-    fail = _Fail(where)
+    fail = Validator(where, SceneError)
     doc = fail.mapping(document, "scene", {
         "format", "version", "grid", "depth", "n", "materials", "background", "layers", "shapes",
         "photons_per_point", "max_radius", "path_length_bins", "seed", "notes",
@@ -109,9 +110,9 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     if size is not None:
         scale_y, scale_x = size[0] / height, size[1] / width
         height, width = size
-    pitch_mm = fail.positive(grid["pitch_mm"], "grid.pitch_mm") if "pitch_mm" in grid else None
+    pitch_mm = fail.positive_number(grid["pitch_mm"], "grid.pitch_mm") if "pitch_mm" in grid else None
     per_step = pitch_mm if pitch_mm is not None else 1.0
-    depth = fail.positive(doc["depth"], "depth")
+    depth = fail.positive_number(doc["depth"], "depth")
     n = fail.number(doc.get("n", 1.0), "n")
     if not 1.0 <= n <= 3.0:
         raise SceneError(f"{where}: refractive index 'n' must be in [1, 3], got {n}")
@@ -120,8 +121,8 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     for material_name, spec in fail.mapping(doc["materials"], "materials", None, set()).items():
         key = f"materials.{material_name}"
         item = fail.mapping(spec, key, {"mus", "mua", "g"}, {"mus", "mua"})
-        mus = fail.rgb(item["mus"], f"{key}.mus")
-        mua = fail.rgb(item["mua"], f"{key}.mua")
+        mus = _rgb(fail, item["mus"], f"{key}.mus")
+        mua = _rgb(fail, item["mua"], f"{key}.mua")
         g = fail.number(item.get("g", 0.0), f"{key}.g")
         if not -1.0 < g < 1.0:
             raise SceneError(f"{where}: '{key}.g' must be in (-1, 1), got {g}")
@@ -166,7 +167,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
         if kind == "sphere":
             item = fail.mapping(entry, key, {"type", "material", "center", "radius"}, {"center", "radius"})
             cy, cx, cz = fail.numbers(item["center"], f"{key}.center", 3)
-            radius = fail.positive(item["radius"], f"{key}.radius")
+            radius = fail.positive_number(item["radius"], f"{key}.radius")
             cy, cx = cy * scale_y, cx * scale_x
             if not (0 <= cy < height and 0 <= cx < width and 0 <= cz < depth):
                 raise SceneError(f"{where}: '{key}' centre [{cy:g}, {cx:g}, {cz:g}] is outside the volume")
@@ -179,7 +180,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             cy, cx = cy * scale_y, cx * scale_x
             top, bottom = fail.number(item["top"], f"{key}.top"), fail.number(item["bottom"], f"{key}.bottom")
             points = fail.positive_int(item["points"], f"{key}.points")
-            outer, inner = fail.positive(item["outer"], f"{key}.outer"), fail.positive(item["inner"], f"{key}.inner")
+            outer, inner = fail.positive_number(item["outer"], f"{key}.outer"), fail.positive_number(item["inner"], f"{key}.inner")
             if not (0 <= cy < height and 0 <= cx < width) or not 0 <= top < bottom <= depth:
                 raise SceneError(f"{where}: '{key}' lies outside the volume")
             if points < 2 or inner >= outer:
@@ -190,7 +191,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             raise SceneError(f"{where}: '{key}.type' must be \"sphere\" or \"star\", got {kind!r}")
 
     photons = fail.positive_int(doc.get("photons_per_point", 20000), "photons_per_point")
-    max_radius = fail.positive(doc.get("max_radius", 16), "max_radius")
+    max_radius = fail.positive_number(doc.get("max_radius", 16), "max_radius")
     bins = fail.mapping(doc.get("path_length_bins", {"step": 1.0, "count": 64}), "path_length_bins",
                         {"step", "count"}, {"step", "count"})
     seed = doc.get("seed", 0)
@@ -199,7 +200,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     return Scene(
         name=name, height=height, width=width, pitch_mm=pitch_mm, depth=depth, n=n,
         materials=tuple(materials), volume=volume, layers=tuple(layers), photons_per_point=photons,
-        max_radius=max_radius, bin_step=fail.positive(bins["step"], "path_length_bins.step"),
+        max_radius=max_radius, bin_step=fail.positive_number(bins["step"], "path_length_bins.step"),
         bin_count=fail.positive_int(bins["count"], "path_length_bins.count"), seed=seed,
     )
 
@@ -220,56 +221,8 @@ def star_mask(height: int, width: int, cy: float, cx: float, points: int, outer:
     return inside
 
 
-class _Fail:
-    def __init__(self, where: str):
-        self.where = where
-
-    def error(self, key, expected, value):
-        return SceneError(f"{self.where}: '{key}' must be {expected}, got {value!r}")
-
-    def mapping(self, value, key, allowed, required):
-        if not isinstance(value, dict):
-            raise self.error(key, "an object", value)
-        if allowed is not None and (unknown := sorted(set(value) - allowed)):
-            raise SceneError(f"{self.where}: unknown key(s) {', '.join(map(repr, unknown))} in {key}")
-        if absent := sorted(required - set(value)):
-            raise SceneError(f"{self.where}: {key} lacks {', '.join(map(repr, absent))}")
-        return value
-
-    def sequence(self, value, key):
-        if not isinstance(value, list):
-            raise self.error(key, "a list", value)
-        return value
-
-    def string(self, value, key):
-        if not isinstance(value, str):
-            raise self.error(key, "a string", value)
-        return value
-
-    def number(self, value, key):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.error(key, "a finite number", value)
-        return float(value)
-
-    def positive(self, value, key):
-        number = self.number(value, key)
-        if number <= 0:
-            raise self.error(key, "a positive number", value)
-        return number
-
-    def positive_int(self, value, key):
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise self.error(key, "a positive integer", value)
-        return value
-
-    def numbers(self, value, key, count):
-        items = self.sequence(value, key)
-        if len(items) != count:
-            raise self.error(key, f"a list of {count} numbers", value)
-        return tuple(self.number(v, key) for v in items)
-
-    def rgb(self, value, key):
-        values = self.numbers(value, key, 3)
-        if min(values) < 0:
-            raise SceneError(f"{self.where}: '{key}' has a negative coefficient {list(values)}")
-        return values
+def _rgb(check: Validator, value: object, key: str) -> tuple[float, float, float]:
+    values = check.numbers(value, key, 3)
+    if min(values) < 0:
+        raise SceneError(f"{check.where}: '{key}' has a negative coefficient {list(values)}")
+    return values
