@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
 
 from ringlight.core import annulus_pixel_area, disc_offsets, ring_geometry
 from ringlight.core import rings, stacks

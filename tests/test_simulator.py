@@ -1,6 +1,5 @@
 """Monte Carlo simulator against published values, analytic diffusion, and its own bookkeeping."""
 
-import json
 import math
 
 import numba
