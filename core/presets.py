@@ -20,21 +20,24 @@ def preset_names() -> list[str]:
     return sorted(item.name[:-5] for item in folder.iterdir() if item.name.endswith(".json"))
 
 
+def _preset_document(name: str) -> dict:
+    return json.loads(resources.files("ringlight.resources.scenes").joinpath(f"{name}.json").read_text())
+
+
 def preset_notes(name: str) -> str:
     """The one-paragraph description stored in a preset."""
-    return json.loads(resources.files("ringlight.resources.scenes").joinpath(f"{name}.json").read_text()).get("notes", "")
+    return _preset_document(name).get("notes", "")
 
 
 def load_scene(name_or_path: str, size: tuple[int, int] | None = None) -> Scene:
     """A preset by name, or a scene JSON file by path; ``size = (H, W)`` rescales the grid."""
     if name_or_path in preset_names():
-        text = resources.files("ringlight.resources.scenes").joinpath(f"{name_or_path}.json").read_text()
-        return parse_scene(json.loads(text), where=f"preset {name_or_path}", name=name_or_path, size=size)
+        return parse_scene(_preset_document(name_or_path), where=f"preset {name_or_path}",
+                           name=name_or_path, size=size)
     path = Path(name_or_path)
     if not path.exists() and path.suffix != ".json":
         raise SceneError(f"{name_or_path}: neither a preset ({', '.join(preset_names())}) nor a scene file")
-    scene = read_scene(path)
-    return scene if size is None else parse_scene(json.loads(path.read_text()), str(path), path.stem, size)
+    return read_scene(path, size=size)
 
 
 def demo_dataset_path() -> Path:

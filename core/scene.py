@@ -74,8 +74,9 @@ class Scene:
         return next(m for m in self.materials if m.name == name)
 
 
-def read_scene(path: str | Path) -> Scene:
-    """Read and validate a scene JSON file; raises :class:`SceneError` naming the file."""
+def read_scene(path: str | Path, size: tuple[int, int] | None = None) -> Scene:
+    """Read and validate a scene JSON file (``size`` as in :func:`parse_scene`); raises
+    :class:`SceneError` naming the file."""
     path = Path(path)
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
@@ -85,7 +86,7 @@ def read_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: cannot be read ({error})") from None
     except json.JSONDecodeError as error:
         raise SceneError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
-    return parse_scene(document, where=str(path), name=path.stem)
+    return parse_scene(document, where=str(path), name=path.stem, size=size)
 
 
 def parse_scene(document: object, where: str = "scene", name: str = "scene",

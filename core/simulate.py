@@ -30,7 +30,7 @@ POINTS_PER_CALL = 64
 
 @dataclass(frozen=True, eq=False)
 class Transport:
-    """Simulated light transport of a scene (all grid points lit).
+    """Simulated light transport of a scene (every grid point lit unless told otherwise).
 
     Attributes
     ----------
@@ -44,6 +44,7 @@ class Transport:
 
     scene: Scene
     photons: int
+    seed: int
     window_radius: int
     windows: np.ndarray
     path_length_images: np.ndarray
@@ -101,14 +102,13 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     if scene.grey:
         windows[..., 1:] = windows[..., :1]
         truth[..., 1:] = truth[..., :1]
-    entry_weight = 1.0 - photon.specular_reflectance(scene.n)
-    windows *= entry_weight / photons
-    truth *= entry_weight / photons
     specular = photon.specular_reflectance(scene.n)
+    windows *= (1.0 - specular) / photons
+    truth *= (1.0 - specular) / photons
     windows[streams, radius, radius, :] += specular
     truth[0][lit[:, 0], lit[:, 1]] += specular
     return Transport(
-        scene=scene, photons=photons, window_radius=radius,
+        scene=scene, photons=photons, seed=seed, window_radius=radius,
         windows=windows.reshape(height, width, size, size, 3).astype(np.float32),
         path_length_images=truth.astype(np.float32), seconds=time.perf_counter() - started,
     )
@@ -150,7 +150,7 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
     offsets = disc_offsets(scene.max_radius)
     frames = lattice_frames(height, width, scene.max_radius)
     notes = (f"simulated by ringlight from scene '{scene.name}': {transport.photons} photons per point "
-             f"per channel, seed {scene.seed}, n {scene.n:g}")
+             f"per channel, seed {transport.seed}, n {scene.n:g}")
     with DatasetWriter(out, (height, width), max_radius=scene.max_radius, pitch_mm=scene.pitch_mm,
                        notes=notes, overwrite=overwrite) as writer:
         for index, lit in enumerate(frames):
@@ -168,7 +168,7 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
         if scene.layers:
             writer.set_layers([
                 {"name": name, "depth": [top, bottom],
-                 "rgb": slab_reflectance(scene.material(name), scene.n, seed=scene.seed).tolist()}
+                 "rgb": slab_reflectance(scene.material(name), scene.n, seed=transport.seed).tolist()}
                 for name, top, bottom in scene.layers
             ])
     if progress is not None:

@@ -209,3 +209,10 @@ def test_simulate_cli_lists_presets_and_refuses_bad_arguments(tmp_path, capsys):
     assert "--size 'big' must be HxW" in capsys.readouterr().err
     assert main(["simulate", "nosuch", "--out", str(tmp_path / "x")]) == 2
     assert "neither a preset" in capsys.readouterr().err
+
+
+def test_the_seed_actually_used_is_recorded_in_the_dataset(tmp_path):
+    transport = simulate_transport(homogeneous_scene(size=6, photons=10), seed=7)
+    write_transport(transport, tmp_path / "ds")
+    assert transport.seed == 7
+    assert "seed 7," in read_manifest(tmp_path / "ds").notes
