@@ -65,6 +65,9 @@ def add_commands(subparsers) -> None:
     simulate.add_argument("--list", action="store_true", help="list the bundled presets and exit")
     simulate.set_defaults(handler=run_simulate)
 
+    demo = subparsers.add_parser("demo", help="make (first run only) and describe the bundled demo dataset")
+    demo.set_defaults(handler=run_demo)
+
 
 @contextmanager
 def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
@@ -189,7 +192,7 @@ def run_simulate(args) -> int:
 
 
 def run_demo(args) -> int:
-    """No window yet: make (once) and describe the bundled demo dataset."""
+    """Make (once) and describe the bundled demo dataset."""
     with progress_bar("making the demo dataset (first run only)") as progress:
         path = ensure_demo_dataset(progress=progress)
     args.dataset = str(path)

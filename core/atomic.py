@@ -43,3 +43,23 @@ def replace_folder(new: Path, final: Path) -> None:
             shutil.rmtree(trash, ignore_errors=True)
     else:
         os.rename(new, final)
+
+
+@contextmanager
+def atomic_file(final: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``final`` (same suffix, so writers that pick a format by
+    extension still work); on a clean exit it replaces ``final`` in one rename.
+
+    On any exception the temporary file is removed and ``final`` is untouched.
+    """
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    handle, name = tempfile.mkstemp(prefix=f".{final.stem}.partial-", suffix=final.suffix, dir=final.parent)
+    os.close(handle)
+    temporary = Path(name)
+    try:
+        yield temporary
+        os.replace(temporary, final)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise

@@ -141,6 +141,23 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
     return ring_geometry(largest, thickness, antialias).outer_radius
 
 
+def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
+    """Ring weights over the dataset's offset axis: (len(radii), K) float64.
+
+    Row ``i`` holds the weight of each offset ``dataset.offsets[k]`` in the ring of radius
+    ``radii[i]`` (0 outside it), so that for one point ``p = (y, x)``::
+
+        w = matrix * dataset.validity[y, x]           # drop missing and outside lit points
+        E = (w @ dataset.responses[y, x]) / w.sum(1)  # (n, 3): E_r(p) for every radius
+    """
+    radii = _as_radii(radii)
+    first, stop, weight_start, weights = _ring_tables(dataset, radii, thickness, antialias)
+    matrix = np.zeros((len(radii), len(dataset.offsets)))
+    for row in range(len(radii)):
+        matrix[row, first[row]:stop[row]] = weights[weight_start[row]:weight_start[row + 1]]
+    return matrix
+
+
 def _as_radii(radii) -> np.ndarray:
     radii = np.round(np.atleast_1d(np.asarray(radii, np.float64)), _RADIUS_DECIMALS)
     if radii.ndim != 1 or radii.size == 0:

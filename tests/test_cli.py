@@ -74,8 +74,8 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
     assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
 
 
-def test_no_command_makes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):
-    assert main([]) == 0
+def test_demo_command_makes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):
+    assert main(["demo"]) == 0
     out = capsys.readouterr().out
     assert "grid         32 x 32" in out and "lit points   1024" in out
     assert "ground truth 64 path-length images" in out
@@ -85,4 +85,4 @@ def test_no_command_makes_the_demo_dataset_once_and_describes_it(capsys, monkeyp
         raise AssertionError("the demo is made once")
 
     monkeypatch.setattr("ringlight.core.simulate.simulate_transport", no_second_simulation)
-    assert main([]) == 0
+    assert main(["demo"]) == 0

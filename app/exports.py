@@ -1,0 +1,59 @@
+"""Export work for the explorer: each function captures its inputs and returns a job
+``work(progress)`` for :class:`~ringlight.widgets.jobs.JobSlot`. All writes are atomic."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ringlight.core import Stack, write_stack
+from ringlight.core.display import DisplaySettings, display_levels, render
+from ringlight.core.image_export import write_movie, write_png, write_text
+from ringlight.core.profiles import PixelProfile, profile_csv
+
+
+def stack_levels(stack: Stack, settings: DisplaySettings) -> list[tuple[float, float]]:
+    """Levels of every image of ``stack`` under ``settings`` (one pair per radius)."""
+    if settings.normalisation in ("global", "manual"):
+        return [display_levels(stack.images, settings)] * len(stack.radii)
+    return [display_levels(image, settings) for image in stack.images]
+
+
+def stack_work(stack: Stack, folder: Path):
+    """Write ``stack`` in FORMAT.md's stack export format."""
+    return lambda progress: write_stack(stack, folder, progress)
+
+
+def png_work(pixels: np.ndarray, path: Path):
+    """Write the shown (H, W, 3) uint8 pixels as PNG."""
+    pixels = pixels.copy()
+
+    def work(progress):
+        write_png(path, pixels)
+        progress(1.0)
+        return path
+    return work
+
+
+def movie_work(stack: Stack, settings: DisplaySettings, fps: float, path: Path):
+    """Write the scrub over ``stack`` as an MP4, normalised as on screen, radius burnt in."""
+    def work(progress):
+        levels = stack_levels(stack, settings)
+        step = f"  dr = {stack.step:g}" if stack.step is not None else ""
+        symbol = "T" if stack.kind == "transient" else "E"
+        labels = [f"{symbol}_r  r = {radius:g}{step}" for radius in stack.radii]
+        return write_movie(
+            path, lambda index: render(stack.images[index], levels[index], settings, stack.colorspace),
+            labels, fps, progress,
+        )
+    return work
+
+
+def csv_work(profile: PixelProfile, path: Path):
+    """Write the picked pixel's profiles as CSV."""
+    def work(progress):
+        write_text(path, profile_csv(profile))
+        progress(1.0)
+        return path
+    return work

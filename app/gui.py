@@ -1,0 +1,103 @@
+"""Starting the explorer: the interactive window, or one offscreen screenshot (``--screenshot``)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from ringlight.core.atomic import atomic_file
+
+APPLICATION = "ringlight"
+
+
+def parse_pick(text: str | None) -> tuple[int, int] | None:
+    """``"Y,X"`` -> (y, x); raises ValueError for anything else."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise ValueError(f"--pick {text!r} must be Y,X, e.g. 16,20")
+    y, x = (int(part) for part in parts)
+    return (y, x)
+
+
+def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """Run the window (or the screenshot) for parsed command-line ``args``."""
+    try:
+        pick = parse_pick(args.pick)
+    except ValueError as error:
+        parser.error(str(error))
+    if (args.radius is not None or pick is not None) and not args.screenshot:
+        parser.error("--radius and --pick go with --screenshot")
+    if args.screenshot and not os.environ.get("QT_QPA_PLATFORM"):
+        os.environ["QT_QPA_PLATFORM"] = "offscreen"
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QApplication
+
+    from .window import MainWindow
+
+    app = QApplication.instance() or QApplication([sys.argv[0]])
+    app.setOrganizationName(APPLICATION)
+    app.setApplicationName(APPLICATION)
+    if args.screenshot:
+        return take_screenshot(args.dataset, Path(args.screenshot), args.radius, pick)
+    window = MainWindow(QSettings())
+    window.show()
+    window.open_dataset(args.dataset)
+    status = app.exec()
+    _dispose(window)
+    return status
+
+
+def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: tuple[int, int] | None) -> int:
+    """Open ``dataset`` (None: the demo) in a fresh window with default settings, show
+    ``radius`` and ``pick``, save the window as PNG to ``out`` and return an exit status."""
+    from PySide6.QtCore import QEventLoop, QSettings
+
+    from .window import MainWindow
+
+    with tempfile.TemporaryDirectory() as folder:
+        window = MainWindow(QSettings(str(Path(folder) / "settings.ini"), QSettings.Format.IniFormat))
+        try:
+            window.resize(1400, 860)
+            window.show()
+            loop = QEventLoop()
+            window.dataset_loaded.connect(loop.quit)
+            window.error_shown.connect(loop.quit)
+            window.open_dataset(dataset)
+            loop.exec()
+            if window.loaded is None:
+                print(f"ringlight: error: {window.last_error.splitlines()[0]}", file=sys.stderr)
+                return 2
+            height, width = window.loaded.dataset.grid_shape
+            if pick is not None:
+                if not (0 <= pick[0] < height and 0 <= pick[1] < width):
+                    print(f"ringlight: error: --pick {pick[0]},{pick[1]} is outside the {height}x{width} grid",
+                          file=sys.stderr)
+                    return 2
+                window.pick(*pick)
+            if radius is not None:
+                window.set_radius(radius)
+            pixmap = window.grab()
+            with atomic_file(out) as temporary:
+                if not pixmap.save(str(temporary), "PNG"):
+                    print(f"ringlight: error: {out}: could not write the PNG", file=sys.stderr)
+                    return 2
+        finally:
+            window.shutdown()
+            window.close()
+            _dispose(window)
+    print(f"wrote {out}")
+    return 0
+
+
+def _dispose(window) -> None:
+    """Destroy ``window`` now, while the QApplication exists: left to Python's exit-time garbage
+    collection, pyqtgraph scenes can outlive the application and crash the interpreter."""
+    from PySide6.QtCore import QCoreApplication, QEvent
+
+    window.deleteLater()
+    QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)

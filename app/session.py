@@ -1,0 +1,120 @@
+"""What the explorer computes off the GUI thread: opening a dataset for viewing, and its stacks.
+
+Both are plain functions of frozen inputs with a ``progress`` callback, so they run in a worker
+(:mod:`ringlight.widgets.jobs`) and in tests alike. A dataset is opened together with its first
+stacks, so the window swaps from the old dataset to the new one in one step and never shows a
+half-loaded state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ringlight.core import ImpulseDataset, RinglightError, open_dataset, read_manifest
+from ringlight.core.ground_truth import PathLengthImages, read_path_length_images, stack_correlations
+from ringlight.core.presets import ensure_demo_dataset
+from ringlight.core.profiles import ProfileRings, profile_rings
+from ringlight.core.stack_request import StackPair, StackRequest, compute_stacks, default_request
+
+Progress = Callable[[float], None]
+
+OPEN_RADIUS = 24.0
+"""Radius (grid steps) up to which responses are kept for datasets without ``max_radius``, unless
+the requested stack needs more."""
+
+
+@dataclass(frozen=True, eq=False)
+class ViewStacks:
+    """A request's stacks plus what the explorer derives from them once.
+
+    Attributes
+    ----------
+    correlations
+        (n,) NCC of each T_r with its nearest ground-truth bin, or None without ground truth.
+    """
+
+    pair: StackPair
+    rings: ProfileRings
+    correlations: np.ndarray | None
+
+
+@dataclass(frozen=True, eq=False)
+class LoadedDataset:
+    """An opened dataset with everything the explorer shows before the first click.
+
+    Attributes
+    ----------
+    steady_state
+        (H, W, 3) float32 appearance under full illumination.
+    truth
+        Ground-truth path-length images, or None.
+    """
+
+    dataset: ImpulseDataset
+    steady_state: np.ndarray
+    truth: PathLengthImages | None
+    stacks: ViewStacks
+
+
+def scaled(progress: Progress, low: float, high: float) -> Progress:
+    """A progress callback reporting ``[0, 1]`` as ``[low, high]`` of ``progress``."""
+    return lambda fraction: progress(low + (high - low) * fraction)
+
+
+def open_radius(manifest_max_radius: float | None, height: int, width: int, request: StackRequest | None) -> float | None:
+    """Radius to open a dataset at: None (the manifest's) when it sets ``max_radius``."""
+    if manifest_max_radius is not None:
+        return None
+    wanted = OPEN_RADIUS
+    if request is not None:
+        try:
+            wanted = max(wanted, request.reach())
+        except RinglightError:
+            pass
+    return min(wanted, math.hypot(height - 1, width - 1))
+
+
+def load_for_viewing(path: str | Path | None, request: StackRequest | None, progress: Progress) -> LoadedDataset:
+    """Open ``path`` (the demo dataset, made first if needed, when None) with its stacks.
+
+    ``request`` is used when the dataset can serve it, else :func:`default_request`.
+    """
+    if path is None:
+        path = ensure_demo_dataset(progress=scaled(progress, 0.0, 0.5))
+        progress = scaled(progress, 0.5, 1.0)
+    manifest = read_manifest(path)
+    radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
+    dataset = open_dataset(path, radius=radius, progress=scaled(progress, 0.0, 0.5))
+    dataset.validity  # made here, in the worker, not on the first click
+    progress(0.55)
+    steady_state = dataset.steady_state()
+    truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
+    if request is None or not _serves(dataset, request):
+        request = default_request(dataset.max_radius)
+    stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))
+    return LoadedDataset(dataset, steady_state, truth, stacks)
+
+
+def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None, request: StackRequest,
+                        progress: Progress) -> ViewStacks:
+    """Stacks of ``request`` with profile rings and ground-truth correlations."""
+    pair = compute_stacks(dataset, request, scaled(progress, 0.0, 0.9))
+    rings = profile_rings(dataset, pair.radii, request.dr, request.thickness, request.antialias)
+    correlations = None
+    if truth is not None:
+        correlations = stack_correlations(pair.radii, request.dr, pair.transient.images, truth)
+    progress(1.0)
+    return ViewStacks(pair, rings, correlations)
+
+
+def _serves(dataset: ImpulseDataset, request: StackRequest) -> bool:
+    try:
+        request.check(dataset)
+    except RinglightError:
+        return False
+    return True

@@ -1,0 +1,581 @@
+"""The explorer's main window: wires the widgets to an opened dataset and its stacks.
+
+State lives here (dataset, stacks, picked point, radius index, display settings); widgets only
+show what they are given and report what the user did. Slow work (opening, stacks, exports) runs
+in :class:`JobSlot` workers; their results are applied in the GUI thread.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import (
+    QDockWidget, QFileDialog, QLabel, QMainWindow, QMessageBox, QSplitter, QVBoxLayout, QWidget,
+)
+
+from ringlight.core import RinglightError, ring_geometry
+from ringlight.core.display import DisplaySettings, display_levels, negative_fraction, render
+from ringlight.core.ground_truth import normalised_cross_correlation
+from ringlight.core.profiles import PixelProfile, pixel_profile
+from ringlight.core.stack_request import StackRequest
+from ringlight.widgets.display_controls import VIEWS, DisplayControls
+from ringlight.widgets.image_panel import ImagePanel
+from ringlight.widgets.job_indicator import JobIndicator
+from ringlight.widgets.jobs import JobSlot
+from ringlight.widgets.profile_plot import ProfilePlot
+from ringlight.widgets.scrub_bar import ScrubBar
+from ringlight.widgets.stack_controls import StackControls
+
+from . import exports
+from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
+
+RECENT_LIMIT = 10
+DEMO = "(demo)"
+
+
+class MainWindow(QMainWindow):
+    """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
+
+    dataset_loaded = Signal()
+    stacks_ready = Signal()
+    image_shown = Signal()
+    error_shown = Signal(str)
+
+    def __init__(self, settings: QSettings, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.settings = settings
+        self.loaded: LoadedDataset | None = None
+        self.stacks: ViewStacks | None = None
+        self.picked: tuple[int, int] | None = None
+        self.profile: PixelProfile | None = None
+        self.last_error = ""
+        self._levels: tuple[float, float] = (0.0, 1.0)
+        self._global_levels: dict[tuple, tuple[float, float]] = {}
+        self._impulse_cache: tuple[tuple[int, int], np.ndarray] | None = None
+        self._shown_image: np.ndarray | None = None
+        self.truth_correlation = float("nan")
+
+        self.pool = QThreadPool(self)
+        self.pool.setMaxThreadCount(1)  # numba kernels: one compute job at a time
+        self.export_pool = QThreadPool(self)
+        self.export_pool.setMaxThreadCount(1)
+        self.load_jobs = JobSlot(self.pool, self)
+        self.stack_jobs = JobSlot(self.pool, self)
+        self.export_jobs = JobSlot(self.export_pool, self)
+
+        self._build_widgets()
+        self._build_menus()
+        self._connect()
+        self._restore_settings()
+        self.setAcceptDrops(True)
+        self._update_title()
+
+    # ----------------------------------------------------------------- construction
+    def _build_widgets(self) -> None:
+        self.image_panel = ImagePanel()
+        self.truth_panel = ImagePanel("ground truth")
+        self.truth_panel.hide()
+        self.splitter = QSplitter(Qt.Orientation.Horizontal)
+        self.splitter.addWidget(self.image_panel)
+        self.splitter.addWidget(self.truth_panel)
+        self.scrub_bar = ScrubBar()
+        central = QWidget()
+        layout = QVBoxLayout(central)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addWidget(self.splitter, 1)
+        layout.addWidget(self.scrub_bar)
+        self.setCentralWidget(central)
+
+        self.display_controls = DisplayControls()
+        self.stack_controls = StackControls()
+        self.profile_plot = ProfilePlot()
+        self.display_dock = self._dock("Display", self.display_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.stack_dock = self._dock("Stack", self.stack_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.profile_dock = self._dock("Profiles", self.profile_plot, Qt.DockWidgetArea.RightDockWidgetArea)
+
+        self.hover_label = QLabel()
+        self.hover_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.statusBar().addWidget(self.hover_label, 1)
+        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
+            self.statusBar().addPermanentWidget(JobIndicator(slot))
+        self.dataset_label = QLabel("No dataset")
+        self.statusBar().addPermanentWidget(self.dataset_label)
+        self.resize(1400, 860)
+
+    def _dock(self, title: str, widget: QWidget, area) -> QDockWidget:
+        dock = QDockWidget(title, self)
+        dock.setObjectName(f"{title.lower()}-dock")
+        dock.setWidget(widget)
+        self.addDockWidget(area, dock)
+        return dock
+
+    def _action(self, menu, text: str, slot, shortcut=None, tip: str = "") -> QAction:
+        action = QAction(text, self)
+        if shortcut is not None:
+            action.setShortcut(QKeySequence(shortcut))
+        action.setStatusTip(tip)
+        action.triggered.connect(slot)
+        menu.addAction(action)
+        return action
+
+    def _build_menus(self) -> None:
+        file_menu = self.menuBar().addMenu("&File")
+        self._action(file_menu, "&Open dataset…", self.choose_dataset, QKeySequence.StandardKey.Open,
+                     "Open an impulse dataset folder or its dataset.json")
+        self.recent_menu = file_menu.addMenu("Open &recent")
+        self._action(file_menu, "Open &demo dataset", lambda: self.open_dataset(None))
+        file_menu.addSeparator()
+        self.export_actions = [
+            self._action(file_menu, "Export stack as &EXR…", self.choose_stack_export, "Ctrl+E",
+                         "The shown stack in the stack format of FORMAT.md"),
+            self._action(file_menu, "Export view as &PNG…", self.choose_png_export, "Ctrl+Shift+P"),
+            self._action(file_menu, "Export scrub as &movie (MP4)…", self.choose_movie_export, "Ctrl+Shift+M"),
+            self._action(file_menu, "Export profiles as &CSV…", self.choose_csv_export, "Ctrl+Shift+C"),
+        ]
+        file_menu.addSeparator()
+        self._action(file_menu, "&Quit", self.close, QKeySequence.StandardKey.Quit)
+
+        view_menu = self.menuBar().addMenu("&View")
+        for number, (key, label) in enumerate(VIEWS.items(), start=1):
+            self._action(view_menu, label, lambda _=False, key=key: self.display_controls.set_view(key),
+                         f"Ctrl+{number}")
+        view_menu.addSeparator()
+        self._action(view_menu, "Next radius", lambda: self.scrub_bar.step(1), "]")
+        self._action(view_menu, "Previous radius", lambda: self.scrub_bar.step(-1), "[")
+        self._action(view_menu, "Play / pause", self.scrub_bar.toggle_play, "Space")
+        self._action(view_menu, "Reset zoom", self._reset_zoom, "Ctrl+0")
+        self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
+        view_menu.addSeparator()
+        for dock in (self.display_dock, self.stack_dock, self.profile_dock):
+            view_menu.addAction(dock.toggleViewAction())
+        help_menu = self.menuBar().addMenu("&Help")
+        self._action(help_menu, "&Keyboard shortcuts", self._show_shortcuts, "F1")
+
+    def _connect(self) -> None:
+        self.load_jobs.finished.connect(self._on_loaded)
+        self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
+        self.stack_jobs.finished.connect(self._on_stacks_ready)
+        self.stack_jobs.failed.connect(lambda message: self.show_error("Could not compute the stack", message))
+        self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
+        self.export_jobs.finished.connect(lambda path: self.statusBar().showMessage(f"Exported {path}", 8000))
+        self.export_jobs.failed.connect(lambda message: self.show_error("Export failed", message))
+        self.image_panel.pixel_picked.connect(self.pick)
+        self.truth_panel.pixel_picked.connect(self.pick)
+        self.image_panel.pixel_hovered.connect(self._on_hover)
+        self.truth_panel.pixel_hovered.connect(self._on_hover)
+        self.scrub_bar.index_changed.connect(self._on_index_changed)
+        self.profile_plot.radius_requested.connect(self.set_radius)
+        self.display_controls.view_changed.connect(lambda _: self._refresh_all())
+        self.display_controls.settings_changed.connect(self._on_display_settings)
+        self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
+        self.stack_controls.request_changed.connect(self.request_stacks)
+
+    # ----------------------------------------------------------------- opening
+    def choose_dataset(self) -> None:
+        start = self.settings.value("last_folder", str(Path.home()))
+        folder = QFileDialog.getExistingDirectory(self, "Open impulse dataset", start)
+        if folder:
+            self.open_dataset(folder)
+
+    def open_dataset(self, path: str | Path | None) -> None:
+        """Open ``path`` (None: the demo dataset) in a worker; the current dataset stays until
+        the new one is ready, and stays on failure."""
+        request = self.stack_controls.request() if self.loaded is not None else self._saved_request()
+        name = "the demo dataset" if path is None else Path(path).name
+        self.stack_jobs.cancel()
+        self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
+
+    def _on_loaded(self, loaded: LoadedDataset) -> None:
+        self.loaded = loaded
+        self._impulse_cache = None
+        self._global_levels.clear()
+        dataset = loaded.dataset
+        self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
+        self.truth_panel.setVisible(loaded.truth is not None)
+        height, width = dataset.grid_shape
+        if self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
+            self.picked = (height // 2, width // 2)
+        self._install_stacks(loaded.stacks)
+        self._remember_recent(dataset.path)
+        self.settings.setValue("last_folder", str(dataset.path.parent))
+        self._update_title()
+        self.dataset_loaded.emit()
+
+    def _update_title(self) -> None:
+        if self.loaded is None:
+            self.setWindowTitle("ringlight")
+            return
+        dataset = self.loaded.dataset
+        manifest = dataset.manifest
+        height, width = dataset.grid_shape
+        radii = self.stacks.pair.radii if self.stacks else np.zeros(1)
+        self.setWindowTitle(f"{dataset.path.name} - ringlight")
+        self.dataset_label.setText(
+            f"{dataset.path.name}: grid {width}x{height}, {len(manifest.frames)} frames, "
+            f"{dataset.missing_count} missing, max_radius {dataset.max_radius:g}, "
+            f"r {radii[0]:g}..{radii[-1]:g}"
+        )
+
+    def _remember_recent(self, path: Path) -> None:
+        recent = [str(path)] + [entry for entry in self.recent_files() if entry != str(path)]
+        self.settings.setValue("recent_files", json.dumps(recent[:RECENT_LIMIT]))
+        self._rebuild_recent_menu()
+
+    def recent_files(self) -> list[str]:
+        try:
+            recent = json.loads(self.settings.value("recent_files", "[]"))
+        except (TypeError, ValueError):
+            return []
+        return [entry for entry in recent if isinstance(entry, str)]
+
+    def _rebuild_recent_menu(self) -> None:
+        self.recent_menu.clear()
+        for number, entry in enumerate(self.recent_files(), start=1):
+            action = self.recent_menu.addAction(f"&{number % 10} {entry}")
+            action.triggered.connect(lambda _=False, entry=entry: self.open_dataset(entry))
+        self.recent_menu.setEnabled(bool(self.recent_files()))
+
+    # ----------------------------------------------------------------- stacks
+    def request_stacks(self, request: StackRequest) -> None:
+        """Recompute the stacks for ``request`` in a worker; the old ones stay shown meanwhile."""
+        if self.loaded is None:
+            return
+        loaded = self.loaded
+        self.stack_jobs.start(
+            f"Computing {len(_safe_radii(request))} radii",
+            lambda progress: compute_view_stacks(loaded.dataset, loaded.truth, request, progress),
+        )
+
+    def _on_stacks_ready(self, stacks: ViewStacks) -> None:
+        self._install_stacks(stacks)
+        self._update_title()
+
+    def _on_stacks_cancelled(self) -> None:
+        if self.stacks is not None and self.loaded is not None:
+            self.stack_controls.set_request(self.stacks.pair.request, self.loaded.dataset.max_radius)
+
+    def _install_stacks(self, stacks: ViewStacks) -> None:
+        self.stacks = stacks
+        self._global_levels.clear()
+        self.scrub_bar.set_radii(stacks.pair.radii)
+        self._refresh_all()
+        self.stacks_ready.emit()
+
+    # ----------------------------------------------------------------- interaction
+    def pick(self, y: int, x: int) -> None:
+        """Mark grid point (y, x): ring overlay, profiles and (for the impulse view) the image."""
+        if self.loaded is None:
+            return
+        self.picked = (int(y), int(x))
+        if self.view() == "impulse":
+            self._refresh_image()
+        self._refresh_ring()
+        self._refresh_profiles()
+
+    def set_radius(self, radius: float) -> None:
+        """Show the stack radius nearest ``radius`` (grid steps)."""
+        self.scrub_bar.set_index(self.scrub_bar.nearest_index(radius))
+
+    def radius_index(self) -> int:
+        return self.scrub_bar.index()
+
+    def view(self) -> str:
+        return self.display_controls.view()
+
+    def display_settings(self) -> DisplaySettings:
+        return self.display_controls.settings()
+
+    def _on_index_changed(self, _index: int) -> None:
+        self._refresh_image()
+        self._refresh_ring()
+        self._mark_radius()
+
+    def _on_display_settings(self, settings: DisplaySettings) -> None:
+        self._refresh_image()
+
+    def _on_hover(self, y: int, x: int) -> None:
+        self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
+
+    def describe_pixel(self, y: int, x: int) -> str:
+        """Full-precision value of the shown image at (y, x) and the ring points behind it."""
+        if self._shown_image is None or self.stacks is None:
+            return ""
+        value = self._shown_image[y, x]
+        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
+        index = self.radius_index()
+        view = self.view()
+        if view in ("ring", "transient"):
+            stack = self.stacks.pair.transient
+            text += f"   ring points: {int(stack.counts[index, y, x])} at r"
+            if view == "transient":
+                text += f", {int(stack.outer_counts[index, y, x])} at r+dr"
+        return text
+
+    def cancel_all(self) -> None:
+        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
+            slot.cancel()
+        self.scrub_bar.play_button.setChecked(False)
+
+    def _reset_zoom(self) -> None:
+        for panel in (self.image_panel, self.truth_panel):
+            panel.view.autoRange(padding=0.02)
+
+    # ----------------------------------------------------------------- drawing
+    def current_image(self) -> np.ndarray | None:
+        """The (H, W, 3) linear image of the current view and radius."""
+        if self.loaded is None or self.stacks is None:
+            return None
+        view = self.view()
+        if view == "steady":
+            return self.loaded.steady_state
+        if view == "impulse":
+            if self._impulse_cache is None or self._impulse_cache[0] != self.picked:
+                self._impulse_cache = (self.picked, self.loaded.dataset.impulse_image(*self.picked))
+            return self._impulse_cache[1]
+        stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
+        return stack.images[self.radius_index()]
+
+    def current_levels(self) -> tuple[float, float]:
+        return self._levels
+
+    def _levels_for(self, image: np.ndarray, settings: DisplaySettings, source: str) -> tuple[float, float]:
+        if settings.normalisation != "global" or source in ("impulse", "steady"):
+            return display_levels(image, settings)
+        key = (source, id(self.stacks), settings.percentile, settings.diverging)
+        if key not in self._global_levels:
+            values = self.loaded.truth.images if source == "truth" else (
+                self.stacks.pair.transient.images if source == "transient" else self.stacks.pair.ring.images)
+            self._global_levels[key] = display_levels(values, settings)
+        return self._global_levels[key]
+
+    def _refresh_all(self) -> None:
+        self._refresh_image()
+        self._refresh_ring()
+        self._refresh_profiles()
+
+    def _refresh_image(self) -> None:
+        image = self.current_image()
+        if image is None:
+            return
+        settings = self.display_settings()
+        view = self.view()
+        colorspace = self.loaded.dataset.colorspace
+        self._levels = self._levels_for(image, settings, view)
+        self._shown_image = image
+        self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
+        self.image_panel.set_title(self._image_title())
+        self.display_controls.show_levels(self._levels, negative_fraction(image))
+        self._refresh_truth(settings, colorspace)
+        self.image_shown.emit()
+
+    def _image_title(self) -> str:
+        view = self.view()
+        if view == "impulse":
+            return f"impulse image of lit point y {self.picked[0]} x {self.picked[1]}"
+        if view == "steady":
+            return "steady state: all points lit"
+        request = self.stacks.pair.request
+        radius = self.stacks.pair.radii[self.radius_index()]
+        if view == "ring":
+            return f"E_r  r = {radius:g}  w = {request.thickness:g}"
+        return f"T_r  r = {radius:g}  dr = {request.dr:g}  w = {request.thickness:g}"
+
+    def _refresh_truth(self, settings: DisplaySettings, colorspace: str) -> None:
+        truth = self.loaded.truth
+        if truth is None:
+            return
+        index = self.radius_index()
+        radius = float(self.stacks.pair.radii[index])
+        step = self.stacks.pair.request.dr
+        bin_index = truth.nearest_bin(radius, step)
+        image = truth.images[bin_index]
+        truth_settings = settings if settings.normalisation != "manual" else settings.with_changes(normalisation="per-image")
+        levels = self._levels_for(image, truth_settings, "truth")
+        self.truth_panel.set_pixels(render(image, levels, truth_settings, colorspace))
+        low, high = truth.bounds[bin_index]
+        current = normalised_cross_correlation(self.stacks.pair.transient.images[index], image)
+        mean = float(np.nanmean(self.stacks.correlations)) if np.isfinite(self.stacks.correlations).any() else float("nan")
+        self.truth_panel.set_title(f"truth: path [{low:g}, {high:g})  NCC {current:.3f} (stack {mean:.3f})")
+        self.truth_correlation = current
+
+    def _refresh_ring(self) -> None:
+        if self.loaded is None or self.stacks is None or self.picked is None:
+            return
+        request = self.stacks.pair.request
+        radius = float(self.stacks.pair.radii[self.radius_index()])
+        dataset = self.loaded.dataset
+        ring = ring_geometry(radius, request.thickness, request.antialias)
+        positions, weights = ring.around(self.picked, dataset.grid_shape)
+        missing = dataset.lit_counts[positions[:, 0], positions[:, 1]] == 0
+        outer = radius + request.dr if self.view() == "transient" else None
+        self.image_panel.show_ring(self.picked, positions, weights, missing, radius, outer)
+
+    def _refresh_profiles(self) -> None:
+        if self.loaded is None or self.stacks is None or self.picked is None:
+            return
+        self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
+        self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient)
+        self.profile_plot.set_point(f"at y {self.picked[0]} x {self.picked[1]}")
+        self._mark_radius()
+
+    def _mark_radius(self) -> None:
+        if self.stacks is not None:
+            self.profile_plot.set_radius(float(self.stacks.pair.radii[self.radius_index()]))
+
+    # ----------------------------------------------------------------- exports
+    def _save_path(self, title: str, name: str, pattern: str) -> Path | None:
+        start = Path(self.settings.value("export_folder", str(Path.home()))) / name
+        path, _ = QFileDialog.getSaveFileName(self, title, str(start), pattern)
+        if not path:
+            return None
+        self.settings.setValue("export_folder", str(Path(path).parent))
+        return Path(path)
+
+    def _shown_stack(self):
+        return self.stacks.pair.ring if self.view() == "ring" else self.stacks.pair.transient
+
+    def choose_stack_export(self) -> None:
+        if self.stacks is not None:
+            folder = QFileDialog.getExistingDirectory(self, "Export stack into an empty or earlier stack folder")
+            if folder:
+                self.export_stack(Path(folder))
+
+    def choose_png_export(self) -> None:
+        if self.stacks is not None and (path := self._save_path("Export view as PNG", "view.png", "PNG (*.png)")):
+            self.export_png(path)
+
+    def choose_movie_export(self) -> None:
+        if self.stacks is not None and (path := self._save_path("Export scrub as MP4", "scrub.mp4", "MP4 (*.mp4)")):
+            self.export_movie(path)
+
+    def choose_csv_export(self) -> None:
+        if self.profile is not None and (path := self._save_path("Export profiles as CSV", "profile.csv", "CSV (*.csv)")):
+            self.export_csv(path)
+
+    def export_stack(self, folder: Path) -> None:
+        """Write the shown stack (E_r or T_r) to ``folder`` in a worker."""
+        self.export_jobs.start(f"Exporting stack to {folder.name}", exports.stack_work(self._shown_stack(), folder))
+
+    def export_png(self, path: Path) -> None:
+        self.export_jobs.start(f"Writing {path.name}", exports.png_work(self.image_panel.pixels(), path))
+
+    def export_movie(self, path: Path) -> None:
+        self.export_jobs.start(
+            f"Writing {path.name}",
+            exports.movie_work(self._shown_stack(), self.display_settings(), self.scrub_bar.fps_box.value(), path),
+        )
+
+    def export_csv(self, path: Path) -> None:
+        self.export_jobs.start(f"Writing {path.name}", exports.csv_work(self.profile, path))
+
+    # ----------------------------------------------------------------- errors, settings, events
+    def show_error(self, title: str, message: str) -> None:
+        """Show ``message`` (core's one-line error) in a window-modal dialog that does not block."""
+        self.last_error = message
+        box = QMessageBox(QMessageBox.Icon.Warning, title, message.splitlines()[0], QMessageBox.StandardButton.Ok, self)
+        if "\n" in message:
+            box.setDetailedText(message)
+        box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        box.open()
+        self.statusBar().showMessage(f"{title}: {message.splitlines()[0]}", 10000)
+        self.error_shown.emit(message)
+
+    def _show_shortcuts(self) -> None:
+        lines = [
+            "Ctrl+O  open dataset", "Ctrl+1..4  transient / ring / impulse / steady state",
+            "[ and ]  previous / next radius", "Space  play / pause", "Esc  cancel running work",
+            "Ctrl+0  reset zoom", "Ctrl+E  export stack (EXR)", "Ctrl+Shift+P / M / C  export PNG / movie / CSV",
+            "Left drag on the image: pick pixels; wheel: zoom; middle drag: pan",
+            "Click or drag in the profiles: set the radius",
+        ]
+        QMessageBox.information(self, "Keyboard shortcuts", "\n".join(lines))
+
+    def _saved_request(self) -> StackRequest | None:
+        try:
+            return StackRequest(**json.loads(self.settings.value("stack_request", "")))
+        except (TypeError, ValueError):
+            return None
+
+    def _restore_settings(self) -> None:
+        geometry = self.settings.value("geometry")
+        if geometry is not None:
+            self.restoreGeometry(geometry)
+        state = self.settings.value("window_state")
+        if state is not None:
+            self.restoreState(state)
+        try:
+            document = json.loads(self.settings.value("display", ""))
+            document["manual_levels"] = tuple(document["manual_levels"])
+            self.display_controls.set_settings(DisplaySettings(**document))
+        except (TypeError, ValueError, KeyError):
+            pass
+        view = self.settings.value("view", "transient")
+        if view in VIEWS:
+            self.display_controls.set_view(view)
+        self.display_controls.profile_log_box.setChecked(self.settings.value("profile_log_y", "false") == "true")
+        self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
+        self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
+        self._rebuild_recent_menu()
+
+    def save_settings(self) -> None:
+        self.settings.setValue("geometry", self.saveGeometry())
+        self.settings.setValue("window_state", self.saveState())
+        self.settings.setValue("display", json.dumps(asdict(self.display_settings())))
+        self.settings.setValue("view", self.view())
+        self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
+        self.settings.setValue("fps", self.scrub_bar.fps_box.value())
+        self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
+        if self.stacks is not None:
+            self.settings.setValue("stack_request", json.dumps(asdict(self.stacks.pair.request)))
+        self.settings.sync()
+
+    def shutdown(self) -> None:
+        """Cancel all work and wait for the workers (so no job outlives the window)."""
+        self.cancel_all()
+        self.scrub_bar.timer.stop()
+        self.pool.waitForDone()
+        self.export_pool.waitForDone()
+
+    def closeEvent(self, event) -> None:
+        if self.export_jobs.busy:
+            answer = QMessageBox.question(self, "Export running", "An export is still being written. Cancel it and quit?")
+            if answer != QMessageBox.StandardButton.Yes:
+                event.ignore()
+                return
+        self.save_settings()
+        self.shutdown()
+        super().closeEvent(event)
+
+    def dragEnterEvent(self, event) -> None:
+        if _dropped_dataset(event.mimeData()) is not None:
+            event.acceptProposedAction()
+
+    def dropEvent(self, event) -> None:
+        path = _dropped_dataset(event.mimeData())
+        if path is not None:
+            event.acceptProposedAction()
+            self.open_dataset(path)
+
+
+def _dropped_dataset(mime) -> Path | None:
+    """The dataset folder (or dataset.json) among dropped URLs, if any."""
+    if not mime.hasUrls():
+        return None
+    for url in mime.urls():
+        if url.isLocalFile():
+            path = Path(url.toLocalFile())
+            if path.is_dir() or path.name == "dataset.json":
+                return path
+    return None
+
+
+def _safe_radii(request: StackRequest) -> np.ndarray:
+    try:
+        return request.radii()
+    except RinglightError:
+        return np.zeros(0)

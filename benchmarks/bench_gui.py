@@ -1,0 +1,128 @@
+"""Benchmark of the explorer's interactive latency (not a test: prints figures from one run).
+
+A synthetic 128 x 128 dataset (random responses, 2 % missing points, max_radius 24) with a
+23-radius transient stack (r = 0..22, dr 1) is shown in the main window (offscreen, or on the
+display given by QT_QPA_PLATFORM / DISPLAY). Timed, each from a synthetic Qt input event until the
+affected views have been repainted: the event and everything it posts (scene updates, paint
+requests) are processed by ``processEvents()``, and the paint events delivered in that interval
+are counted to show that drawing happened inside it:
+  - click: a left click on a random image pixel -> picked marker, ring overlay and both profile
+    plots drawn;
+  - step: a ``]`` / ``[`` key press -> the next transient image normalised, encoded and drawn.
+Target (explorer issue): median < 16 ms for both (60 fps).
+
+    python benchmarks/bench_gui.py [--size 128] [--max-radius 24] [--events 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+
+import numpy as np
+from PySide6.QtCore import QEvent, QObject, QPointF, QSettings, Qt
+from PySide6.QtTest import QTest
+from PySide6.QtWidgets import QApplication
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_stack import synthetic_dataset  # noqa: E402
+
+from ringlight.app.session import LoadedDataset, compute_view_stacks  # noqa: E402
+from ringlight.app.window import MainWindow  # noqa: E402
+from ringlight.core.stack_request import StackRequest  # noqa: E402
+
+
+class PaintCounter(QObject):
+    """Event filter recording which widgets received a paint event since :meth:`reset`."""
+
+    def __init__(self):
+        super().__init__()
+        self.widgets: set[int] = set()
+
+    def reset(self) -> None:
+        self.widgets.clear()
+
+    def painted(self, widget) -> bool:
+        return id(widget) in self.widgets
+
+    def eventFilter(self, watched, event) -> bool:
+        if event.type() == QEvent.Type.Paint:
+            self.widgets.add(id(watched))
+        return False
+
+
+def percentiles(times: list[float]) -> str:
+    milliseconds = np.array(times) * 1e3
+    return (f"median {np.median(milliseconds):6.2f} ms   p95 {np.percentile(milliseconds, 95):6.2f} ms   "
+            f"max {milliseconds.max():6.2f} ms")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=128)
+    parser.add_argument("--max-radius", type=float, default=24.0)
+    parser.add_argument("--events", type=int, default=200)
+    args = parser.parse_args()
+
+    app = QApplication.instance() or QApplication([])
+    dataset = synthetic_dataset(args.size, args.max_radius)
+    started = time.perf_counter()
+    stacks = compute_view_stacks(dataset, None, StackRequest(0.0, args.max_radius - 2, 1.0, dr=1.0), lambda _: None)
+    print(f"{args.size} x {args.size}, max_radius {args.max_radius:g} (K = {len(dataset.offsets)}), "
+          f"{len(stacks.pair.radii)} radii computed in {time.perf_counter() - started:.2f} s")
+    with tempfile.TemporaryDirectory() as folder:
+        window = MainWindow(QSettings(str(Path(folder) / "settings.ini"), QSettings.Format.IniFormat))
+        window.resize(1400, 860)
+        window.show()
+        window._on_loaded(LoadedDataset(dataset, dataset.steady_state(), None, stacks))
+        window.set_radius(8.0)
+        app.processEvents()
+        panel = window.image_panel
+        rng = np.random.default_rng(1)
+
+        paints = PaintCounter()
+        app.installEventFilter(paints)
+
+        clicks = []
+        for _ in range(args.events):
+            y, x = rng.integers(0, args.size, 2)
+            position = panel.mapFromScene(panel.view.mapViewToScene(QPointF(x + 0.5, y + 0.5)))
+            start = time.perf_counter()
+            paints.reset()
+            QTest.mouseClick(panel.viewport(), Qt.MouseButton.LeftButton, pos=position)
+            app.processEvents()
+            clicks.append(time.perf_counter() - start)
+            assert window.picked == (y, x)
+            assert paints.painted(panel.viewport()) and paints.painted(window.profile_plot.viewport())
+
+        steps = []
+        key = Qt.Key.Key_BracketRight
+        for _ in range(args.events):
+            if window.radius_index() == len(stacks.pair.radii) - 1:
+                key = Qt.Key.Key_BracketLeft
+            elif window.radius_index() == 0:
+                key = Qt.Key.Key_BracketRight
+            start = time.perf_counter()
+            paints.reset()
+            QTest.keyClick(window, key)
+            app.processEvents()
+            steps.append(time.perf_counter() - start)
+            assert paints.painted(panel.viewport())
+
+        print(f"click -> overlay + profiles drawn ({args.events}): {percentiles(clicks)}")
+        print(f"slider step -> image drawn      ({args.events}): {percentiles(steps)}")
+        print(f"target: median < 16 ms; ratios to target: click {np.median(clicks) * 1e3 / 16:.2f}, "
+              f"step {np.median(steps) * 1e3 / 16:.2f}")
+        window.shutdown()
+        window.close()
+        window.deleteLater()
+
+
+if __name__ == "__main__":
+    main()

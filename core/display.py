@@ -1,0 +1,177 @@
+"""Turning linear radiance images into screen pixels: normalisation, exposure, display encoding.
+
+Pipeline for one (H, W, 3) linear image in a dataset's colourspace::
+
+    levels (low, high)   from the normalisation: per-image or global robust maximum (a
+                         percentile of finite values, the paper's display), log, or manual
+    value * 2**exposure  exposure in stops
+    colour mode          linear -> sRGB primaries (colour-science matrix) -> (v - low) / (high - low)
+                         -> sRGB encoding (colour-science's inverse EOTF, as a 4096-entry table)
+    log mode             log10(v / low) / log10(high / low) per channel, no further encoding
+    diverging mode       luminance Y / max(|low|, |high|) in [-1, 1] through a blue-white-red
+                         map, so negative transient values are shown, not clipped
+
+NaN (undefined: no ring member, unobserved point) is drawn as :data:`UNDEFINED_RGB`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .colourspaces import colour_module
+
+NORMALISATIONS = ("per-image", "global", "log", "manual")
+UNDEFINED_RGB = (72, 72, 80)
+"""Display colour of NaN pixels: a neutral dark grey, distinct from black (zero radiance)."""
+
+_ENCODING_TABLE_SIZE = 4096
+# ColorBrewer RdBu (11 classes), blue for negative, white at zero, red for positive.
+_DIVERGING_ANCHORS = np.array([
+    [5, 48, 97], [33, 102, 172], [67, 147, 195], [146, 197, 222], [209, 229, 240], [247, 247, 247],
+    [253, 219, 199], [244, 165, 130], [214, 96, 77], [178, 24, 43], [103, 0, 31],
+], np.float64)
+
+
+@dataclass(frozen=True)
+class DisplaySettings:
+    """How images are mapped to the screen.
+
+    Attributes
+    ----------
+    normalisation
+        One of :data:`NORMALISATIONS`.
+    percentile
+        Robust maximum percentile (of finite channel values, or |values| when diverging).
+    manual_levels
+        (low, high) linear radiance for ``"manual"``.
+    exposure_stops
+        Multiplies values by 2**exposure_stops before the levels apply.
+    diverging
+        Show signed luminance on a diverging map instead of colour.
+    log_decades
+        Dynamic range of ``"log"``: low = high / 10**log_decades.
+    """
+
+    normalisation: str = "per-image"
+    percentile: float = 99.5
+    manual_levels: tuple[float, float] = (0.0, 1.0)
+    exposure_stops: float = 0.0
+    diverging: bool = False
+    log_decades: float = 3.0
+
+    def __post_init__(self):
+        if self.normalisation not in NORMALISATIONS:
+            raise ValueError(f"normalisation must be one of {NORMALISATIONS}, got {self.normalisation!r}")
+        if not 0 < self.percentile <= 100:
+            raise ValueError(f"percentile must be in (0, 100], got {self.percentile}")
+        if self.log_decades <= 0:
+            raise ValueError(f"log_decades must be > 0, got {self.log_decades}")
+
+    def with_changes(self, **changes) -> "DisplaySettings":
+        return replace(self, **changes)
+
+
+def robust_maximum(values: np.ndarray, percentile: float, signed: bool = False) -> float:
+    """The ``percentile`` of the finite entries of ``values`` (of |values| when ``signed``),
+    or 0 when none is finite. Any shape; all channels count."""
+    flat = np.asarray(values, np.float32).ravel()
+    flat = flat[np.isfinite(flat)]
+    if signed:
+        flat = np.abs(flat)
+    if flat.size == 0:
+        return 0.0
+    return float(np.percentile(flat, percentile))
+
+
+def display_levels(values: np.ndarray, settings: DisplaySettings) -> tuple[float, float]:
+    """(low, high) for ``values`` (one image, or a whole stack for ``"global"``).
+
+    Linear modes give (0, robust max), or (-m, m) when diverging; log gives
+    (max / 10**decades, max); manual gives the user's levels. A zero maximum becomes 1 so that
+    an all-black image stays black instead of dividing by zero.
+    """
+    if settings.normalisation == "manual":
+        return (float(settings.manual_levels[0]), float(settings.manual_levels[1]))
+    high = robust_maximum(values, settings.percentile, signed=settings.diverging)
+    if not high > 0:
+        high = 1.0
+    if settings.normalisation == "log":
+        return (high / 10.0**settings.log_decades, high)
+    return (-high, high) if settings.diverging else (0.0, high)
+
+
+def render(image: np.ndarray, levels: tuple[float, float], settings: DisplaySettings,
+           colorspace: str = "sRGB") -> np.ndarray:
+    """Screen pixels for ``image`` (H, W, 3) linear radiance: (H, W, 3) uint8 sRGB-encoded."""
+    image = np.asarray(image, np.float32) * np.float32(2.0**settings.exposure_stops)
+    undefined = ~np.isfinite(image).all(axis=-1)
+    image = np.where(undefined[..., None], 0, image)
+    low, high = levels
+    if settings.diverging:
+        pixels = _diverging(image @ _luminance_weights(colorspace), max(abs(low), abs(high)))
+    elif settings.normalisation == "log":
+        pixels = _log_encoded(image, low, high)
+    else:
+        pixels = _colour_encoded(image @ _to_srgb_matrix(colorspace).T, low, high)
+    pixels[undefined] = UNDEFINED_RGB
+    return pixels
+
+
+def negative_fraction(image: np.ndarray) -> float:
+    """Fraction of finite values below zero in ``image`` (any shape): what a non-diverging
+    display clips to black, reported so that the clipping is never silent."""
+    values = np.asarray(image)
+    finite = np.isfinite(values)
+    count = int(finite.sum())
+    return float((values[finite] < 0).sum() / count) if count else 0.0
+
+
+def _colour_encoded(linear_srgb: np.ndarray, low: float, high: float) -> np.ndarray:
+    span = high - low if high != low else 1.0
+    scaled = (linear_srgb - np.float32(low)) * np.float32(1.0 / span)
+    index = np.clip(scaled * (_ENCODING_TABLE_SIZE - 1) + 0.5, 0, _ENCODING_TABLE_SIZE - 1).astype(np.int32)
+    return _srgb_encoding_table()[index]
+
+
+def _log_encoded(image: np.ndarray, low: float, high: float) -> np.ndarray:
+    low = low if low > 0 else high * 1e-3
+    high = high if high > low else low * 10
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = np.log10(np.maximum(image, np.float32(low)) / np.float32(low)) / np.float32(math.log10(high / low))
+    return np.clip(scaled * 255 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _diverging(luminance: np.ndarray, magnitude: float) -> np.ndarray:
+    magnitude = magnitude if magnitude > 0 else 1.0
+    position = np.clip(luminance / np.float32(magnitude), -1, 1)
+    anchors = np.linspace(-1, 1, len(_DIVERGING_ANCHORS))
+    channels = [np.interp(position, anchors, _DIVERGING_ANCHORS[:, c]) for c in range(3)]
+    return (np.stack(channels, axis=-1) + 0.5).astype(np.uint8)
+
+
+@functools.cache
+def _srgb_encoding_table() -> np.ndarray:
+    """(4096,) uint8: 8-bit sRGB code of linear ``i / 4095`` (colour-science's inverse EOTF)."""
+    code = colour_module().models.eotf_inverse_sRGB(np.linspace(0.0, 1.0, _ENCODING_TABLE_SIZE))
+    return np.clip(np.round(code * 255), 0, 255).astype(np.uint8)
+
+
+@functools.cache
+def _to_srgb_matrix(colorspace: str) -> np.ndarray:
+    """(3, 3) float32 matrix from linear ``colorspace`` RGB to linear sRGB (Bradford-adapted)."""
+    colour = colour_module()
+    if colorspace == "sRGB":
+        return np.eye(3, dtype=np.float32)
+    source = colour.RGB_COLOURSPACES[colorspace]
+    target = colour.RGB_COLOURSPACES["sRGB"]
+    return colour.matrix_RGB_to_RGB(source, target, chromatic_adaptation_transform="Bradford").astype(np.float32)
+
+
+@functools.cache
+def _luminance_weights(colorspace: str) -> np.ndarray:
+    """(3,) float32: relative luminance Y of linear ``colorspace`` RGB (row Y of RGB->XYZ)."""
+    return colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1].astype(np.float32)

@@ -1,0 +1,94 @@
+"""Comparing transient images with a synthetic dataset's path-length ground truth.
+
+A simulated dataset carries images of the light whose path length inside the surface lies in
+``[min, max)`` grid steps (FORMAT.md ``ground_truth.path_length_images``). A transient image T_r
+bounds path length to about [r, r+dr), so each T_r is compared with the bin that best matches that
+interval, by zero-mean normalised cross-correlation (NCC), which ignores the two images' scales.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DatasetError
+from .exr import read_exr_rgb
+from .manifest import Manifest
+
+
+@dataclass(frozen=True, eq=False)
+class PathLengthImages:
+    """Ground-truth path-length images.
+
+    Attributes
+    ----------
+    bounds
+        (m, 2) float64 ``[min, max)`` path length of each bin in grid steps.
+    images
+        (m, H, W, 3) float32 linear radiance under uniform illumination.
+    """
+
+    bounds: np.ndarray
+    images: np.ndarray
+
+    def nearest_bin(self, radius: float, step: float) -> int:
+        """Index of the bin overlapping ``[radius, radius + step)`` most; ties and no overlap
+        go to the bin whose centre is nearest the interval's centre."""
+        low = np.maximum(self.bounds[:, 0], radius)
+        high = np.minimum(self.bounds[:, 1], radius + step)
+        overlap = np.maximum(high - low, 0.0)
+        distance = np.abs(self.bounds.mean(axis=1) - (radius + step / 2))
+        return int(np.lexsort((distance, -overlap))[0])
+
+
+def read_path_length_images(
+    manifest: Manifest, progress: Callable[[float], None] | None = None
+) -> PathLengthImages | None:
+    """The dataset's path-length images, or None when it has none.
+
+    Raises DatasetError naming the file when an image is unreadable or of the wrong size.
+    """
+    entries = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
+    if not entries:
+        return None
+    images = np.empty((len(entries), manifest.height, manifest.width, 3), np.float32)
+    for index, entry in enumerate(entries):
+        path = manifest.folder / entry.file
+        image = read_exr_rgb(path)
+        if image.shape[:2] != (manifest.height, manifest.width):
+            raise DatasetError(
+                f"{path}: ground-truth image is {image.shape[1]}x{image.shape[0]}, "
+                f"the grid is {manifest.width}x{manifest.height}"
+            )
+        images[index] = image
+        if progress is not None:
+            progress((index + 1) / len(entries))
+    bounds = np.array([(entry.min, entry.max) for entry in entries], np.float64)
+    return PathLengthImages(bounds, images)
+
+
+def normalised_cross_correlation(first: np.ndarray, second: np.ndarray) -> float:
+    """Zero-mean NCC of two same-shape arrays over the entries finite in both, in [-1, 1].
+
+    NaN when fewer than two entries are finite or either is constant there.
+    """
+    first = np.asarray(first, np.float64).ravel()
+    second = np.asarray(second, np.float64).ravel()
+    both = np.isfinite(first) & np.isfinite(second)
+    if both.sum() < 2:
+        return float("nan")
+    a = first[both] - first[both].mean()
+    b = second[both] - second[both].mean()
+    norm = np.sqrt((a * a).sum() * (b * b).sum())
+    return float((a * b).sum() / norm) if norm > 0 else float("nan")
+
+
+def stack_correlations(radii: np.ndarray, step: float, images: np.ndarray,
+                       truth: PathLengthImages) -> np.ndarray:
+    """(n,) NCC of each transient image ``images[i]`` (n, H, W, 3) with its nearest bin."""
+    return np.array([
+        normalised_cross_correlation(images[i], truth.images[truth.nearest_bin(float(r), step)])
+        for i, r in enumerate(radii)
+    ])

@@ -1,0 +1,105 @@
+"""Writing what the explorer shows: PNG images, MP4 movies with the radius burnt in, CSV text.
+
+Every writer is atomic (a temporary file beside the target, renamed into place) and raises
+:class:`ExportError` naming the file when the encoder refuses.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .atomic import atomic_file
+from .errors import RinglightError
+
+MOVIE_MIN_WIDTH = 512
+"""Movies of small grids are enlarged (nearest neighbour, integer factor) to at least this width
+so that the burnt-in radius is legible and pixels stay sharp."""
+
+
+class ExportError(RinglightError):
+    """An export could not be written."""
+
+
+def write_png(path: str | os.PathLike, pixels: np.ndarray) -> Path:
+    """Write (H, W, 3) uint8 RGB ``pixels`` as a lossless PNG, atomically."""
+    path = Path(path)
+    pixels = _checked_rgb(pixels, path)
+    with atomic_file(path) as temporary:
+        if not cv2.imwrite(str(temporary), cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR)):
+            raise ExportError(f"{path}: OpenCV could not write the PNG")
+    return path
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) atomically."""
+    path = Path(path)
+    with atomic_file(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+    return path
+
+
+def movie_scale(width: int) -> int:
+    """Integer enlargement that brings ``width`` to at least :data:`MOVIE_MIN_WIDTH`."""
+    return max(1, -(-MOVIE_MIN_WIDTH // max(width, 1)))
+
+
+def write_movie(
+    path: str | os.PathLike,
+    frame_at: Callable[[int], np.ndarray],
+    labels: Sequence[str],
+    fps: float,
+    progress: Callable[[float], None] | None = None,
+) -> Path:
+    """Write an MP4 (MPEG-4 part 2, OpenCV VideoWriter) of ``len(labels)`` frames, atomically.
+
+    ``frame_at(i)`` returns frame ``i`` as (H, W, 3) uint8 RGB; ``labels[i]`` is burnt into its
+    top-left corner (e.g. ``"r = 4.0"``). Frames are enlarged by :func:`movie_scale` and padded
+    to even sizes, which the codec needs. ``progress`` may raise Cancelled; nothing is left then.
+    """
+    path = Path(path)
+    if not labels:
+        raise ExportError(f"{path}: a movie needs at least one frame")
+    if not fps > 0:
+        raise ExportError(f"{path}: frame rate must be > 0, got {fps}")
+    first = _checked_rgb(frame_at(0), path)
+    scale = movie_scale(first.shape[1])
+    height = first.shape[0] * scale + (first.shape[0] * scale) % 2
+    width = first.shape[1] * scale + (first.shape[1] * scale) % 2
+    with atomic_file(path) as temporary:
+        writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
+        if not writer.isOpened():
+            raise ExportError(f"{path}: OpenCV has no MP4 encoder here")
+        try:
+            for index, label in enumerate(labels):
+                frame = first if index == 0 else _checked_rgb(frame_at(index), path)
+                writer.write(_movie_frame(frame, label, scale, (height, width)))
+                if progress is not None:
+                    progress((index + 1) / len(labels))
+        finally:
+            writer.release()
+    return path
+
+
+def _movie_frame(frame: np.ndarray, label: str, scale: int, size: tuple[int, int]) -> np.ndarray:
+    enlarged = np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1)
+    canvas = np.zeros((*size, 3), np.uint8)
+    canvas[:enlarged.shape[0], :enlarged.shape[1]] = enlarged
+    canvas = cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR)
+    font_scale = max(0.5, size[1] / 900)
+    origin = (int(10 * font_scale), int(32 * font_scale))
+    thickness = max(1, int(round(2 * font_scale)))
+    cv2.putText(canvas, label, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (0, 0, 0), thickness + 3, cv2.LINE_AA)
+    cv2.putText(canvas, label, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (255, 255, 255), thickness, cv2.LINE_AA)
+    return canvas
+
+
+def _checked_rgb(pixels: np.ndarray, path: Path) -> np.ndarray:
+    pixels = np.asarray(pixels)
+    if pixels.dtype != np.uint8 or pixels.ndim != 3 or pixels.shape[2] != 3 or 0 in pixels.shape:
+        raise ExportError(f"{path}: expected (H, W, 3) uint8 pixels, got {pixels.shape} {pixels.dtype}")
+    return np.ascontiguousarray(pixels)

@@ -1,0 +1,105 @@
+"""A stack computation as a frozen request: every input captured, runnable in a worker.
+
+The explorer shows ring light images E_r and transient images T_r = E_r - E_{r+dr} of the same
+radii and switches between them without recomputing, so a request yields both, sharing each
+distinct ring radius (the rings at r + dr are the transient's outer rings).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .dataset import ImpulseDataset, ProgressCallback
+from .errors import StackError
+from .stacks import Stack, needed_radius, radius_range, ring_stack
+
+
+@dataclass(frozen=True)
+class StackRequest:
+    """Radii ``start, start + step, ..., stop`` (grid steps, stop inclusive), transient step
+    ``dr``, ring ``thickness`` and anti-aliasing."""
+
+    start: float = 0.0
+    stop: float = 10.0
+    step: float = 1.0
+    dr: float = 1.0
+    thickness: float = 1.0
+    antialias: bool = False
+
+    def radii(self) -> np.ndarray:
+        """(n,) float64 radii; raises StackError for a bad range."""
+        return radius_range(self.start, self.stop, self.step)
+
+    def reach(self) -> float:
+        """Largest lit-point distance (grid steps) the request's rings use."""
+        return needed_radius(self.radii(), self.thickness, self.dr, self.antialias)
+
+    def check(self, dataset: ImpulseDataset) -> None:
+        """Raise StackError when ``dataset`` cannot serve the request."""
+        if not (math.isfinite(self.dr) and self.dr > 0):
+            raise StackError(f"transient step dr must be > 0, got {self.dr}")
+        if not (math.isfinite(self.thickness) and self.thickness > 0):
+            raise StackError(f"ring thickness must be > 0, got {self.thickness}")
+        if self.reach() > dataset.max_radius + 1e-9:
+            raise StackError(
+                f"radii up to {self.stop:g} + dr {self.dr:g} (thickness {self.thickness:g}) reach "
+                f"{self.reach():.2f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; "
+                f"the largest stop is {largest_stop(dataset.max_radius, self):g}"
+            )
+
+    def with_changes(self, **changes) -> "StackRequest":
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True, eq=False)
+class StackPair:
+    """Ring light and transient stacks of one request (same radii, counts shared)."""
+
+    request: StackRequest
+    ring: Stack
+    transient: Stack
+
+    @property
+    def radii(self) -> np.ndarray:
+        return self.ring.radii
+
+
+def largest_stop(max_radius: float, request: StackRequest) -> float:
+    """Largest ``stop`` on the request's radius grid whose rings stay within ``max_radius``;
+    ``request.start`` when even that does not fit."""
+    stop = request.start
+    while True:
+        candidate = round(stop + request.step, 9)
+        if needed_radius([candidate], request.thickness, request.dr, request.antialias) > max_radius + 1e-9:
+            return stop
+        stop = candidate
+
+
+def default_request(max_radius: float, most_radii: int = 64) -> StackRequest:
+    """Radii 0, 1, ... as far as ``max_radius`` allows (at most ``most_radii``), dr 1, w 1."""
+    request = StackRequest(start=0.0, stop=0.0)
+    return request.with_changes(stop=min(largest_stop(max_radius, request), float(most_radii - 1)))
+
+
+def compute_stacks(dataset: ImpulseDataset, request: StackRequest,
+                   progress: ProgressCallback | None = None) -> StackPair:
+    """E_r and T_r = E_r - E_{r+dr} for every radius of ``request``; each ring computed once."""
+    request.check(dataset)
+    radii = request.radii()
+    outer = np.round(radii + request.dr, 9)
+    unique = np.unique(np.concatenate([radii, outer]))
+    rings = ring_stack(dataset, unique, request.thickness, request.antialias, progress)
+    inner_index = np.searchsorted(unique, radii)
+    outer_index = np.searchsorted(unique, outer)
+    ring = Stack(
+        "ring", radii, rings.thickness, rings.antialias, rings.colorspace,
+        rings.images[inner_index], rings.counts[inner_index],
+    )
+    transient = Stack(
+        "transient", radii, rings.thickness, rings.antialias, rings.colorspace,
+        ring.images - rings.images[outer_index], ring.counts, rings.counts[outer_index], float(request.dr),
+    )
+    return StackPair(request, ring, transient)

@@ -1,0 +1,181 @@
+"""Controls for what the image view shows and how: view, normalisation, levels, exposure."""
+
+from __future__ import annotations
+
+import math
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QDoubleValidator
+from PySide6.QtWidgets import (
+    QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QSlider,
+    QToolButton, QWidget,
+)
+
+from ringlight.core.display import NORMALISATIONS, DisplaySettings
+
+VIEWS = {
+    "transient": "Transient T_r",
+    "ring": "Ring light E_r",
+    "impulse": "Impulse image of picked point",
+    "steady": "Steady state (all lit)",
+}
+"""View keys and their labels."""
+
+_NORMALISATION_LABELS = {
+    "per-image": "Per image (robust max)",
+    "global": "Global over stack",
+    "log": "Log",
+    "manual": "Manual levels",
+}
+_EXPOSURE_TICKS_PER_STOP = 10
+
+
+class DisplayControls(QWidget):
+    """Edits the view key and :class:`DisplaySettings`.
+
+    Signals
+    -------
+    view_changed(str)
+        A key of :data:`VIEWS`.
+    settings_changed(object)
+        A new :class:`DisplaySettings`.
+    profile_log_changed(bool)
+        Whether the profile plots use a log y axis.
+    """
+
+    view_changed = Signal(str)
+    settings_changed = Signal(object)
+    profile_log_changed = Signal(bool)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.view_box = QComboBox()
+        for key, label in VIEWS.items():
+            self.view_box.addItem(label, key)
+        self.view_box.setToolTip("Image shown (Ctrl+1 .. Ctrl+4)")
+        self.normalisation_box = QComboBox()
+        for key in NORMALISATIONS:
+            self.normalisation_box.addItem(_NORMALISATION_LABELS[key], key)
+        self.percentile_box = QDoubleSpinBox()
+        self.percentile_box.setRange(50, 100)
+        self.percentile_box.setDecimals(2)
+        self.percentile_box.setSuffix(" th pct")
+        self.percentile_box.setToolTip("Robust maximum: this percentile of the finite values maps to white")
+        self.low_edit = QLineEdit()
+        self.high_edit = QLineEdit()
+        for edit, tip in ((self.low_edit, "Black level (linear radiance)"), (self.high_edit, "White level")):
+            edit.setValidator(QDoubleValidator())
+            edit.setToolTip(tip)
+        self.decades_box = QDoubleSpinBox()
+        self.decades_box.setRange(0.5, 12)
+        self.decades_box.setSingleStep(0.5)
+        self.decades_box.setSuffix(" decades")
+        self.decades_box.setToolTip("Log display range below the robust maximum")
+        self.exposure_slider = QSlider(Qt.Orientation.Horizontal)
+        self.exposure_slider.setRange(-8 * _EXPOSURE_TICKS_PER_STOP, 8 * _EXPOSURE_TICKS_PER_STOP)
+        self.exposure_label = QLabel()
+        self.exposure_label.setMinimumWidth(64)
+        reset = QToolButton(text="0")
+        reset.setToolTip("Reset exposure")
+        reset.clicked.connect(lambda: self.exposure_slider.setValue(0))
+        self.diverging_box = QCheckBox("Signed (diverging map)")
+        self.diverging_box.setToolTip("Show signed luminance, blue < 0 < red, so negative transients stay visible")
+        self.profile_log_box = QCheckBox("Profiles: log y")
+        self.levels_label = QLabel()
+        self.levels_label.setWordWrap(True)
+        self.levels_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+
+        levels = QHBoxLayout()
+        levels.addWidget(self.low_edit)
+        levels.addWidget(self.high_edit)
+        exposure = QHBoxLayout()
+        exposure.addWidget(self.exposure_slider, 1)
+        exposure.addWidget(self.exposure_label)
+        exposure.addWidget(reset)
+        layout = QFormLayout(self)
+        layout.addRow("View", self.view_box)
+        layout.addRow("Normalise", self.normalisation_box)
+        layout.addRow("Robust max", self.percentile_box)
+        layout.addRow("Levels", levels)
+        layout.addRow("Log range", self.decades_box)
+        layout.addRow("Exposure", exposure)
+        layout.addRow(self.diverging_box)
+        layout.addRow(self.levels_label)
+        layout.addRow(self.profile_log_box)
+
+        self.set_settings(DisplaySettings())
+        self.view_box.currentIndexChanged.connect(lambda _: self.view_changed.emit(self.view()))
+        self.normalisation_box.currentIndexChanged.connect(self._on_edited)
+        self.percentile_box.valueChanged.connect(self._on_edited)
+        self.low_edit.editingFinished.connect(self._on_edited)
+        self.high_edit.editingFinished.connect(self._on_edited)
+        self.decades_box.valueChanged.connect(self._on_edited)
+        self.exposure_slider.valueChanged.connect(self._on_edited)
+        self.diverging_box.toggled.connect(self._on_edited)
+        self.profile_log_box.toggled.connect(self.profile_log_changed)
+
+    def view(self) -> str:
+        return self.view_box.currentData()
+
+    def set_view(self, key: str) -> None:
+        self.view_box.setCurrentIndex(list(VIEWS).index(key))
+
+    def settings(self) -> DisplaySettings:
+        low, high = _number(self.low_edit.text(), 0.0), _number(self.high_edit.text(), 1.0)
+        return DisplaySettings(
+            normalisation=self.normalisation_box.currentData(),
+            percentile=self.percentile_box.value(),
+            manual_levels=(low, high),
+            exposure_stops=self.exposure_slider.value() / _EXPOSURE_TICKS_PER_STOP,
+            diverging=self.diverging_box.isChecked(),
+            log_decades=self.decades_box.value(),
+        )
+
+    def set_settings(self, settings: DisplaySettings) -> None:
+        """Show ``settings`` without emitting."""
+        widgets = (self.normalisation_box, self.percentile_box, self.decades_box, self.exposure_slider,
+                   self.diverging_box)
+        for widget in widgets:
+            widget.blockSignals(True)
+        self.normalisation_box.setCurrentIndex(NORMALISATIONS.index(settings.normalisation))
+        self.percentile_box.setValue(settings.percentile)
+        self.low_edit.setText(f"{settings.manual_levels[0]:.6g}")
+        self.high_edit.setText(f"{settings.manual_levels[1]:.6g}")
+        self.decades_box.setValue(settings.log_decades)
+        self.exposure_slider.setValue(int(round(settings.exposure_stops * _EXPOSURE_TICKS_PER_STOP)))
+        self.diverging_box.setChecked(settings.diverging)
+        for widget in widgets:
+            widget.blockSignals(False)
+        self._update_enabled(settings)
+
+    def show_levels(self, levels: tuple[float, float], negative_fraction: float) -> None:
+        """Report the levels in use and how much of the image is negative (clipped to black
+        unless the diverging map is on)."""
+        text = f"Levels in use: {levels[0]:.4g} .. {levels[1]:.4g}"
+        if negative_fraction > 0 and not self.diverging_box.isChecked():
+            text += f"<br><b>{negative_fraction:.1%} of values are negative</b>, drawn black: tick Signed to see them."
+        self.levels_label.setText(text)
+
+    def _update_enabled(self, settings: DisplaySettings) -> None:
+        manual = settings.normalisation == "manual"
+        self.low_edit.setEnabled(manual)
+        self.high_edit.setEnabled(manual)
+        self.percentile_box.setEnabled(not manual)
+        self.decades_box.setEnabled(settings.normalisation == "log")
+        self.exposure_label.setText(f"{settings.exposure_stops:+.1f} EV")
+
+    def _on_edited(self, *_):
+        try:
+            settings = self.settings()
+        except ValueError:
+            return
+        self._update_enabled(settings)
+        self.settings_changed.emit(settings)
+
+
+def _number(text: str, default: float) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        return default
+    return value if math.isfinite(value) else default

@@ -1,0 +1,163 @@
+"""An image view for grid images with a picked point and the ring drawn around it.
+
+Pixel ``(y, x)`` of the grid covers the square ``[x, x+1) x [y, y+1)`` of the view; row 0 is at
+the top. Left click or left drag picks a pixel, the wheel zooms, middle drag pans, right click
+opens pyqtgraph's view menu. The panel draws RGB pixels it is given and never rescales them, so
+the levels are entirely the caller's (pyqtgraph's ImageView would reset them per frame).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QPointF, Qt, Signal
+from PySide6.QtWidgets import QWidget
+
+MEMBER_RGB = (255, 214, 0)
+MISSING_RGB = (150, 150, 150)
+_CIRCLE_POINTS = 241
+
+
+def member_alpha(weights: np.ndarray) -> np.ndarray:
+    """Overlay alpha (0-255) of ring members of ``weights`` in (0, 1]: 40 + 140 w, so the image
+    stays visible under the ring and partial anti-aliased weights are readable."""
+    return np.round(40 + 140 * np.clip(weights, 0, 1)).astype(np.uint8)
+
+
+class _PickingViewBox(pg.ViewBox):
+    """A ViewBox whose left button picks pixels instead of panning."""
+
+    def __init__(self, on_pick):
+        super().__init__(lockAspect=True, invertY=True, enableMenu=True)
+        self._on_pick = on_pick
+
+    def mouseClickEvent(self, event):
+        if event.button() == Qt.MouseButton.LeftButton:
+            event.accept()
+            self._on_pick(self.mapSceneToView(event.scenePos()))
+        else:
+            super().mouseClickEvent(event)
+
+    def mouseDragEvent(self, event, axis=None):
+        if event.button() == Qt.MouseButton.LeftButton:
+            event.accept()
+            self._on_pick(self.mapSceneToView(event.scenePos()))
+        else:
+            super().mouseDragEvent(event, axis)
+
+
+class ImagePanel(pg.GraphicsView):
+    """Shows (H, W, 3) uint8 RGB pixels with an optional ring overlay.
+
+    Signals
+    -------
+    pixel_picked(y, x)
+        A pixel was clicked or dragged over.
+    pixel_hovered(y, x)
+        The cursor is over pixel (y, x); (-1, -1) when it leaves the image.
+    """
+
+    pixel_picked = Signal(int, int)
+    pixel_hovered = Signal(int, int)
+
+    def __init__(self, title: str = "", parent: QWidget | None = None):
+        super().__init__(parent, background="#202024")
+        self.view = _PickingViewBox(self._pick_at)
+        self.setCentralItem(self.view)
+        self.image_item = pg.ImageItem(axisOrder="row-major")
+        self.overlay_item = pg.ImageItem(axisOrder="row-major")
+        self.overlay_item.setZValue(10)
+        self.circle = pg.PlotCurveItem(pen=pg.mkPen(MEMBER_RGB, width=1.5))
+        self.outer_circle = pg.PlotCurveItem(pen=pg.mkPen(MEMBER_RGB, width=1, style=Qt.PenStyle.DashLine))
+        self.marker = pg.ScatterPlotItem(symbol="+", size=14, pen=pg.mkPen("c", width=2), brush=None)
+        for item in (self.circle, self.outer_circle, self.marker):
+            item.setZValue(20)
+        for item in (self.image_item, self.overlay_item, self.circle, self.outer_circle, self.marker):
+            self.view.addItem(item)
+        self.title = pg.TextItem(title, color="w", anchor=(0, 0))
+        self.title.setParentItem(self.view)
+        self._shape: tuple[int, int] | None = None
+        self._overlay = np.zeros((0, 0, 4), np.uint8)
+        self.scene().sigMouseMoved.connect(self._on_mouse_moved)
+        self.setMinimumSize(240, 240)
+
+    @property
+    def grid_shape(self) -> tuple[int, int] | None:
+        return self._shape
+
+    def set_title(self, text: str) -> None:
+        self.title.setText(text)
+
+    def set_pixels(self, pixels: np.ndarray) -> None:
+        """Show (H, W, 3) uint8 RGB ``pixels``; a new grid size resets the zoom."""
+        shape = pixels.shape[:2]
+        self.image_item.setImage(pixels, autoLevels=False, levels=(0, 255))
+        if shape != self._shape:
+            self._shape = shape
+            self.clear_ring()
+            self.view.setRange(xRange=(0, shape[1]), yRange=(0, shape[0]), padding=0.02)
+
+    def pixels(self) -> np.ndarray | None:
+        """The RGB pixels shown now."""
+        return self.image_item.image
+
+    def show_ring(self, center: tuple[int, int], positions: np.ndarray, weights: np.ndarray,
+                  missing: np.ndarray, radius: float, outer_radius: float | None = None) -> None:
+        """Mark ``center = (y, x)`` and draw the ring: the circle of ``radius`` (and a dashed one of
+        ``outer_radius``), and each member pixel ``positions[i] = (y, x)`` tinted with alpha
+        :func:`member_alpha` of ``weights[i]``; members flagged in ``missing`` (lit in no frame,
+        so not counted) are drawn grey."""
+        if self._shape is None:
+            return
+        overlay = np.zeros((*self._shape, 4), np.uint8)
+        if len(positions):
+            colours = np.where(np.asarray(missing)[:, None], MISSING_RGB, MEMBER_RGB).astype(np.uint8)
+            overlay[positions[:, 0], positions[:, 1], :3] = colours
+            overlay[positions[:, 0], positions[:, 1], 3] = member_alpha(weights)
+        self._overlay = overlay
+        self.overlay_item.setImage(overlay, autoLevels=False, levels=(0, 255))
+        cy, cx = center[0] + 0.5, center[1] + 0.5
+        self.marker.setData([cx], [cy])
+        self.circle.setData(*_circle(cx, cy, radius))
+        if outer_radius is None:
+            self.outer_circle.setData([], [])
+        else:
+            self.outer_circle.setData(*_circle(cx, cy, outer_radius))
+
+    def ring_overlay(self) -> np.ndarray:
+        """(H, W, 4) uint8 RGBA overlay drawn now (alpha 0 off the ring)."""
+        return self._overlay
+
+    def clear_ring(self) -> None:
+        self._overlay = np.zeros((0, 0, 4), np.uint8)
+        self.overlay_item.clear()
+        self.marker.setData([], [])
+        self.circle.setData([], [])
+        self.outer_circle.setData([], [])
+
+    def pixel_at_scene(self, scene_position: QPointF) -> tuple[int, int] | None:
+        """Grid pixel under a scene position, or None outside the image."""
+        point = self.view.mapSceneToView(scene_position)
+        return self._pixel_at(point)
+
+    def _pixel_at(self, point: QPointF) -> tuple[int, int] | None:
+        if self._shape is None:
+            return None
+        y, x = int(np.floor(point.y())), int(np.floor(point.x()))
+        if 0 <= y < self._shape[0] and 0 <= x < self._shape[1]:
+            return (y, x)
+        return None
+
+    def _pick_at(self, point: QPointF) -> None:
+        pixel = self._pixel_at(point)
+        if pixel is not None:
+            self.pixel_picked.emit(*pixel)
+
+    def _on_mouse_moved(self, scene_position: QPointF) -> None:
+        pixel = self.pixel_at_scene(scene_position) if self.view.sceneBoundingRect().contains(scene_position) else None
+        self.pixel_hovered.emit(*(pixel if pixel is not None else (-1, -1)))
+
+
+def _circle(cx: float, cy: float, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    angle = np.linspace(0, 2 * np.pi, _CIRCLE_POINTS)
+    return cx + radius * np.cos(angle), cy + radius * np.sin(angle)

@@ -1,0 +1,36 @@
+"""A status-bar indicator for one :class:`JobSlot`: what runs, how far, and a Cancel button."""
+
+from __future__ import annotations
+
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QToolButton, QWidget
+
+from .jobs import JobSlot
+
+
+class JobIndicator(QWidget):
+    """Shows itself while ``slot`` is busy; Cancel (or Esc through the window) cancels the job."""
+
+    def __init__(self, slot: JobSlot, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.slot = slot
+        self.label = QLabel()
+        self.bar = QProgressBar()
+        self.bar.setRange(0, 1000)
+        self.bar.setMaximumWidth(160)
+        self.bar.setTextVisible(False)
+        self.cancel_button = QToolButton()
+        self.cancel_button.setText("Cancel")
+        self.cancel_button.clicked.connect(slot.cancel)
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        for widget in (self.label, self.bar, self.cancel_button):
+            layout.addWidget(widget)
+        slot.started.connect(self._on_started)
+        slot.progress.connect(lambda fraction: self.bar.setValue(int(round(fraction * 1000))))
+        slot.idle.connect(self.hide)
+        self.hide()
+
+    def _on_started(self, description: str) -> None:
+        self.label.setText(description)
+        self.bar.setValue(0)
+        self.show()

@@ -1,0 +1,136 @@
+"""Running slow work off the GUI thread, with progress, cancel and supersession.
+
+A job is a plain function ``work(progress) -> result`` that captured all its inputs (a frozen
+request, napari style). ``progress(fraction)`` reports to the GUI and raises
+:class:`~ringlight.core.Cancelled` once the job was cancelled, so core loops stop at their next
+progress report and leave nothing half-written. Results and errors come back through queued
+signals, so they are handled in the GUI thread.
+
+Each :class:`JobSlot` runs one kind of job (loading, stacks, exports): starting a new job in a
+slot cancels the one running there, and a superseded job's result is dropped.
+"""
+
+from __future__ import annotations
+
+import threading
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+from PySide6.QtCore import QObject, QRunnable, QThreadPool, Signal
+
+from ringlight.core import Cancelled, RinglightError
+
+Work = Callable[[Callable[[float], None]], Any]
+
+
+class _JobSignals(QObject):
+    progress = Signal(int, float)
+    finished = Signal(int, object)
+    failed = Signal(int, str)
+    cancelled = Signal(int)
+
+
+class _Job(QRunnable):
+    def __init__(self, number: int, work: Work, signals: _JobSignals):
+        super().__init__()
+        self.setAutoDelete(True)
+        self.number = number
+        self.work = work
+        self.signals = signals
+        self.cancel_event = threading.Event()
+
+    def report(self, fraction: float) -> None:
+        if self.cancel_event.is_set():
+            raise Cancelled("cancelled")
+        self.signals.progress.emit(self.number, float(fraction))
+
+    def run(self) -> None:
+        try:
+            if self.cancel_event.is_set():
+                raise Cancelled("cancelled")
+            result = self.work(self.report)
+        except Cancelled:
+            self.signals.cancelled.emit(self.number)
+        except RinglightError as error:
+            self.signals.failed.emit(self.number, str(error))
+        except MemoryError:
+            self.signals.failed.emit(self.number, "out of memory")
+        except Exception as error:  # a bug: report it with its traceback instead of crashing Qt
+            self.signals.failed.emit(self.number, f"internal error: {error!r}\n{traceback.format_exc()}")
+        else:
+            self.signals.finished.emit(self.number, result)
+
+
+class JobSlot(QObject):
+    """One kind of background job at a time.
+
+    Signals carry only the current job's events: ``started(str)`` with its description,
+    ``progress(float)``, ``finished(object)`` with its result, ``failed(str)`` with a one-line
+    message, ``cancelled()``, and ``idle()`` after any of the last three.
+    """
+
+    started = Signal(str)
+    progress = Signal(float)
+    finished = Signal(object)
+    failed = Signal(str)
+    cancelled = Signal()
+    idle = Signal()
+
+    def __init__(self, pool: QThreadPool, parent: QObject | None = None):
+        super().__init__(parent)
+        self._pool = pool
+        self._signals = _JobSignals(self)
+        self._signals.progress.connect(self._on_progress)
+        self._signals.finished.connect(self._on_finished)
+        self._signals.failed.connect(self._on_failed)
+        self._signals.cancelled.connect(self._on_cancelled)
+        self._count = 0
+        self._current: _Job | None = None
+        self.description = ""
+
+    @property
+    def busy(self) -> bool:
+        return self._current is not None
+
+    def start(self, description: str, work: Work) -> None:
+        """Run ``work`` in the pool, cancelling and superseding any job running here."""
+        self.cancel()
+        self._count += 1
+        self._current = _Job(self._count, work, self._signals)
+        self.description = description
+        self.started.emit(description)
+        self._pool.start(self._current)
+
+    def cancel(self) -> None:
+        """Ask the current job to stop at its next progress report; its result is dropped."""
+        if self._current is not None:
+            self._current.cancel_event.set()
+            self._current = None
+            self.cancelled.emit()
+            self.idle.emit()
+
+    def _is_current(self, number: int) -> bool:
+        return self._current is not None and self._current.number == number
+
+    def _on_progress(self, number: int, fraction: float) -> None:
+        if self._is_current(number):
+            self.progress.emit(fraction)
+
+    def _on_finished(self, number: int, result: object) -> None:
+        if self._is_current(number):
+            self._current = None
+            self.finished.emit(result)
+            self.idle.emit()
+
+    def _on_failed(self, number: int, message: str) -> None:
+        if self._is_current(number):
+            self._current = None
+            self.failed.emit(message)
+            self.idle.emit()
+
+    def _on_cancelled(self, number: int) -> None:
+        if self._is_current(number):
+            self._current = None
+            self.cancelled.emit()
+            self.idle.emit()

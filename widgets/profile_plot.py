@@ -1,0 +1,114 @@
+"""Plots of E(r) and T(r) at the picked pixel, with the current radius marked.
+
+Clicking in either plot, or dragging the radius line, asks for that radius (``radius_requested``);
+the window snaps it to the nearest radius of the stack.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import QWidget
+
+CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
+
+
+class ProfilePlot(pg.GraphicsLayoutWidget):
+    """Two stacked plots sharing the radius axis: ring light E(r) above, transient T(r) below.
+
+    In log-y mode values <= 0 are left out (a log axis cannot show them); T(r) negatives are then
+    visible in linear mode only, which the plot title says.
+    """
+
+    radius_requested = Signal(float)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.ring_plot = self.addPlot(row=0, col=0, title="E(r): ring light")
+        self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr): transient")
+        self.transient_plot.setXLink(self.ring_plot)
+        self.transient_plot.setLabel("bottom", "radius r", units="grid steps")
+        self.ring_curves = [self.ring_plot.plot(pen=pen) for pen in CHANNEL_PENS]
+        self.transient_curves = [self.transient_plot.plot(pen=pen) for pen in CHANNEL_PENS]
+        self.zero_line = pg.InfiniteLine(0, angle=0, pen=pg.mkPen("#888", style=Qt.PenStyle.DotLine))
+        self.transient_plot.addItem(self.zero_line)
+        self.radius_lines = []
+        for plot in (self.ring_plot, self.transient_plot):
+            plot.showGrid(x=False, y=False)
+            plot.getAxis("left").setWidth(64)
+            line = pg.InfiniteLine(0, angle=90, movable=True, pen=pg.mkPen("#ffd600", width=2))
+            line.sigDragged.connect(self._on_line_dragged)
+            plot.addItem(line)
+            self.radius_lines.append(line)
+        self.point_label = pg.TextItem("", color="#ddd", anchor=(1, 0))
+        self.point_label.setParentItem(self.ring_plot.vb)
+        self.ring_plot.vb.sigResized.connect(self._place_point_label)
+        self.scene().sigMouseClicked.connect(self._on_clicked)
+        self._log_y = False
+        self._radii = np.zeros(0)
+        self._ring = np.zeros((0, 3))
+        self._transient = np.zeros((0, 3))
+        self._set_axes()
+
+    @property
+    def log_y(self) -> bool:
+        return self._log_y
+
+    def set_profiles(self, radii: np.ndarray, ring: np.ndarray, transient: np.ndarray) -> None:
+        """Plot (n,) radii against (n, 3) E and T values (NaN points are left out)."""
+        self._radii = np.asarray(radii, np.float64)
+        self._ring = np.asarray(ring, np.float64)
+        self._transient = np.asarray(transient, np.float64)
+        self._redraw()
+
+    def set_point(self, text: str) -> None:
+        """Name the point the profiles belong to (top right of the E(r) plot)."""
+        self.point_label.setText(text)
+
+    def _place_point_label(self) -> None:
+        self.point_label.setPos(self.ring_plot.vb.width(), 0)
+
+    def clear_profiles(self) -> None:
+        self.set_profiles(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+
+    def curve_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radii, E, T) plotted now, before any log transform."""
+        return self._radii, self._ring, self._transient
+
+    def set_radius(self, radius: float) -> None:
+        for line in self.radius_lines:
+            line.blockSignals(True)
+            line.setValue(radius)
+            line.blockSignals(False)
+
+    def set_log_y(self, log_y: bool) -> None:
+        self._log_y = bool(log_y)
+        self._set_axes()
+        self._redraw()
+
+    def _redraw(self) -> None:
+        for curves, values in ((self.ring_curves, self._ring), (self.transient_curves, self._transient)):
+            for channel, curve in enumerate(curves):
+                y = values[:, channel] if len(values) else np.zeros(0)
+                x = self._radii
+                keep = np.isfinite(y) & ((y > 0) if self._log_y else True)
+                curve.setData(x[keep], y[keep])
+
+    def _set_axes(self) -> None:
+        for plot in (self.ring_plot, self.transient_plot):
+            plot.setLogMode(False, self._log_y)
+        self.ring_plot.setLabel("left", "radiance")
+        self.transient_plot.setLabel("left", "radiance" + (" (T > 0 only)" if self._log_y else ""))
+        self.zero_line.setVisible(not self._log_y)
+
+    def _on_line_dragged(self, line: pg.InfiniteLine) -> None:
+        self.radius_requested.emit(float(line.value()))
+
+    def _on_clicked(self, event) -> None:
+        if event.button() != Qt.MouseButton.LeftButton or event.isAccepted():
+            return
+        for plot in (self.ring_plot, self.transient_plot):
+            if plot.vb.sceneBoundingRect().contains(event.scenePos()):
+                self.radius_requested.emit(float(plot.vb.mapSceneToView(event.scenePos()).x()))
+                return

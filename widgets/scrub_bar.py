@@ -1,0 +1,127 @@
+"""A radius slider over a stack's radii with step buttons, play / pause, frame rate and loop."""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtWidgets import QCheckBox, QHBoxLayout, QLabel, QSlider, QSpinBox, QToolButton, QWidget
+
+
+class ScrubBar(QWidget):
+    """Chooses an index into ``radii``.
+
+    Keyboard: the slider's arrow / Page / Home / End keys when it has focus; the window adds
+    global shortcuts through :meth:`step` and :meth:`toggle_play`.
+
+    Signals
+    -------
+    index_changed(int)
+        The shown radius index changed (by the user, playback or :meth:`set_index`).
+    """
+
+    index_changed = Signal(int)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._radii = np.zeros(0)
+        self.slider = QSlider(Qt.Orientation.Horizontal)
+        self.slider.setPageStep(5)
+        self.slider.setToolTip("Ring radius: arrows step, PgUp/PgDn jump 5, [ and ] anywhere")
+        self.slider.valueChanged.connect(self._on_value_changed)
+        self.radius_label = QLabel("r = -")
+        self.radius_label.setMinimumWidth(110)
+        self.back_button = QToolButton(text="◀")
+        self.back_button.setToolTip("Previous radius ([)")
+        self.back_button.clicked.connect(lambda: self.step(-1))
+        self.forward_button = QToolButton(text="▶")
+        self.forward_button.setToolTip("Next radius (])")
+        self.forward_button.clicked.connect(lambda: self.step(1))
+        self.play_button = QToolButton(text="Play")
+        self.play_button.setCheckable(True)
+        self.play_button.setToolTip("Play / pause the scrub (Space)")
+        self.play_button.toggled.connect(self._on_play_toggled)
+        self.fps_box = QSpinBox()
+        self.fps_box.setRange(1, 60)
+        self.fps_box.setValue(8)
+        self.fps_box.setSuffix(" fps")
+        self.fps_box.valueChanged.connect(self._on_fps_changed)
+        self.loop_box = QCheckBox("Loop")
+        self.loop_box.setChecked(True)
+        self.timer = QTimer(self)
+        self.timer.timeout.connect(self._advance)
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(4, 2, 4, 2)
+        for widget in (self.radius_label, self.back_button, self.slider, self.forward_button,
+                       self.play_button, self.fps_box, self.loop_box):
+            layout.addWidget(widget, 1 if widget is self.slider else 0)
+        self.set_radii(np.zeros(0))
+
+    @property
+    def radii(self) -> np.ndarray:
+        return self._radii
+
+    def index(self) -> int:
+        return self.slider.value()
+
+    def radius(self) -> float | None:
+        return float(self._radii[self.index()]) if len(self._radii) else None
+
+    def set_radii(self, radii: np.ndarray, index: int | None = None) -> None:
+        """Scrub over ``radii`` (grid steps), showing ``index`` (default: the radius nearest the
+        current one)."""
+        previous = self.radius()
+        self._radii = np.asarray(radii, np.float64)
+        if index is None:
+            index = self.nearest_index(previous) if previous is not None else 0
+        self.slider.blockSignals(True)
+        self.slider.setRange(0, max(len(self._radii) - 1, 0))
+        self.slider.setValue(index)
+        self.slider.blockSignals(False)
+        self.setEnabled(len(self._radii) > 0)
+        self._update_label()
+
+    def nearest_index(self, radius: float) -> int:
+        if not len(self._radii):
+            return 0
+        return int(np.argmin(np.abs(self._radii - radius)))
+
+    def set_index(self, index: int) -> None:
+        self.slider.setValue(int(np.clip(index, 0, max(len(self._radii) - 1, 0))))
+
+    def step(self, delta: int) -> None:
+        self.set_index(self.index() + delta)
+
+    def toggle_play(self) -> None:
+        self.play_button.toggle()
+
+    def set_fps(self, fps: int) -> None:
+        self.fps_box.setValue(fps)
+
+    def _on_value_changed(self, index: int) -> None:
+        self._update_label()
+        self.index_changed.emit(index)
+
+    def _update_label(self) -> None:
+        radius = self.radius()
+        self.radius_label.setText("r = -" if radius is None else f"r = {radius:g}  ({self.index() + 1}/{len(self._radii)})")
+
+    def _on_play_toggled(self, playing: bool) -> None:
+        self.play_button.setText("Pause" if playing else "Play")
+        if playing:
+            if self.index() == len(self._radii) - 1:
+                self.set_index(0)
+            self.timer.start(int(round(1000 / self.fps_box.value())))
+        else:
+            self.timer.stop()
+
+    def _on_fps_changed(self, fps: int) -> None:
+        if self.timer.isActive():
+            self.timer.start(int(round(1000 / fps)))
+
+    def _advance(self) -> None:
+        if self.index() < len(self._radii) - 1:
+            self.step(1)
+        elif self.loop_box.isChecked():
+            self.set_index(0)
+        else:
+            self.play_button.setChecked(False)
