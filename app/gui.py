@@ -55,7 +55,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
 def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: tuple[int, int] | None) -> int:
     """Open ``dataset`` (None: the demo) in a fresh window with default settings, show
     ``radius`` and ``pick``, save the window as PNG to ``out`` and return an exit status."""
-    from PySide6.QtCore import QEventLoop, QSettings
+    from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
 
     from .window import MainWindow
 
@@ -81,6 +81,7 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
                 window.pick(*pick)
             if radius is not None:
                 window.set_radius(radius)
+            QCoreApplication.processEvents()  # pending layout (panels shown on load) before the grab
             pixmap = window.grab()
             with atomic_file(out) as temporary:
                 if not pixmap.save(str(temporary), "PNG"):

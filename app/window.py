@@ -400,7 +400,7 @@ class MainWindow(QMainWindow):
         low, high = truth.bounds[bin_index]
         current = normalised_cross_correlation(self.stacks.pair.transient.images[index], image)
         mean = float(np.nanmean(self.stacks.correlations)) if np.isfinite(self.stacks.correlations).any() else float("nan")
-        self.truth_panel.set_title(f"truth: path [{low:g}, {high:g})  NCC {current:.3f} (stack {mean:.3f})")
+        self.truth_panel.set_title(f"truth: path length [{low:g}, {high:g})\nNCC with T_r {current:.3f}, stack mean {mean:.3f}")
         self.truth_correlation = current
 
     def _refresh_ring(self) -> None:
@@ -440,10 +440,10 @@ class MainWindow(QMainWindow):
         return self.stacks.pair.ring if self.view() == "ring" else self.stacks.pair.transient
 
     def choose_stack_export(self) -> None:
-        if self.stacks is not None:
-            folder = QFileDialog.getExistingDirectory(self, "Export stack into an empty or earlier stack folder")
-            if folder:
-                self.export_stack(Path(folder))
+        if self.stacks is not None and (path := self._save_path(
+                "Export stack as EXR: name a new folder (or an earlier stack export)",
+                f"{self._shown_stack().kind}-stack", "Stack folder (*)")):
+            self.export_stack(path)
 
     def choose_png_export(self) -> None:
         if self.stacks is not None and (path := self._save_path("Export view as PNG", "view.png", "PNG (*.png)")):

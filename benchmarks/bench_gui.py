@@ -11,6 +11,10 @@ are counted to show that drawing happened inside it:
   - step: a ``]`` / ``[`` key press -> the next transient image normalised, encoded and drawn.
 Target (explorer issue): median < 16 ms for both (60 fps).
 
+Also measured: the longest event-loop stall (gap between ticks of a 5 ms QTimer) while the window
+opens a 128 x 128 dataset from EXR frames (multiplexed, written first) and recomputes its stack
+in worker threads. Target: no stall over 100 ms.
+
     python benchmarks/bench_gui.py [--size 128] [--max-radius 24] [--events 200]
 """
 
@@ -26,7 +30,7 @@ from pathlib import Path
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 import numpy as np
-from PySide6.QtCore import QEvent, QObject, QPointF, QSettings, Qt
+from PySide6.QtCore import QEvent, QObject, QPointF, QSettings, Qt, QTimer
 from PySide6.QtTest import QTest
 from PySide6.QtWidgets import QApplication
 
@@ -35,6 +39,7 @@ from bench_stack import synthetic_dataset  # noqa: E402
 
 from ringlight.app.session import LoadedDataset, compute_view_stacks  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402
+from ringlight.core import DatasetWriter  # noqa: E402
 from ringlight.core.stack_request import StackRequest  # noqa: E402
 
 
@@ -55,6 +60,81 @@ class PaintCounter(QObject):
         if event.type() == QEvent.Type.Paint:
             self.widgets.add(id(watched))
         return False
+
+
+class StallMeter(QObject):
+    """Longest gap between ticks of a 5 ms timer: how long the event loop was blocked."""
+
+    def __init__(self):
+        super().__init__()
+        self.timer = QTimer(self)
+        self.timer.setInterval(5)
+        self.timer.timeout.connect(self._tick)
+        self.last = 0.0
+        self.longest = 0.0
+
+    def start(self) -> None:
+        self.last, self.longest = time.perf_counter(), 0.0
+        self.timer.start()
+
+    def stop(self) -> float:
+        self.timer.stop()
+        return self.longest
+
+    def _tick(self) -> None:
+        now = time.perf_counter()
+        self.longest = max(self.longest, now - self.last)
+        self.last = now
+
+
+def write_exr_dataset(folder: Path, size: int, max_radius: float) -> None:
+    """A multiplexed dataset whose impulses fall off as exp(-d / 3) within ``max_radius``."""
+    spacing = int(2 * max_radius) + 1
+    yy, xx = np.mgrid[:size, :size]
+    with DatasetWriter(folder, (size, size), max_radius=max_radius) as writer:
+        for oy in range(spacing):
+            for ox in range(spacing):
+                lit = [(y, x) for y in range(oy, size, spacing) for x in range(ox, size, spacing)]
+                frame = np.zeros((size, size, 3), np.float32)
+                for y, x in lit:
+                    distance = np.hypot(yy - y, xx - x)
+                    frame += (np.exp(-distance / 3.0) * (distance <= max_radius))[..., None] * [1.0, 0.6, 0.3]
+                writer.add_frame(frame, lit)
+
+
+def wait_for(app, signal, timeout_s: float = 600.0) -> None:
+    done = []
+    signal.connect(lambda *args: done.append(True))
+    deadline = time.perf_counter() + timeout_s
+    while not done and time.perf_counter() < deadline:
+        app.processEvents()
+        time.sleep(0.001)
+
+
+def measure_stalls(app, folder: Path, size: int) -> None:
+    dataset_folder = folder / "dataset"
+    started = time.perf_counter()
+    write_exr_dataset(dataset_folder, size, 12.0)
+    print(f"wrote a {size} x {size} EXR dataset (max_radius 12) in {time.perf_counter() - started:.1f} s")
+    window = MainWindow(QSettings(str(folder / "stall.ini"), QSettings.Format.IniFormat))
+    window.resize(1400, 860)
+    window.show()
+    meter = StallMeter()
+    meter.start()
+    started = time.perf_counter()
+    window.open_dataset(dataset_folder)
+    wait_for(app, window.dataset_loaded)
+    print(f"open from EXR + first stack: {time.perf_counter() - started:.2f} s, "
+          f"longest event-loop stall {meter.stop() * 1e3:.1f} ms")
+    meter.start()
+    started = time.perf_counter()
+    window.request_stacks(StackRequest(0.0, 10.0, 0.25, dr=0.25, thickness=1.0, antialias=True))
+    wait_for(app, window.stacks_ready)
+    print(f"recompute 41 anti-aliased radii: {time.perf_counter() - started:.2f} s, "
+          f"longest event-loop stall {meter.stop() * 1e3:.1f} ms")
+    window.shutdown()
+    window.close()
+    window.deleteLater()
 
 
 def percentiles(times: list[float]) -> str:
@@ -122,6 +202,7 @@ def main() -> None:
         window.shutdown()
         window.close()
         window.deleteLater()
+        measure_stalls(app, Path(folder), args.size)
 
 
 if __name__ == "__main__":

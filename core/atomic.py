@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -20,7 +21,9 @@ def atomic_folder(final: str | os.PathLike) -> Iterator[Path]:
     """
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    # mkdir, not mkdtemp: the folder gets the user's usual permissions, not 0700.
+    staging = final.parent / f".{final.name}.partial-{secrets.token_hex(6)}"
+    staging.mkdir()
     try:
         yield staging
         replace_folder(staging, final)
@@ -54,9 +57,8 @@ def atomic_file(final: str | os.PathLike) -> Iterator[Path]:
     """
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    handle, name = tempfile.mkstemp(prefix=f".{final.stem}.partial-", suffix=final.suffix, dir=final.parent)
-    os.close(handle)
-    temporary = Path(name)
+    # A fresh name, not a mkstemp file: the writer creates it with the user's usual permissions.
+    temporary = final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
     try:
         yield temporary
         os.replace(temporary, final)

@@ -90,10 +90,13 @@ def _movie_frame(frame: np.ndarray, label: str, scale: int, size: tuple[int, int
     canvas = np.zeros((*size, 3), np.uint8)
     canvas[:enlarged.shape[0], :enlarged.shape[1]] = enlarged
     canvas = cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR)
-    font_scale = max(0.5, size[1] / 900)
-    origin = (int(10 * font_scale), int(32 * font_scale))
-    thickness = max(1, int(round(2 * font_scale)))
-    cv2.putText(canvas, label, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (0, 0, 0), thickness + 3, cv2.LINE_AA)
+    font_scale = max(0.6, size[1] / 600)
+    thickness = max(1, int(round(1.5 * font_scale)))
+    (text_width, text_height), baseline = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thickness)
+    margin = int(6 * font_scale)
+    banner = canvas[:text_height + baseline + 2 * margin, :text_width + 2 * margin]
+    banner[:] = banner // 3  # darken behind the label so it reads on any image
+    origin = (margin, margin + text_height)
     cv2.putText(canvas, label, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (255, 255, 255), thickness, cv2.LINE_AA)
     return canvas
 

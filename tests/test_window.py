@@ -229,7 +229,7 @@ def test_ground_truth_is_the_nearest_bin_with_its_correlation(qtbot, window, dat
     both = np.isfinite(transient)
     expected = np.corrcoef(transient[both], truth[both])[0, 1]
     assert window.truth_correlation == pytest.approx(expected, abs=1e-6)
-    assert "path [3, 4)" in window.truth_panel.title.toPlainText()
+    assert "path length [3, 4)" in window.truth_panel.title.toPlainText()
     high = np.percentile(truth, 99.5)
     assert np.abs(window.truth_panel.pixels().astype(int) - srgb_pixels(truth, 0.0, high)).max() <= 1
 
@@ -372,3 +372,36 @@ def test_screenshot_option_renders_the_window_offscreen_and_exits(dataset, tmp_p
     assert "--pick 99,4 is outside the 14x12 grid" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([str(dataset), "--pick", "3,4"])  # --pick without --screenshot
+
+
+def test_play_advances_at_the_frame_rate_and_stops_at_the_end_without_loop(qtbot):
+    from ringlight.widgets.scrub_bar import ScrubBar
+
+    bar = ScrubBar()
+    qtbot.addWidget(bar)
+    bar.set_radii(np.arange(4.0))
+    bar.set_fps(60)
+    bar.loop_box.setChecked(False)
+    seen = []
+    bar.index_changed.connect(seen.append)
+    bar.toggle_play()
+    assert bar.timer.interval() == 17
+    qtbot.waitUntil(lambda: not bar.play_button.isChecked(), timeout=5000)
+    assert seen == [1, 2, 3] and bar.index() == 3
+    bar.loop_box.setChecked(True)
+    bar.toggle_play()  # from the end it restarts at 0 and then wraps around
+    qtbot.waitUntil(lambda: len(seen) >= 9, timeout=5000)
+    bar.toggle_play()
+    assert seen[3:9] == [0, 1, 2, 3, 0, 1]
+
+
+def test_cancelling_an_open_keeps_the_current_dataset(qtbot, window, dataset, tmp_path, impulses):
+    open_and_wait(qtbot, window, dataset)
+    other = tmp_path / "other"
+    write_dataset(other, HEIGHT, WIDTH, impulses, max_radius=SUPPORT)
+    with qtbot.waitSignal(window.load_jobs.cancelled, timeout=LOAD_TIMEOUT_MS):
+        window.open_dataset(other)
+        window.cancel_all()
+    window.pool.waitForDone()
+    qtbot.wait(20)
+    assert window.loaded.dataset.path == dataset and not window.load_jobs.busy

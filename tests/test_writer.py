@@ -57,3 +57,21 @@ def test_existing_user_folder_is_refused_and_a_dataset_replaced_only_on_request(
     with pytest.raises(DatasetError, match="pass overwrite"):
         DatasetWriter(tmp_path / "ds", (2, 2))
     assert json.loads((tmp_path / "ds/dataset.json").read_text())["frames"][0]["lit"] == [[0, 0]]
+
+
+def test_atomic_outputs_get_the_users_usual_permissions(tmp_path):
+    import os
+
+    from ringlight.core.atomic import atomic_file, atomic_folder
+
+    umask = os.umask(0o022)
+    try:
+        with atomic_folder(tmp_path / "folder") as staging:
+            (staging / "a").write_text("a")
+        with atomic_file(tmp_path / "file.txt") as temporary:
+            temporary.write_text("b")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "folder").stat().st_mode & 0o777 == 0o755
+    assert (tmp_path / "file.txt").stat().st_mode & 0o777 == 0o644
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["file.txt", "folder"]
