@@ -94,9 +94,9 @@ def _weighted_means(weights: np.ndarray, responses: np.ndarray) -> tuple[np.ndar
 def profile_csv(profile: PixelProfile) -> str:
     """The profile as CSV text: one row per radius, radiance in full float precision."""
     buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
     y, x = profile.point
-    writer.writerow([f"# ringlight profile at y={y} x={x}, dr={profile.step:g} grid steps"])
+    buffer.write(f"# ringlight profile at y={y} x={x}; dr={profile.step:g}; radii in grid steps\n")
+    writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow([
         "radius", "E_R", "E_G", "E_B", "E_count", "E_outer_R", "E_outer_G", "E_outer_B",
         "E_outer_count", "T_R", "T_G", "T_B",
