@@ -25,6 +25,8 @@ from ringlight.core.presets import ensure_demo_dataset, load_scene, preset_names
 from ringlight.core.scene import SceneError
 from ringlight.core.simulate import simulate_transport, write_transport
 
+from . import layers_cli
+
 EXIT_USER_ERROR = 2
 
 
@@ -64,6 +66,8 @@ def add_commands(subparsers) -> None:
     simulate.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
     simulate.add_argument("--list", action="store_true", help="list the bundled presets and exit")
     simulate.set_defaults(handler=run_simulate)
+
+    layers_cli.add_command(subparsers, progress_bar)
 
     demo = subparsers.add_parser("demo", help="make (first run only) and describe the bundled demo dataset")
     demo.set_defaults(handler=run_demo)

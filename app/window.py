@@ -15,7 +15,7 @@ import numpy as np
 from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (
-    QDockWidget, QFileDialog, QLabel, QMainWindow, QMessageBox, QSplitter, QVBoxLayout, QWidget,
+    QDockWidget, QFileDialog, QLabel, QMainWindow, QMessageBox, QSplitter, QTabWidget, QVBoxLayout, QWidget,
 )
 
 from ringlight.core import RinglightError, ring_geometry
@@ -27,11 +27,13 @@ from ringlight.widgets.display_controls import VIEWS, DisplayControls
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.job_indicator import JobIndicator
 from ringlight.widgets.jobs import JobSlot
+from ringlight.widgets.layer_panel import LayerPanel
 from ringlight.widgets.profile_plot import ProfilePlot
 from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
 from . import exports
+from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
 
 RECENT_LIMIT = 10
@@ -69,6 +71,7 @@ class MainWindow(QMainWindow):
         self.export_jobs = JobSlot(self.export_pool, self)
 
         self._build_widgets()
+        self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs, self)
         self._build_menus()
         self._connect()
         self._restore_settings()
@@ -94,9 +97,13 @@ class MainWindow(QMainWindow):
         self.display_controls = DisplayControls()
         self.stack_controls = StackControls()
         self.profile_plot = ProfilePlot()
+        self.layer_panel = LayerPanel()
+        self.analysis_tabs = QTabWidget()
+        self.analysis_tabs.addTab(self.profile_plot, "Profiles")
+        self.analysis_tabs.addTab(self.layer_panel, "Layers")
         self.display_dock = self._dock("Display", self.display_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
         self.stack_dock = self._dock("Stack", self.stack_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
-        self.profile_dock = self._dock("Profiles", self.profile_plot, Qt.DockWidgetArea.RightDockWidgetArea)
+        self.profile_dock = self._dock("Analysis", self.analysis_tabs, Qt.DockWidgetArea.RightDockWidgetArea)
 
         self.hover_label = QLabel()
         self.hover_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
@@ -148,6 +155,8 @@ class MainWindow(QMainWindow):
         self._action(view_menu, "Next radius", lambda: self.scrub_bar.step(1), "]")
         self._action(view_menu, "Previous radius", lambda: self.scrub_bar.step(-1), "[")
         self._action(view_menu, "Play / pause", self.scrub_bar.toggle_play, "Space")
+        self._action(view_menu, "Pick radius for layers", self.layer_panel.pick_requested.emit, "P")
+        self._action(view_menu, "Layers tab", lambda: self.analysis_tabs.setCurrentWidget(self.layer_panel), "Ctrl+L")
         self._action(view_menu, "Reset zoom", self._reset_zoom, "Ctrl+0")
         self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
         view_menu.addSeparator()
@@ -174,6 +183,7 @@ class MainWindow(QMainWindow):
         self.display_controls.settings_changed.connect(self._on_display_settings)
         self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
         self.stack_controls.request_changed.connect(self.request_stacks)
+        self.layer_panel.export_requested.connect(self.choose_layer_export)
 
     # ----------------------------------------------------------------- opening
     def choose_dataset(self) -> None:
@@ -264,6 +274,7 @@ class MainWindow(QMainWindow):
         self._global_levels.clear()
         self.scrub_bar.set_radii(stacks.pair.radii)
         self._refresh_all()
+        self.layer_tab.set_data(self.loaded.dataset, stacks.pair.transient)
         self.stacks_ready.emit()
 
     # ----------------------------------------------------------------- interaction
@@ -457,6 +468,12 @@ class MainWindow(QMainWindow):
         if self.profile is not None and (path := self._save_path("Export profiles as CSV", "profile.csv", "CSV (*.csv)")):
             self.export_csv(path)
 
+    def choose_layer_export(self, kind: str) -> None:
+        patterns = {"json": "JSON (*.json)", "csv": "CSV (*.csv)", "png": "PNG (*.png)"}
+        name = "chromaticity.png" if kind == "png" else f"layers.{kind}"
+        if path := self._save_path(f"Export layers as {kind.upper()}", name, patterns[kind]):
+            self.layer_tab.export(kind, path)
+
     def export_stack(self, folder: Path) -> None:
         """Write the shown stack (E_r or T_r) to ``folder`` in a worker."""
         self.export_jobs.start(f"Exporting stack to {folder.name}", exports.stack_work(self._shown_stack(), folder))
@@ -489,7 +506,7 @@ class MainWindow(QMainWindow):
         lines = [
             "Ctrl+O  open dataset", "Ctrl+1..4  transient / ring / impulse / steady state",
             "[ and ]  previous / next radius", "Space  play / pause", "Esc  cancel running work",
-            "Ctrl+0  reset zoom", "Ctrl+E  export stack (EXR)", "Ctrl+Shift+P / M / C  export PNG / movie / CSV",
+            "Ctrl+0  reset zoom", "Ctrl+L  layers tab; P  pick the current radius for layers", "Ctrl+E  export stack (EXR)", "Ctrl+Shift+P / M / C  export PNG / movie / CSV",
             "Left drag on the image: pick pixels; wheel: zoom; middle drag: pan",
             "Click or drag in the profiles: set the radius",
         ]

@@ -160,6 +160,9 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             raise SceneError(f"{where}: '{key}' needs 0 <= top < bottom <= depth ({depth:g}), got [{top}, {bottom}]")
         volume[(z >= top) & (z < bottom)] = material_index(item["material"], f"{key}.material")
         layers.append((item["material"], top, bottom))
+    deepest = max((bottom for _, _, bottom in layers), default=depth)
+    if deepest < depth:  # the background under the listed layers is the deepest layer
+        layers.append((doc["background"], deepest, depth))
     yy, xx = np.mgrid[:height, :width].astype(np.float64)
     for i, entry in enumerate(fail.sequence(doc.get("shapes", []), "shapes")):
         key = f"shapes[{i}]"

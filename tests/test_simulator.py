@@ -159,10 +159,12 @@ def test_layered_scene_records_each_layer_with_a_reference_colour(tmp_path):
     scene = load_scene("layers3", size=(6, 6))
     write_transport(simulate_transport(scene, photons=20), tmp_path / "ds")
     layers = read_manifest(tmp_path / "ds").ground_truth.layers
-    assert [layer.name for layer in layers] == ["yellow", "magenta"]
-    yellow, magenta = (np.array(layer.rgb) for layer in layers)
+    assert [layer.name for layer in layers] == ["yellow", "magenta", "blue"]  # the base is a layer too
+    assert [layer.depth for layer in layers] == [(0.0, 2.0), (2.0, 5.0), (5.0, 24.0)]
+    yellow, magenta, blue = (np.array(layer.rgb) for layer in layers)
     assert yellow[0] > yellow[2] and yellow[1] > yellow[2]
     assert magenta[0] > magenta[1] and magenta[2] > magenta[1]
+    assert blue[2] > blue[1] > blue[0]
 
 
 def test_an_interrupted_write_leaves_no_dataset(tmp_path):

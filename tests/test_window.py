@@ -5,6 +5,7 @@ encoding applied here, never from the code under test.
 """
 
 import csv
+import json
 import math
 
 import cv2
@@ -405,3 +406,49 @@ def test_cancelling_an_open_keeps_the_current_dataset(qtbot, window, dataset, tm
     window.pool.waitForDone()
     qtbot.wait(20)
     assert window.loaded.dataset.path == dataset and not window.load_jobs.busy
+
+
+def test_layers_tab_recovers_the_known_layers_from_picked_radii(qtbot, window, tmp_path):
+    from test_layers import LAYER_UNIT, synthetic_layers
+
+    from ringlight.core.chroma import recover_layers, srgb_swatch, trajectory
+    from ringlight.core.regions import rectangle_region
+
+    folder = tmp_path / "layered"
+    synthetic_layers(folder)
+    open_and_wait(qtbot, window, folder)
+    panel = window.layer_panel
+    window.analysis_tabs.setCurrentWidget(panel)
+    for radius in (1.0, 4.0, 7.0):
+        window.set_radius(radius)
+        qtbot.keyClick(window, Qt.Key.Key_P)
+    assert window.layer_tab.picked == [1.0, 4.0, 7.0]
+    panel.method_box.setCurrentIndex(panel.method_box.findData("radiance"))
+    result = window.layer_tab.analysis.result
+    np.testing.assert_allclose([layer.rgb for layer in result.layers], LAYER_UNIT, rtol=1e-4, atol=1e-5)
+    for row, unit in enumerate(LAYER_UNIT):
+        assert panel.table.item(row, 4).text() == "#%02x%02x%02x" % srgb_swatch(unit, "sRGB")
+
+    # A rectangle region: the trajectory is the region mean of the stack, as core computes it.
+    panel.region_box.setCurrentIndex(panel.region_box.findData("rectangle"))
+    y0, x0, y1, x1 = window.image_panel.region_geometry()[1]
+    expected = trajectory(window.stacks.pair.transient, rectangle_region((20, 20), y0, x0, y1, x1))
+    np.testing.assert_allclose(panel.diagram.trajectory_xy(), expected.xy, atol=1e-12)
+    assert window.layer_tab.region_description == f"rows {y0}..{y1 - 1}, columns {x0}..{x1 - 1}"
+
+    # Clicking a trajectory point toggles its radius and moves the slider there.
+    panel.radius_clicked.emit(4.0)
+    assert window.layer_tab.picked == [1.0, 7.0] and window.scrub_bar.radius() == 4.0
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        window.layer_tab.export("json", tmp_path / "layers.json")
+    document = json.loads((tmp_path / "layers.json").read_text())
+    reference = recover_layers(expected, [1.0, 7.0], "radiance")
+    np.testing.assert_allclose([layer["xy"] for layer in document["layers"]], [l.xy for l in reference.layers])
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        window.layer_tab.export("png", tmp_path / "diagram.png")
+    assert cv2.imread(str(tmp_path / "diagram.png")).shape[0] > 100
+
+    # A radius that is too dark to give a colour is reported, not crashed on.
+    window.set_radius(8.0)
+    qtbot.keyClick(window, Qt.Key.Key_P)
+    assert "dark or negative" in panel.message_label.text() and window.layer_tab.analysis is None

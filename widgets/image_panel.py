@@ -59,6 +59,7 @@ class ImagePanel(pg.GraphicsView):
 
     pixel_picked = Signal(int, int)
     pixel_hovered = Signal(int, int)
+    region_changed = Signal()
 
     def __init__(self, title: str = "", parent: QWidget | None = None):
         super().__init__(parent, background="#202024")
@@ -77,6 +78,8 @@ class ImagePanel(pg.GraphicsView):
         self.title = pg.TextItem(title, color="w", anchor=(0, 0))
         self.title.setParentItem(self.view)
         self._shape: tuple[int, int] | None = None
+        self._region_mode = "all"
+        self.region_roi: pg.ROI | None = None
         self._overlay = np.zeros((0, 0, 4), np.uint8)
         self.scene().sigMouseMoved.connect(self._on_mouse_moved)
         self.setMinimumSize(240, 240)
@@ -96,6 +99,43 @@ class ImagePanel(pg.GraphicsView):
             self._shape = shape
             self.clear_ring()
             self.view.setRange(xRange=(0, shape[1]), yRange=(0, shape[0]), padding=0.02)
+            if self._region_mode != "all":
+                self.set_region_mode(self._region_mode)
+
+    def set_region_mode(self, mode: str) -> None:
+        """``"all"`` (no ROI), ``"rectangle"`` or ``"polygon"``: an editable ROI on the image,
+        initially the middle half of the grid; edits emit ``region_changed``."""
+        if self.region_roi is not None:
+            self.view.removeItem(self.region_roi)
+            self.region_roi = None
+        self._region_mode = mode
+        if mode != "all" and self._shape is not None:
+            height, width = self._shape
+            pen = pg.mkPen("#00e5ff", width=2)
+            if mode == "rectangle":
+                self.region_roi = pg.RectROI([width / 4, height / 4], [width / 2, height / 2], pen=pen,
+                                             snapSize=1.0, translateSnap=True, scaleSnap=True)
+            else:
+                corners = [[width / 4, height / 4], [3 * width / 4, height / 4], [width / 2, 3 * height / 4]]
+                self.region_roi = pg.PolyLineROI(corners, closed=True, pen=pen)
+            self.region_roi.setZValue(30)
+            self.region_roi.sigRegionChangeFinished.connect(lambda _: self.region_changed.emit())
+            self.view.addItem(self.region_roi)
+        self.region_changed.emit()
+
+    def region_geometry(self) -> tuple[str, object]:
+        """``("all", None)``, ``("rectangle", (y0, x0, y1, x1))`` clipped to the grid (end
+        exclusive), or ``("polygon", (m, 2) [y, x] vertices)`` in view coordinates."""
+        if self.region_roi is None or self._shape is None:
+            return ("all", None)
+        if self._region_mode == "rectangle":
+            position, size = self.region_roi.pos(), self.region_roi.size()
+            x0, y0 = int(round(position.x())), int(round(position.y()))
+            x1, y1 = int(round(position.x() + size.x())), int(round(position.y() + size.y()))
+            height, width = self._shape
+            return ("rectangle", (max(y0, 0), max(x0, 0), min(y1, height), min(x1, width)))
+        points = [self.region_roi.mapToParent(handle["pos"]) for handle in self.region_roi.handles]
+        return ("polygon", np.array([[point.y(), point.x()] for point in points]))
 
     def pixels(self) -> np.ndarray | None:
         """The RGB pixels shown now."""

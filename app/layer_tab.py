@@ -1,0 +1,173 @@
+"""The Layers tab's logic: region -> trajectory -> picked radii -> recovered layer colours.
+
+Everything here is cheap (region means of a computed stack), so it runs in the GUI thread on
+each change; exports run in the window's export worker.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PySide6.QtCore import QObject, Signal
+
+from ringlight.core import ImpulseDataset, RinglightError, Stack
+from ringlight.core.atomic import atomic_file
+from ringlight.core.chroma import propose_radii, recover_layers, trajectory
+from ringlight.core.image_export import ExportError, write_text
+from ringlight.core.layer_report import LayerAnalysis, analysis_csv, analysis_json, truth_layers
+from ringlight.core.regions import full_region, polygon_region, rectangle_region
+from ringlight.widgets.image_panel import ImagePanel
+from ringlight.widgets.jobs import JobSlot
+from ringlight.widgets.layer_panel import LayerPanel
+from ringlight.widgets.scrub_bar import ScrubBar
+
+
+class LayerTab(QObject):
+    """Keeps the picked radii and the last analysis; ``analysis_changed`` after each update."""
+
+    analysis_changed = Signal()
+
+    def __init__(self, panel: LayerPanel, image_panel: ImagePanel, scrub_bar: ScrubBar, exports: JobSlot,
+                 parent: QObject | None = None):
+        super().__init__(parent)
+        self.panel = panel
+        self.image_panel = image_panel
+        self.scrub_bar = scrub_bar
+        self.exports = exports
+        self.dataset: ImpulseDataset | None = None
+        self.stack: Stack | None = None
+        self.picked: list[float] = []
+        self.analysis: LayerAnalysis | None = None
+        self.region = np.zeros((0, 0), bool)
+        self.region_description = "all pixels"
+        panel.pick_requested.connect(lambda: self.toggle_pick(self.scrub_bar.radius()))
+        panel.clear_requested.connect(self.clear_picks)
+        panel.auto_requested.connect(self.auto_pick)
+        panel.method_changed.connect(lambda _: self.refresh())
+        panel.region_mode_changed.connect(image_panel.set_region_mode)
+        panel.radius_clicked.connect(self._on_radius_clicked)
+        image_panel.region_changed.connect(self.update_region)
+
+    def set_data(self, dataset: ImpulseDataset, stack: Stack) -> None:
+        """Use transient ``stack`` of ``dataset``; picks not among its radii are dropped."""
+        new_dataset = dataset is not self.dataset
+        self.dataset, self.stack = dataset, stack
+        if new_dataset:
+            self.picked = []
+        else:
+            self.picked = [r for r in self.picked if np.isclose(stack.radii, r).any()]
+        if new_dataset or self.region.shape != dataset.grid_shape:
+            self.update_region()
+        else:
+            self.refresh()
+
+    def update_region(self) -> None:
+        if self.dataset is None:
+            return
+        kind, geometry = self.image_panel.region_geometry()
+        try:
+            if kind == "rectangle":
+                y0, x0, y1, x1 = geometry
+                self.region = rectangle_region(self.dataset.grid_shape, y0, x0, y1, x1)
+                self.region_description = f"rows {y0}..{y1 - 1}, columns {x0}..{x1 - 1}"
+            elif kind == "polygon":
+                self.region = polygon_region(self.dataset.grid_shape, geometry)
+                vertices = ", ".join(f"({y:.1f}, {x:.1f})" for y, x in geometry)
+                self.region_description = f"polygon {vertices}"
+            else:
+                self.region = full_region(self.dataset.grid_shape)
+                self.region_description = "all pixels"
+        except RinglightError as error:
+            self.region = np.zeros(self.dataset.grid_shape, bool)
+            self.region_description = "empty"
+            self.panel.show_message(str(error))
+        self.refresh()
+
+    def toggle_pick(self, radius: float | None) -> None:
+        if radius is None or self.stack is None:
+            return
+        if any(np.isclose(radius, r) for r in self.picked):
+            self.picked = [r for r in self.picked if not np.isclose(radius, r)]
+        else:
+            self.picked = sorted(self.picked + [float(radius)])
+        self.refresh()
+
+    def clear_picks(self) -> None:
+        self.picked = []
+        self.refresh()
+
+    def auto_pick(self, count: int) -> None:
+        if self.stack is None:
+            return
+        try:
+            self.picked = propose_radii(trajectory(self.stack, self.region), count)
+        except RinglightError as error:
+            self.panel.show_message(str(error))
+            return
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Recompute the trajectory over the region and, with picks, the layers."""
+        self.analysis = None
+        if self.stack is None:
+            return
+        self.panel.set_picked(self.picked)
+        try:
+            path = trajectory(self.stack, self.region)
+        except RinglightError as error:
+            self.panel.diagram.set_trajectory(np.zeros(0), np.zeros((0, 2)))
+            self.panel.show_result(None)
+            self.panel.show_message(str(error))
+            self.analysis_changed.emit()
+            return
+        self.panel.diagram.set_trajectory(path.radii, path.xy)
+        self.panel.set_picked(self.picked)
+        if not self.picked:
+            self.panel.show_result(None)
+            self.panel.show_message(f"Region: {self.region_description}. Pick radii (P, or click the "
+                                    f"trajectory) or press Auto.")
+            self.analysis_changed.emit()
+            return
+        names, truth_rgb = truth_layers(self.dataset)
+        try:
+            result = recover_layers(path, self.picked, self.panel.method(), truth_rgb)
+        except RinglightError as error:
+            self.panel.show_result(None)
+            self.panel.show_message(str(error))
+            self.analysis_changed.emit()
+            return
+        self.analysis = LayerAnalysis(self.region_description, path, result, names)
+        self.panel.show_result(result, names)
+        summary = f"Region: {self.region_description}; method {result.method}."
+        if result.errors is not None:
+            summary += " Mean xy error " + f"{np.nanmean(result.errors):.4f}."
+        self.panel.show_message(" ".join([summary, *result.warnings]))
+        self.analysis_changed.emit()
+
+    def export(self, kind: str, path: Path) -> None:
+        """Write the analysis as ``"json"`` or ``"csv"``, or the diagram as ``"png"``."""
+        if kind == "png":
+            image = self.panel.diagram.grab().toImage()  # QImage: safe to save off the GUI thread
+
+            def work(progress):
+                with atomic_file(path) as temporary:
+                    if not image.save(str(temporary), "PNG"):
+                        raise ExportError(f"{path}: could not write the PNG")
+                progress(1.0)
+                return path
+        else:
+            if self.analysis is None:
+                self.panel.show_message("Nothing to export yet: pick radii first.")
+                return
+            text = analysis_json(self.analysis, str(self.dataset.path)) if kind == "json" else analysis_csv(self.analysis)
+
+            def work(progress):
+                write_text(path, text)
+                progress(1.0)
+                return path
+        self.exports.start(f"Writing {path.name}", work)
+
+    def _on_radius_clicked(self, radius: float) -> None:
+        self.scrub_bar.set_index(self.scrub_bar.nearest_index(radius))
+        self.toggle_pick(radius)

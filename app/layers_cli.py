@@ -1,0 +1,65 @@
+"""``ringlight layers``: recover layer colours from transient images at picked radii."""
+
+from __future__ import annotations
+
+from ringlight.core import RinglightError, open_dataset
+from ringlight.core.chroma import METHODS
+from ringlight.core.image_export import write_text
+from ringlight.core.layer_report import analyse_layers, analysis_json, analysis_stack_request
+from ringlight.core.regions import full_region, parse_rectangle, rectangle_region
+
+
+def add_command(subparsers, progress_bar) -> None:
+    layers = subparsers.add_parser(
+        "layers", help="recover layer colours from the chromaticities of transient images (paper Sec. 4.2)"
+    )
+    layers.add_argument("dataset", help="dataset folder or its dataset.json")
+    pick = layers.add_mutually_exclusive_group()
+    pick.add_argument("--radii", metavar="R1,R2,...", help="increasing radii of the stack, one per layer")
+    pick.add_argument("--auto", type=int, metavar="N", help="propose N radii (default 3 when --radii is absent)")
+    layers.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="rectangle region, end exclusive (default: all pixels)")
+    layers.add_argument("--method", choices=METHODS, default="paper")
+    layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
+    layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
+    layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
+    layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
+    layers.set_defaults(handler=lambda args: run_layers(args, progress_bar))
+
+
+def parse_radii(text: str) -> list[float]:
+    try:
+        return [float(part) for part in text.split(",")]
+    except ValueError:
+        raise RinglightError(f"--radii {text!r} must be numbers separated by commas, e.g. 2,5,8") from None
+
+
+def run_layers(args, progress_bar) -> int:
+    radii = parse_radii(args.radii) if args.radii else None
+    with progress_bar("opening the dataset") as progress:
+        dataset = open_dataset(args.dataset, progress=progress)
+    if args.roi:
+        y0, x0, y1, x1 = parse_rectangle(args.roi)
+        region = rectangle_region(dataset.grid_shape, y0, x0, y1, x1)
+        description = f"rows {y0}..{y1 - 1}, columns {x0}..{x1 - 1}"
+    else:
+        region = full_region(dataset.grid_shape)
+        description = "all pixels"
+    request = analysis_stack_request(dataset, args.step, args.dr, args.thickness)
+    with progress_bar("computing transient images") as progress:
+        analysis = analyse_layers(dataset, region, description, radii=radii, auto=args.auto,
+                                  method=args.method, request=request, progress=progress)
+    result = analysis.result
+    print(f"{dataset.path}: {description}, method {result.method}, radii {', '.join(f'{r:g}' for r in result.radii)}")
+    for index, layer in enumerate(result.layers):
+        line = (f"layer {index + 1}  r {layer.radius:5g}  xy ({layer.xy[0]:.4f}, {layer.xy[1]:.4f})  "
+                f"sRGB #{'%02x%02x%02x' % layer.srgb8}{'' if layer.trusted else '  (untrusted)'}")
+        if result.errors is not None and index < len(result.errors):
+            name = analysis.truth_names[index]
+            line += f"  truth {name} ({result.truth_xy[index][0]:.4f}, {result.truth_xy[index][1]:.4f})  error {result.errors[index]:.4f}"
+        print(line)
+    for warning in result.warnings:
+        print(f"warning: {warning}")
+    if args.json:
+        write_text(args.json, analysis_json(analysis, str(dataset.path)))
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,104 @@
+"""Layer colour recovery end to end, and its results as JSON and CSV (CLI and window share it)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from .chroma import LayerResult, Trajectory, propose_radii, recover_layers, trajectory
+from .dataset import ImpulseDataset
+from .stack_request import StackRequest, largest_stop
+from .stacks import transient_stack
+
+
+@dataclass(frozen=True, eq=False)
+class LayerAnalysis:
+    """A trajectory over a region and the layers recovered from it."""
+
+    region_description: str
+    path: Trajectory
+    result: LayerResult
+    truth_names: tuple[str, ...] = ()
+
+
+def analysis_stack_request(dataset: ImpulseDataset, step: float = 1.0, dr: float = 1.0,
+                           thickness: float = 1.0) -> StackRequest:
+    """Radii 0, step, ... as far as the dataset's max_radius allows."""
+    request = StackRequest(0.0, 0.0, step, dr=dr, thickness=thickness)
+    return request.with_changes(stop=largest_stop(dataset.max_radius, request))
+
+
+def truth_layers(dataset: ImpulseDataset) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """Names and (K, 3) linear RGB of the dataset's ground-truth layers (None without)."""
+    truth = dataset.manifest.ground_truth
+    if truth is None or not truth.layers:
+        return (), None
+    return tuple(layer.name for layer in truth.layers), np.array([layer.rgb for layer in truth.layers], np.float64)
+
+
+def analyse_layers(dataset: ImpulseDataset, region: np.ndarray, region_description: str, *,
+                   radii=None, auto: int | None = None, method: str = "paper", request: StackRequest | None = None,
+                   progress=None) -> LayerAnalysis:
+    """Transient stack over ``request`` (default :func:`analysis_stack_request`), trajectory over
+    ``region``, and layers from ``radii`` or ``auto`` proposed radii."""
+    request = request or analysis_stack_request(dataset)
+    request.check(dataset)
+    stack = transient_stack(dataset, request.radii(), request.dr, request.thickness, request.antialias, progress)
+    path = trajectory(stack, region)
+    if radii is None:
+        radii = propose_radii(path, auto or 3)
+    names, truth_rgb = truth_layers(dataset)
+    result = recover_layers(path, radii, method, truth_rgb)
+    return LayerAnalysis(region_description, path, result, names)
+
+
+def analysis_document(analysis: LayerAnalysis, dataset_path: str) -> dict:
+    """A JSON-ready description: picked radii, per-layer xy, RGB and swatch, truth and errors."""
+    result, path = analysis.result, analysis.path
+    document = {
+        "format": "ringlight-layers", "version": 1,
+        "dataset": dataset_path, "region": analysis.region_description, "method": result.method,
+        "colorspace": path.colorspace, "radii": list(result.radii),
+        "layers": [
+            {"radius": layer.radius, "xy": _finite(layer.xy), "rgb": _finite(layer.rgb),
+             "srgb8": list(layer.srgb8), "trusted": layer.trusted, "note": layer.note}
+            for layer in result.layers
+        ],
+        "warnings": list(result.warnings),
+        "trajectory": {
+            "radii": path.radii.tolist(), "xy": [_finite(xy) for xy in path.xy],
+            "luminance": _finite(path.luminance), "snr": _finite(path.snr),
+        },
+    }
+    if result.truth_xy is not None:
+        document["truth"] = [{"name": name, "xy": list(xy)} for name, xy in zip(analysis.truth_names, result.truth_xy)]
+        document["xy_errors"] = _finite(result.errors)
+    return document
+
+
+def analysis_json(analysis: LayerAnalysis, dataset_path: str) -> str:
+    return json.dumps(analysis_document(analysis, dataset_path), indent=1, allow_nan=False) + "\n"
+
+
+def analysis_csv(analysis: LayerAnalysis) -> str:
+    """One row per recovered layer; truth and error columns empty when unknown."""
+    buffer = io.StringIO()
+    buffer.write(f"# ringlight layers: method {analysis.result.method}, region {analysis.region_description}\n")
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["layer", "radius", "x", "y", "R", "G", "B", "sRGB8", "trusted", "truth_x", "truth_y", "xy_error"])
+    result = analysis.result
+    for index, layer in enumerate(result.layers):
+        truth = result.truth_xy[index] if result.truth_xy and index < len(result.truth_xy) else ("", "")
+        error = result.errors[index] if result.errors and index < len(result.errors) else ""
+        writer.writerow([index + 1, layer.radius, *layer.xy, *layer.rgb, "#%02x%02x%02x" % layer.srgb8,
+                         layer.trusted, *truth, error])
+    return buffer.getvalue()
+
+
+def _finite(values):
+    """JSON has no NaN: None in its place."""
+    return [None if not np.isfinite(value) else float(value) for value in values]
