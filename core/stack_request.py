@@ -14,7 +14,7 @@ import numpy as np
 
 from .dataset import ImpulseDataset, ProgressCallback
 from .errors import StackError
-from .stacks import Stack, needed_radius, radius_range, ring_stack
+from .stacks import Stack, needed_radius, radius_range, ring_and_transient_stacks
 
 
 @dataclass(frozen=True)
@@ -88,18 +88,7 @@ def compute_stacks(dataset: ImpulseDataset, request: StackRequest,
                    progress: ProgressCallback | None = None) -> StackPair:
     """E_r and T_r = E_r - E_{r+dr} for every radius of ``request``; each ring computed once."""
     request.check(dataset)
-    radii = request.radii()
-    outer = np.round(radii + request.dr, 9)
-    unique = np.unique(np.concatenate([radii, outer]))
-    rings = ring_stack(dataset, unique, request.thickness, request.antialias, progress)
-    inner_index = np.searchsorted(unique, radii)
-    outer_index = np.searchsorted(unique, outer)
-    ring = Stack(
-        "ring", radii, rings.thickness, rings.antialias, rings.colorspace,
-        rings.images[inner_index], rings.counts[inner_index],
-    )
-    transient = Stack(
-        "transient", radii, rings.thickness, rings.antialias, rings.colorspace,
-        ring.images - rings.images[outer_index], ring.counts, rings.counts[outer_index], float(request.dr),
+    ring, transient = ring_and_transient_stacks(
+        dataset, request.radii(), request.dr, request.thickness, request.antialias, progress
     )
     return StackPair(request, ring, transient)

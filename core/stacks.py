@@ -112,6 +112,19 @@ def transient_stack(
     Each distinct ring radius among ``radii`` and ``radii + step`` is computed once.
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
+    return ring_and_transient_stacks(dataset, radii, step, thickness, antialias, progress)[1]
+
+
+def ring_and_transient_stacks(
+    dataset: ImpulseDataset,
+    radii,
+    step: float = 1.0,
+    thickness: float = 1.0,
+    antialias: bool = False,
+    progress: ProgressCallback | None = None,
+) -> tuple[Stack, Stack]:
+    """E_r and T_r = E_r - E_{r+step} for the same ``radii``, sharing every ring: the ring
+    light stack's images are views into the computed rings whenever the radii allow it."""
     radii = _as_radii(radii)
     if not math.isfinite(step) or step <= 0:
         raise StackError(f"transient step dr must be > 0, got {step}")
@@ -120,11 +133,12 @@ def transient_stack(
     images, counts = _ring_images(dataset, unique, thickness, antialias, progress)
     inner = _as_selection(np.searchsorted(unique, radii))
     outer = _as_selection(np.searchsorted(unique, outer))
-    transients = images[inner] - images[outer]
-    return Stack(
-        "transient", radii, float(thickness), bool(antialias), dataset.colorspace, transients,
+    ring = Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images[inner], counts[inner])
+    transient = Stack(
+        "transient", radii, float(thickness), bool(antialias), dataset.colorspace, images[inner] - images[outer],
         counts[inner], counts[outer], float(step),
     )
+    return ring, transient
 
 
 def _as_selection(index: np.ndarray) -> slice | np.ndarray:
