@@ -41,6 +41,7 @@ class LayerTab(QObject):
         self.analysis: LayerAnalysis | None = None
         self.region = np.zeros((0, 0), bool)
         self.region_description = "all pixels"
+        self._stale = False
         panel.pick_requested.connect(lambda: self.toggle_pick(self.scrub_bar.radius()))
         panel.clear_requested.connect(self.clear_picks)
         panel.auto_requested.connect(self.auto_pick)
@@ -108,9 +109,11 @@ class LayerTab(QObject):
         self.refresh()
 
     def refresh(self) -> None:
-        """Recompute the trajectory over the region and, with picks, the layers."""
+        """Recompute the trajectory over the region and, with picks, the layers; while the tab
+        is hidden this waits until it is shown (:meth:`on_shown`)."""
         self.analysis = None
-        if self.stack is None:
+        self._stale = not self.panel.isVisible()
+        if self.stack is None or self._stale:
             return
         self.panel.set_picked(self.picked)
         try:
@@ -144,6 +147,11 @@ class LayerTab(QObject):
             summary += " Mean xy error " + f"{np.nanmean(result.errors):.4f}."
         self.panel.show_message(" ".join([summary, *result.warnings]))
         self.analysis_changed.emit()
+
+    def on_shown(self) -> None:
+        """The tab became visible: bring it up to date."""
+        if self._stale and self.panel.isVisible():
+            self.refresh()
 
     def export(self, kind: str, path: Path) -> None:
         """Write the analysis as ``"json"`` or ``"csv"``, or the diagram as ``"png"``."""

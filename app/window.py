@@ -19,6 +19,7 @@ from PySide6.QtWidgets import (
 )
 
 from ringlight.core import RinglightError, ring_geometry
+from ringlight.core.dataset import warm_up_kernels
 from ringlight.core.display import DisplaySettings, display_levels, negative_fraction, render
 from ringlight.core.ground_truth import normalised_cross_correlation
 from ringlight.core.profiles import PixelProfile, pixel_profile
@@ -70,6 +71,8 @@ class MainWindow(QMainWindow):
         self.stack_jobs = JobSlot(self.pool, self)
         self.export_jobs = JobSlot(self.export_pool, self)
 
+        # Numba's one-time set-up holds the GIL for ~0.1 s: pay it now, in the worker, not mid-use.
+        self.pool.start(warm_up_kernels)
         self._build_widgets()
         self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs, self)
         self._build_menus()
@@ -184,6 +187,8 @@ class MainWindow(QMainWindow):
         self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
         self.stack_controls.request_changed.connect(self.request_stacks)
         self.layer_panel.export_requested.connect(self.choose_layer_export)
+        self.analysis_tabs.currentChanged.connect(lambda _: self.layer_tab.on_shown())
+        self.profile_dock.visibilityChanged.connect(lambda _: self.layer_tab.on_shown())
 
     # ----------------------------------------------------------------- opening
     def choose_dataset(self) -> None:

@@ -119,6 +119,9 @@ def measure_stalls(app, folder: Path, size: int) -> None:
     window = MainWindow(QSettings(str(folder / "stall.ini"), QSettings.Format.IniFormat))
     window.resize(1400, 860)
     window.show()
+    for _ in range(20):  # the new window's first paint is start-up, not part of opening
+        app.processEvents()
+        time.sleep(0.01)
     meter = StallMeter()
     meter.start()
     started = time.perf_counter()

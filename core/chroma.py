@@ -125,8 +125,10 @@ def chromaticity(rgb: np.ndarray, colorspace: str) -> np.ndarray:
 
 
 def luminance(rgb: np.ndarray, colorspace: str) -> np.ndarray:
-    """Relative luminance Y of linear ``rgb`` (..., 3) in ``colorspace``."""
-    return colour_module().RGB_to_XYZ(np.asarray(rgb, np.float64), colorspace)[..., 1]
+    """Relative luminance Y of linear ``rgb`` (..., 3) in ``colorspace``: the Y row of
+    colour-science's RGB -> XYZ matrix (no chromatic adaptation, as in :func:`chromaticity`)."""
+    weights = colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1]
+    return np.asarray(rgb, np.float64) @ weights
 
 
 def white_point(colorspace: str) -> np.ndarray:

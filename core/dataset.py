@@ -137,6 +137,25 @@ def _fill_validity(lit, observed, dy, dx, validity):
                 validity[y, x, k] = 1 if inside and observed[y, x] and lit[qy, qx] else 0
 
 
+def warm_up_kernels() -> None:
+    """Load the compiled kernels once on tiny arrays.
+
+    Numba's first dispatch in a process sets up its typing context while holding the GIL for
+    about 0.1 s; an application calls this at start-up so that the first dataset opened in a
+    worker thread does not freeze its GUI thread for that long.
+    """
+    from .stacks import ring_stack
+
+    offsets = disc_offsets(1.0)
+    manifest = Manifest(
+        folder=Path("."), height=1, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
+        max_radius=1.0, frames=(), dark=None, ground_truth=None, notes=None,
+    )
+    dataset = ImpulseDataset(manifest, 1.0, offsets, np.zeros((1, 1, len(offsets), 3), np.float32),
+                             np.ones((1, 1), np.int32), np.ones((1, 1), bool))
+    ring_stack(dataset, [0.0])
+
+
 def response_memory_bytes(grid_shape: tuple[int, int], max_radius: float) -> int:
     """Bytes of the (H, W, K, 3) float32 response array for a grid and max radius."""
     return grid_shape[0] * grid_shape[1] * len(disc_offsets(max_radius)) * 3 * 4
