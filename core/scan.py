@@ -1,0 +1,307 @@
+"""Parallel impulse scanning: plan, capture with a journal, resume, and the finished dataset.
+
+Lit points are the projector pixels of a region of interest on a lattice of spacing
+``floor(2 * max_radius) + 1`` (> 2 max_radius, so FORMAT.md attributes all light within
+max_radius of a lit point to it): (spacing)^2 frames instead of one per pixel.
+
+A scan writes into its output folder as it goes::
+
+    OUT/.scan/plan.json       the plan, to check that a resume continues the same scan
+    OUT/.scan/journal.jsonl   one line per finished frame, flushed and fsynced
+    OUT/frames/NNNNN.exr      each merged HDR frame, written atomically as soon as it exists
+    OUT/mapping.exr, OUT/dark.exr
+    OUT/dataset.json          written last: the folder is a dataset only once the scan is complete
+
+A scan stopped anywhere (cancel, crash, power cut, a camera that stops answering, a full disk)
+resumes from the journal; frames are deterministic functions of the rig, so the resumed dataset
+equals an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import shutil
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_file
+from .errors import Cancelled, RinglightError
+from .exr import write_exr_channels, write_exr_rgb
+from .hardware import Camera, HardwareError, Projector
+from .hdr import merge_brackets
+from .manifest import parse_manifest
+
+SCAN_FOLDER = ".scan"
+CAPTURE_TIMEOUT_S = 30.0
+BYTES_PER_PIXEL = 12  # float32 RGB
+
+
+class ScanError(RinglightError):
+    """A scan cannot start or continue (bad plan, mismatched resume, disk full)."""
+
+
+class ScanPaused(RinglightError):
+    """The scan stopped before its end; it resumes from its journal (the message says why)."""
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """What to capture.
+
+    Attributes
+    ----------
+    roi
+        (y0, x0, y1, x1) projector pixels of the grid, end exclusive.
+    max_radius
+        Grid steps.
+    exposures
+        Bracket exposures in seconds.
+    noise_floor
+        Raw counts above black below which a sample is not used in the HDR merge.
+    """
+
+    roi: tuple[int, int, int, int]
+    max_radius: float
+    exposures: tuple[float, ...]
+    noise_floor: float = 0.0
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        y0, x0, y1, x1 = self.roi
+        return (y1 - y0, x1 - x0)
+
+    @property
+    def spacing(self) -> int:
+        return int(math.floor(2 * self.max_radius)) + 1
+
+    def frames(self) -> list[np.ndarray]:
+        """Lit grid points per frame, (n, 2) [y, x] each; one point per frame when the lattice
+        would need as many frames as points."""
+        height, width = self.grid_shape
+        spacing = self.spacing
+        if spacing * spacing >= height * width:
+            return [np.array([[y, x]]) for y in range(height) for x in range(width)]
+        frames = []
+        for oy in range(min(spacing, height)):
+            for ox in range(min(spacing, width)):
+                ys, xs = np.mgrid[oy:height:spacing, ox:width:spacing]
+                frames.append(np.stack([ys.ravel(), xs.ravel()], 1))
+        return frames
+
+    def pattern(self, lit: np.ndarray, projector_size: tuple[int, int]) -> np.ndarray:
+        """(H, W) float32 projector pattern lighting grid points ``lit``."""
+        pattern = np.zeros(projector_size, np.float32)
+        pattern[lit[:, 0] + self.roi[0], lit[:, 1] + self.roi[1]] = 1.0
+        return pattern
+
+    def estimated_seconds(self, seconds_per_capture_overhead: float = 0.05, settle: float = 0.0) -> float:
+        """Frames x (settle + sum of exposures + per-capture overhead x brackets)."""
+        per_frame = settle + sum(self.exposures) + seconds_per_capture_overhead * len(self.exposures)
+        return len(self.frames()) * per_frame
+
+    def estimated_bytes(self, camera_shape: tuple[int, int]) -> int:
+        """Disk for frames, dark and mapping (float32 EXR, before compression)."""
+        return (len(self.frames()) + 3) * camera_shape[0] * camera_shape[1] * BYTES_PER_PIXEL
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "ScanPlan":
+        document = json.loads(text)
+        return cls(tuple(document["roi"]), float(document["max_radius"]), tuple(document["exposures"]),
+                   float(document.get("noise_floor", 0.0)))
+
+
+def check_plan(plan: ScanPlan, projector_size: tuple[int, int]) -> None:
+    y0, x0, y1, x1 = plan.roi
+    if not (0 <= y0 < y1 <= projector_size[0] and 0 <= x0 < x1 <= projector_size[1]):
+        raise ScanError(f"region {plan.roi} must lie inside the {projector_size[0]} x {projector_size[1]} projector")
+    if not plan.max_radius > 0:
+        raise ScanError(f"max_radius must be > 0, got {plan.max_radius}")
+    if not plan.exposures or min(plan.exposures) <= 0:
+        raise ScanError(f"exposures must be > 0 s, got {plan.exposures}")
+
+
+def capture_with_timeout(camera: Camera, exposure: float, timeout: float = CAPTURE_TIMEOUT_S) -> np.ndarray:
+    """``camera.capture(exposure)``, or HardwareError when it does not return within ``timeout``
+    seconds (a hung driver cannot be killed, but the scan does not hang with it)."""
+    results: queue.Queue = queue.Queue(maxsize=1)
+
+    def run():
+        try:
+            results.put(("frame", camera.capture(exposure)))
+        except BaseException as error:  # handed to the caller, raised there
+            results.put(("error", error))
+
+    threading.Thread(target=run, daemon=True, name="camera-capture").start()
+    try:
+        kind, value = results.get(timeout=timeout + exposure)
+    except queue.Empty:
+        raise HardwareError(f"the camera did not answer within {timeout + exposure:.0f} s") from None
+    if kind == "error":
+        if isinstance(value, HardwareError):
+            raise value
+        raise HardwareError(f"the camera failed: {type(value).__name__}: {value}") from value
+    return np.asarray(value, np.float32)
+
+
+def capture_hdr(camera: Camera, projector: Projector, pattern: np.ndarray | None, plan: ScanPlan,
+                timeout: float = CAPTURE_TIMEOUT_S):
+    """Show ``pattern`` (None: black), capture the bracket and merge it: a MergedFrame in camera
+    counts per second, RGB (a mono camera's frame is repeated in three channels)."""
+    if pattern is None:
+        projector.show_black()
+    else:
+        projector.show(pattern)
+    if projector.settle_time > 0:
+        time.sleep(projector.settle_time)
+    frames = [as_rgb(capture_with_timeout(camera, exposure, timeout)) for exposure in plan.exposures]
+    return merge_brackets(frames, plan.exposures, camera.black_level, camera.saturation_level, plan.noise_floor)
+
+
+def as_rgb(frame: np.ndarray) -> np.ndarray:
+    frame = np.asarray(frame, np.float32)
+    if frame.ndim == 2:
+        return np.repeat(frame[:, :, None], 3, axis=2)
+    if frame.ndim == 3 and frame.shape[2] == 3:
+        return frame
+    raise HardwareError(f"camera frames must be (rows, cols) or (rows, cols, 3), got {frame.shape}")
+
+
+@dataclass(frozen=True)
+class ScanProgress:
+    done: int
+    total: int
+    saturated_pixels: int
+
+
+class Scan:
+    """A scan into ``out`` (see the module docstring); :meth:`run` captures what is missing."""
+
+    def __init__(self, out, plan: ScanPlan, mapping: np.ndarray, camera_notes: str = ""):
+        self.out = Path(out)
+        self.plan = plan
+        self.mapping = np.asarray(mapping, np.float32)
+        self.camera_notes = camera_notes
+        self.frames = plan.frames()
+
+    @property
+    def journal_path(self) -> Path:
+        return self.out / SCAN_FOLDER / "journal.jsonl"
+
+    def prepare(self, resume: bool) -> None:
+        """Create the folder and plan, or check that a resumed scan continues the same plan."""
+        plan_path = self.out / SCAN_FOLDER / "plan.json"
+        if (self.out / "dataset.json").exists() and not resume:
+            raise ScanError(f"{self.out}: already holds a finished dataset; choose another folder")
+        if plan_path.exists():
+            if not resume:
+                raise ScanError(f"{self.out}: holds an unfinished scan; resume it (--resume) or choose another folder")
+            if ScanPlan.from_json(plan_path.read_text(encoding="utf-8")) != self.plan:
+                raise ScanError(f"{plan_path}: the unfinished scan has another plan; resume with its settings")
+            return
+        if self.out.exists() and any(self.out.iterdir()):
+            raise ScanError(f"{self.out}: exists and is not empty; refusing to write a scan into it")
+        (self.out / SCAN_FOLDER).mkdir(parents=True, exist_ok=True)
+        (self.out / "frames").mkdir(exist_ok=True)
+        with atomic_file(self.out / "mapping.exr") as temporary:
+            write_exr_channels(temporary, {"y": self.mapping[..., 0], "x": self.mapping[..., 1]})
+        with atomic_file(plan_path) as temporary:
+            temporary.write_text(self.plan.to_json(), encoding="utf-8")
+
+    def finished_frames(self) -> dict[int, dict]:
+        """Journal entries by frame index (a torn last line from a crash is ignored)."""
+        entries = {}
+        if self.journal_path.exists():
+            for line in self.journal_path.read_text(encoding="utf-8").splitlines():
+                try:
+                    entry = json.loads(line)
+                except ValueError:
+                    continue
+                if (self.out / entry.get("file", "")).is_file():
+                    entries[int(entry["index"])] = entry
+        return entries
+
+    def run(self, camera: Camera, projector: Projector, progress: Callable[[ScanProgress], None] | None = None,
+            should_stop: Callable[[], bool] | None = None, timeout: float = CAPTURE_TIMEOUT_S) -> Path:
+        """Capture the dark frame and every unfinished frame, then write the manifest.
+
+        Raises ScanPaused (camera failure, disk full) or Cancelled (``should_stop``), leaving a
+        resumable scan; returns the dataset folder when complete.
+        """
+        frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
+        done = self.finished_frames()
+        saturated = sum(entry.get("saturated", 0) for entry in done.values())
+        try:
+            if not (self.out / "dark.exr").is_file():
+                self._check_disk(frame_bytes)
+                dark = capture_hdr(camera, projector, None, self.plan, timeout)
+                with atomic_file(self.out / "dark.exr") as temporary:
+                    write_exr_rgb(temporary, dark.radiance)
+            for index, lit in enumerate(self.frames):
+                if index in done:
+                    continue
+                if should_stop is not None and should_stop():
+                    raise Cancelled(f"scan stopped after {len(done)} of {len(self.frames)} frames; resume to continue")
+                self._check_disk(frame_bytes)
+                merged = capture_hdr(camera, projector, self.plan.pattern(lit, projector.size), self.plan, timeout)
+                name = f"frames/{index:05d}.exr"
+                with atomic_file(self.out / name) as temporary:
+                    write_exr_rgb(temporary, merged.radiance)
+                entry = {"index": index, "file": name, "saturated": merged.saturated_count}
+                self._append_journal(entry)
+                done[index] = entry
+                saturated += merged.saturated_count
+                if progress is not None:
+                    progress(ScanProgress(len(done), len(self.frames), saturated))
+        except HardwareError as error:
+            raise ScanPaused(f"scan paused after {len(done)} of {len(self.frames)} frames: {error}; "
+                             "fix the camera and resume") from None
+        finally:
+            projector.show_black()
+        return self._write_manifest(saturated)
+
+    def _append_journal(self, entry: dict) -> None:
+        with open(self.journal_path, "a", encoding="utf-8") as journal:
+            journal.write(json.dumps(entry) + "\n")
+            journal.flush()
+            os.fsync(journal.fileno())
+
+    def _check_disk(self, needed: int) -> None:
+        free = shutil.disk_usage(self.out).free
+        if free < 2 * needed:
+            raise ScanPaused(f"{self.out}: only {free / 2**20:.1f} MiB free, a frame needs {needed / 2**20:.1f} MiB; "
+                             "free some space and resume")
+
+    def _write_manifest(self, saturated: int) -> Path:
+        height, width = self.plan.grid_shape
+        notes = (f"captured by ringlight: roi {list(self.plan.roi)}, exposures "
+                 f"{', '.join(f'{e:g}' for e in self.plan.exposures)} s merged to counts/s; "
+                 f"{saturated} pixel-frames saturated in every bracket. {self.camera_notes}").strip()
+        manifest = {
+            "format": "ringlight-impulse", "version": 1, "grid": {"height": height, "width": width},
+            "colorspace": "sRGB", "frame_space": "camera", "mapping": "mapping.exr",
+            "max_radius": self.plan.max_radius, "dark": "dark.exr", "notes": notes,
+            "frames": [{"file": f"frames/{index:05d}.exr", "lit": lit.tolist(), "exposure": 1.0}
+                       for index, lit in enumerate(self.frames)],
+        }
+        parse_manifest(manifest, self.out)  # never publish a manifest the reader would refuse
+        with atomic_file(self.out / "dataset.json") as temporary:
+            temporary.write_text(json.dumps(manifest), encoding="utf-8")
+        return self.out
+
+
+def estimate_disk(plan: ScanPlan, camera_shape: tuple[int, int], folder: Path) -> tuple[int, int]:
+    """(bytes the scan needs, bytes free where it will be written)."""
+    folder = Path(folder)
+    probe = folder if folder.exists() else next((p for p in folder.parents if p.exists()), Path("."))
+    return plan.estimated_bytes(camera_shape), shutil.disk_usage(probe).free

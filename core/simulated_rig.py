@@ -1,0 +1,215 @@
+"""A virtual projector-camera rig over a simulated scene: the ``simulated`` hardware backend.
+
+The projector shows patterns on the scene's grid (one projector pixel per grid point). The scene
+radiance under a pattern is the sum of the lit points' simulated responses (the simulator's
+transport windows). The camera samples that radiance through a :class:`CameraSampling` (scale,
+rotation, offset: camera pixel centre -> projector position) and records it like a machine-vision
+sensor: electrons = radiance x gain x exposure with Poisson shot noise, Gaussian read noise, a
+black level, 12-bit quantisation and saturation. Noise is seeded by the pattern and exposure, so
+the same capture repeats exactly (a resumed scan equals an uninterrupted one).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from .hardware import HardwareError, HardwarePlugin
+
+
+@dataclass(frozen=True)
+class CameraSampling:
+    """Where camera pixels look: projector position (y, x) of camera pixel centre (r + 0.5, c + 0.5)
+    is ``R(rotation) @ ((r + 0.5, c + 0.5) / scale) + offset``; projector pixel [y, x] covers
+    [y, y + 1) x [x, x + 1). ``margin`` extra camera pixels on each side see beyond the projector."""
+
+    scale: float = 2.0
+    rotation_deg: float = 1.5
+    offset: tuple[float, float] = (-0.7, 0.4)
+    margin: int = 2
+
+    def camera_shape(self, projector_size: tuple[int, int]) -> tuple[int, int]:
+        return (int(math.ceil(projector_size[0] * self.scale)) + 2 * self.margin,
+                int(math.ceil(projector_size[1] * self.scale)) + 2 * self.margin)
+
+    def projector_position(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Projector (y, x) of the centres of camera pixels (rows, cols)."""
+        v = (np.asarray(rows, np.float64) + 0.5 - self.margin) / self.scale
+        u = (np.asarray(cols, np.float64) + 0.5 - self.margin) / self.scale
+        angle = math.radians(self.rotation_deg)
+        y = math.cos(angle) * v + math.sin(angle) * u + self.offset[0]
+        x = -math.sin(angle) * v + math.cos(angle) * u + self.offset[1]
+        return y, x
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Camera noise and range: ``gain`` electrons per unit radiance per second."""
+
+    gain: float = 4.0e6
+    read_noise: float = 2.0
+    black_level: float = 64.0
+    bits: int = 12
+    exposure_range: tuple[float, float] = (1e-4, 2.0)
+
+    @property
+    def saturation_level(self) -> float:
+        return float(2**self.bits - 1)
+
+
+class SimulatedRig:
+    """A projector and a camera sharing one scene; ``windows`` as in ``Transport.windows``.
+
+    ``fail_after``: the camera raises HardwareError after that many captures (to rehearse a
+    camera that stops answering).
+    """
+
+    def __init__(self, windows: np.ndarray, sampling: CameraSampling = CameraSampling(),
+                 sensor: SensorModel = SensorModel(), seed: int = 0, fail_after: int | None = None,
+                 settle_time: float = 0.0):
+        self.windows = np.asarray(windows, np.float32)
+        self.size = self.windows.shape[:2]
+        self.radius = (self.windows.shape[2] - 1) // 2
+        self.sampling = sampling
+        self.sensor = sensor
+        self.seed = seed
+        self.fail_after = fail_after
+        self.captures = 0
+        self.pattern = np.zeros(self.size, np.float32)
+        self.projector = SimulatedProjector(self, settle_time)
+        self.camera = SimulatedCamera(self)
+        rows, cols = np.mgrid[:sampling.camera_shape(self.size)[0], :sampling.camera_shape(self.size)[1]]
+        y, x = sampling.projector_position(rows, cols)
+        self.seen_y, self.seen_x = np.floor(y).astype(np.int64), np.floor(x).astype(np.int64)
+        self.sees_scene = (self.seen_y >= 0) & (self.seen_y < self.size[0]) & (self.seen_x >= 0) & (self.seen_x < self.size[1])
+
+    def scene_radiance(self, pattern: np.ndarray) -> np.ndarray:
+        """(H, W, 3) radiance on the grid under ``pattern`` (H, W) in [0, 1]."""
+        height, width = self.size
+        radiance = np.zeros((height, width, 3), np.float64)
+        weighted = self.windows * pattern[:, :, None, None, None]
+        r = self.radius
+        for dy in range(-r, r + 1):
+            for dx in range(-r, r + 1):
+                # Light of lit point q = (y, x) leaving at q + (dy, dx).
+                ys, ye = max(0, -dy), min(height, height - dy)
+                xs, xe = max(0, -dx), min(width, width - dx)
+                if ys < ye and xs < xe:
+                    radiance[ys + dy:ye + dy, xs + dx:xe + dx] += weighted[ys:ye, xs:xe, dy + r, dx + r]
+        return radiance
+
+    def capture(self, exposure: float) -> np.ndarray:
+        low, high = self.sensor.exposure_range
+        if not low <= exposure <= high:
+            raise HardwareError(f"simulated camera: exposure {exposure:g} s outside {low:g}..{high:g} s")
+        if self.fail_after is not None and self.captures >= self.fail_after:
+            raise HardwareError("simulated camera stopped answering (fail_after reached)")
+        self.captures += 1
+        radiance = self.scene_radiance(self.pattern)
+        seen = np.zeros((*self.seen_y.shape, 3))
+        seen[self.sees_scene] = radiance[self.seen_y[self.sees_scene], self.seen_x[self.sees_scene]]
+        key = zlib.crc32(self.pattern.tobytes())
+        rng = np.random.default_rng([self.seed, key, int(round(exposure * 1e9))])
+        electrons = rng.poisson(seen * self.sensor.gain * exposure).astype(np.float64)
+        raw = electrons + rng.normal(0.0, self.sensor.read_noise, seen.shape) + self.sensor.black_level
+        return np.clip(np.round(raw), 0, self.sensor.saturation_level).astype(np.float32)
+
+
+class SimulatedCamera:
+    """The rig's camera (see :class:`SimulatedRig`)."""
+
+    def __init__(self, rig: SimulatedRig):
+        self.rig = rig
+
+    def open(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    @property
+    def frame_shape(self) -> tuple[int, ...]:
+        return (*self.rig.seen_y.shape, 3)
+
+    @property
+    def exposure_range(self) -> tuple[float, float]:
+        return self.rig.sensor.exposure_range
+
+    @property
+    def saturation_level(self) -> float:
+        return self.rig.sensor.saturation_level
+
+    @property
+    def black_level(self) -> float:
+        return self.rig.sensor.black_level
+
+    def properties(self) -> dict[str, str]:
+        sampling = self.rig.sampling
+        return {"backend": "simulated", "bits": str(self.rig.sensor.bits),
+                "sampling": f"scale {sampling.scale:g}, rotation {sampling.rotation_deg:g} deg, "
+                            f"offset {sampling.offset[0]:g},{sampling.offset[1]:g}"}
+
+    def capture(self, exposure: float) -> np.ndarray:
+        return self.rig.capture(exposure)
+
+
+class SimulatedProjector:
+    """The rig's projector: one projector pixel per grid point of the scene."""
+
+    def __init__(self, rig: SimulatedRig, settle_time: float):
+        self.rig = rig
+        self.settle_time = settle_time
+
+    def open(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.rig.size
+
+    def show(self, pattern: np.ndarray) -> None:
+        pattern = np.asarray(pattern, np.float32)
+        if pattern.shape != self.rig.size:
+            raise HardwareError(f"simulated projector: pattern {pattern.shape} is not {self.rig.size}")
+        self.rig.pattern = np.clip(pattern, 0, 1)
+
+    def show_black(self) -> None:
+        self.show(np.zeros(self.rig.size, np.float32))
+
+    def show_white(self) -> None:
+        self.show(np.ones(self.rig.size, np.float32))
+
+
+@functools.lru_cache(maxsize=4)
+def _preset_rig(scene: str, size: str, photons: int, seed: int, fail_after: int | None) -> SimulatedRig:
+    from .presets import load_scene
+    from .simulate import simulate_transport
+
+    height, width = (int(part) for part in size.lower().split("x"))
+    transport = simulate_transport(load_scene(scene, size=(height, width)), photons=photons, seed=seed)
+    return SimulatedRig(transport.windows, seed=seed, fail_after=fail_after)
+
+
+def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
+               fail_after: str = "") -> SimulatedRig:
+    """The rig over a simulator preset (made once per option set and shared by the camera and
+    projector factories). Options are strings, as typed by a user."""
+    try:
+        return _preset_rig(scene, size, int(photons), int(seed), int(fail_after) if fail_after else None)
+    except ValueError as error:
+        raise HardwareError(f"simulated rig: bad option ({error}); size is HxW, photons and seed integers") from None
+
+
+PLUGIN = HardwarePlugin(
+    name="simulated",
+    cameras={"simulated": lambda **options: preset_rig(**options).camera},
+    projectors={"simulated": lambda **options: preset_rig(**options).projector},
+    description="a virtual rig over a simulator preset (options: scene, size, photons, seed, fail_after)",
+)
