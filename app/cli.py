@@ -25,7 +25,7 @@ from ringlight.core.presets import ensure_demo_dataset, load_scene, preset_names
 from ringlight.core.scene import SceneError
 from ringlight.core.simulate import simulate_transport, write_transport
 
-from . import layers_cli
+from . import capture_cli, layers_cli
 
 EXIT_USER_ERROR = 2
 
@@ -68,6 +68,7 @@ def add_commands(subparsers) -> None:
     simulate.set_defaults(handler=run_simulate)
 
     layers_cli.add_command(subparsers, progress_bar)
+    capture_cli.add_command(subparsers, progress_bar)
 
     demo = subparsers.add_parser("demo", help="make (first run only) and describe the bundled demo dataset")
     demo.set_defaults(handler=run_demo)

@@ -1,0 +1,71 @@
+"""``ringlight capture``: the capture wizard's steps without the window, for scripted rigs."""
+
+from __future__ import annotations
+
+import sys
+
+from ringlight.core.capture import camera_notes, measure_correspondence, plan_scan, resume_scan, run_scan
+from ringlight.core.hardware import discover_plugins, make_device, parse_options
+from ringlight.core.regions import parse_rectangle
+from ringlight.core.scan import Scan, ScanError, estimate_disk
+
+
+def add_command(subparsers, progress_bar) -> None:
+    capture = subparsers.add_parser(
+        "capture", help="capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)"
+    )
+    capture.add_argument("--camera", required=True, help="camera name (see --list)")
+    capture.add_argument("--projector", required=True, help="projector name (see --list)")
+    capture.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="projector pixels to scan, end exclusive (default: all)")
+    capture.add_argument("--max-radius", type=float, default=8.0, help="grid steps (default 8)")
+    capture.add_argument("--out", required=True, help="dataset folder (new, or an unfinished scan with --resume)")
+    capture.add_argument("--resume", action="store_true", help="continue the unfinished scan in --out")
+    capture.add_argument("--option", action="append", metavar="KEY=VALUE", help="option for both devices")
+    capture.add_argument("--camera-option", action="append", metavar="KEY=VALUE")
+    capture.add_argument("--projector-option", action="append", metavar="KEY=VALUE")
+    capture.set_defaults(handler=lambda args: run_capture(args, progress_bar))
+
+
+def run_capture(args, progress_bar) -> int:
+    discovery = discover_plugins()
+    for name, reason in discovery.failures:
+        print(f"warning: hardware plugin {name} skipped: {reason}", file=sys.stderr)
+    shared = parse_options(args.option)
+    camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)})
+    projector = make_device(discovery.projectors(), args.projector, {**shared, **parse_options(args.projector_option)})
+    camera.open()
+    projector.open()
+    scan = None
+    try:
+        if args.resume:
+            scan = resume_scan(args.out)
+            print(f"resuming {args.out}: {len(scan.finished_frames())} of {len(scan.frames)} frames captured")
+        else:
+            with progress_bar("Gray code correspondence") as progress:
+                correspondence = measure_correspondence(camera, projector, progress)
+            print(f"correspondence: {correspondence.inliers} camera pixels fit a homography, "
+                  f"residual {correspondence.residual_rms:.2f} projector pixels rms")
+            height, width = projector.size
+            roi = parse_rectangle(args.roi) if args.roi else (0, 0, height, width)
+            planned = plan_scan(camera, projector, correspondence, roi, args.max_radius)
+            plan = planned.plan
+            needed, free = estimate_disk(plan, planned.mapping.shape[:2], args.out)
+            print(f"plan: {plan.grid_shape[0]} x {plan.grid_shape[1]} grid, spacing {plan.spacing}, "
+                  f"{len(plan.frames())} frames instead of {plan.grid_shape[0] * plan.grid_shape[1]}, exposures "
+                  f"{', '.join(f'{e:.3g}' for e in plan.exposures)} s; about {plan.estimated_seconds():.0f} s, "
+                  f"{needed / 2**20:.1f} MiB ({free / 2**20:.0f} MiB free)")
+            if needed > free:
+                raise ScanError(f"{args.out}: the scan needs about {needed / 2**20:.0f} MiB, only {free / 2**20:.0f} MiB are free")
+            scan = Scan(args.out, plan, planned.mapping, camera_notes(camera))
+        with progress_bar("scanning") as progress:
+            out = run_scan(scan, camera, projector, args.resume,
+                           lambda state: progress(state.done / state.total))
+    except KeyboardInterrupt:
+        done = len(scan.finished_frames()) if scan is not None else 0
+        print(f"ringlight: interrupted after {done} frames; continue with --resume", file=sys.stderr)
+        return 130
+    finally:
+        projector.close()
+        camera.close()
+    print(f"wrote {out}: {len(scan.frames)} frames; open it with: ringlight {out}")
+    return 0
