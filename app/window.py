@@ -24,6 +24,7 @@ from ringlight.core.display import DisplaySettings, display_levels, negative_fra
 from ringlight.core.ground_truth import normalised_cross_correlation
 from ringlight.core.profiles import PixelProfile, pixel_profile
 from ringlight.core.stack_request import StackRequest
+from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import VIEWS, DisplayControls
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.job_indicator import JobIndicator
@@ -34,6 +35,7 @@ from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
 from . import exports
+from .capture_tab import CaptureTab
 from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
 
@@ -70,11 +72,15 @@ class MainWindow(QMainWindow):
         self.load_jobs = JobSlot(self.pool, self)
         self.stack_jobs = JobSlot(self.pool, self)
         self.export_jobs = JobSlot(self.export_pool, self)
+        self.capture_pool = QThreadPool(self)
+        self.capture_pool.setMaxThreadCount(1)
 
         # Numba's one-time set-up holds the GIL for ~0.1 s: pay it now, in the worker, not mid-use.
         self.pool.start(warm_up_kernels)
         self._build_widgets()
         self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs, self)
+        self.capture_tab = CaptureTab(self.capture_wizard, self.capture_pool, self)
+        self.statusBar().addPermanentWidget(JobIndicator(self.capture_tab.jobs))
         self._build_menus()
         self._connect()
         self._restore_settings()
@@ -95,7 +101,11 @@ class MainWindow(QMainWindow):
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addWidget(self.splitter, 1)
         layout.addWidget(self.scrub_bar)
-        self.setCentralWidget(central)
+        self.capture_wizard = CaptureWizard()
+        self.main_tabs = QTabWidget()
+        self.main_tabs.addTab(central, "Explore")
+        self.main_tabs.addTab(self.capture_wizard, "Capture")
+        self.setCentralWidget(self.main_tabs)
 
         self.display_controls = DisplayControls()
         self.stack_controls = StackControls()
@@ -187,6 +197,8 @@ class MainWindow(QMainWindow):
         self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
         self.stack_controls.request_changed.connect(self.request_stacks)
         self.layer_panel.export_requested.connect(self.choose_layer_export)
+        self.capture_tab.error.connect(self.show_error)
+        self.capture_tab.dataset_ready.connect(self._open_captured)
         self.analysis_tabs.currentChanged.connect(lambda _: self.layer_tab.on_shown())
         self.profile_dock.visibilityChanged.connect(lambda _: self.layer_tab.on_shown())
 
@@ -204,6 +216,10 @@ class MainWindow(QMainWindow):
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
+
+    def _open_captured(self, path: str) -> None:
+        self.main_tabs.setCurrentIndex(0)
+        self.open_dataset(path)
 
     def _on_loaded(self, loaded: LoadedDataset) -> None:
         self.loaded = loaded
@@ -559,9 +575,12 @@ class MainWindow(QMainWindow):
     def shutdown(self) -> None:
         """Cancel all work and wait for the workers (so no job outlives the window)."""
         self.cancel_all()
+        self.capture_tab.shutdown()
         self.scrub_bar.timer.stop()
         self.pool.waitForDone()
         self.export_pool.waitForDone()
+        self.capture_pool.waitForDone()
+        self.capture_tab.close_devices()
 
     def closeEvent(self, event) -> None:
         if self.export_jobs.busy:

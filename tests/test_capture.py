@@ -11,9 +11,9 @@ import pytest
 from reference import write_dataset
 
 from ringlight.app.main import main
-from ringlight.core import Cancelled, open_dataset, transient_stack
+from ringlight.core import Cancelled, RinglightError, open_dataset, transient_stack
 from ringlight.core.capture import measure_correspondence
-from ringlight.core.hardware import HardwareError, discover_plugins
+from ringlight.core.hardware import discover_plugins
 from ringlight.core.hdr import bracket_exposures, merge_brackets
 from ringlight.core.scan import Scan, ScanError, ScanPaused, ScanPlan
 from ringlight.core.simulated_rig import CameraSampling, SimulatedRig, preset_rig
@@ -67,7 +67,7 @@ def test_hdr_merge_is_exact_without_noise_and_flags_pixels_saturated_everywhere(
     assert merged.saturated.tolist() == [[False, False], [False, True]]
     np.testing.assert_allclose(merged.radiance[~merged.saturated], rate[~merged.saturated], rtol=1e-6)
     assert merged.radiance[1, 1] == pytest.approx(4031 / 1e-3)
-    with pytest.raises(Exception, match="one exposure per frame"):
+    with pytest.raises(RinglightError, match="one exposure per frame"):
         merge_brackets(frames[:2], exposures, 64, 4095)
 
 

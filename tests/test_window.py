@@ -452,3 +452,41 @@ def test_layers_tab_recovers_the_known_layers_from_picked_radii(qtbot, window, t
     window.set_radius(8.0)
     qtbot.keyClick(window, Qt.Key.Key_P)
     assert "dark or negative" in panel.message_label.text() and window.layer_tab.analysis is None
+
+
+def test_capture_wizard_runs_end_to_end_on_the_simulated_rig_and_opens_the_dataset(qtbot, window, tmp_path):
+    from test_capture import frame_files
+
+    from ringlight.app.main import main
+
+    wizard, jobs = window.capture_wizard, window.capture_tab.jobs
+    window.main_tabs.setCurrentWidget(wizard)
+    assert wizard.camera_box.currentText() == "simulated" and wizard.projector_box.currentText() == "simulated"
+    wizard.options_edit.setText("size=12x12 photons=300")
+    with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        wizard.open_button.click()
+    assert wizard.roi() == (0, 0, 12, 12) and wizard.pages.currentIndex() == 1
+    with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        wizard.correspondence_button.click()
+    assert "fit the homography" in wizard.correspondence_label.text()
+    wizard.radius_box.setValue(4.0)
+    with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        wizard.probe_button.click()
+    assert "81 frames instead of 144" in wizard.plan_label.text()
+    wizard.out_edit.setText(str(tmp_path / "wizard"))
+    with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
+        wizard.scan_button.click()
+    assert wizard.scan_bar.value() == 1000 and wizard.open_dataset_button.isEnabled()
+    with qtbot.waitSignal(window.dataset_loaded, timeout=LOAD_TIMEOUT_MS):
+        wizard.open_dataset_button.click()
+    assert window.loaded.dataset.path == tmp_path / "wizard" and window.main_tabs.currentIndex() == 0
+    # The command line runs the same steps: the same rig gives the same dataset, bit for bit.
+    assert main(["capture", "--camera", "simulated", "--projector", "simulated", "--option", "size=12x12",
+                 "--option", "photons=300", "--max-radius", "4", "--out", str(tmp_path / "cli")]) == 0
+    assert frame_files(tmp_path / "wizard") == frame_files(tmp_path / "cli")
+
+
+def test_capture_steps_out_of_order_explain_what_is_missing(qtbot, window):
+    with qtbot.waitSignal(window.error_shown, timeout=5000) as error:
+        window.capture_wizard.correspondence_button.click()
+    assert "Open the devices first" in error.args[0]

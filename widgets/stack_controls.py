@@ -53,6 +53,7 @@ class StackControls(QWidget):
         for box in (self.start_box, self.stop_box, self.step_box, self.dr_box, self.thickness_box):
             box.valueChanged.connect(self._on_edited)
         self.antialias_box.toggled.connect(self._on_edited)
+        self.set_request(StackRequest())
 
     def request(self) -> StackRequest:
         return StackRequest(

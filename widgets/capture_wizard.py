@@ -1,0 +1,200 @@
+"""The capture wizard's pages: devices, correspondence, exposure and region, plan, scan, finish.
+
+Steps are listed on the left and each can be re-entered; the widget shows what it is given and
+reports what the user asks for by signals (the app runs the hardware in workers).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QListWidget,
+    QProgressBar,
+    QPushButton,
+    QSpinBox,
+    QStackedWidget,
+    QVBoxLayout,
+    QWidget,
+)
+
+from .image_panel import ImagePanel
+
+STEPS = ["1  Devices", "2  Correspondence", "3  Region and exposure", "4  Plan", "5  Scan", "6  Finish"]
+
+
+def _page(*widgets) -> QWidget:
+    page = QWidget()
+    layout = QVBoxLayout(page)
+    for widget in widgets:
+        if isinstance(widget, QHBoxLayout | QFormLayout):
+            layout.addLayout(widget)
+        else:
+            layout.addWidget(widget)
+    layout.addStretch(1)
+    return page
+
+
+def _label(text: str = "") -> QLabel:
+    label = QLabel(text)
+    label.setWordWrap(True)
+    return label
+
+
+class CaptureWizard(QWidget):
+    """Signals
+    -------
+    open_requested(camera, projector, options)
+    correspondence_requested()
+    probe_requested(roi, max_radius)      roi = (y0, x0, y1, x1)
+    scan_requested(out, resume)
+    pause_requested()
+    open_dataset_requested(path)
+    """
+
+    open_requested = Signal(str, str, str)
+    correspondence_requested = Signal()
+    probe_requested = Signal(tuple, float)
+    scan_requested = Signal(str, bool)
+    pause_requested = Signal()
+    open_dataset_requested = Signal(str)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.steps = QListWidget()
+        self.steps.addItems(STEPS)
+        self.steps.setFixedWidth(190)
+        self.pages = QStackedWidget()
+        self.steps.currentRowChanged.connect(self.pages.setCurrentIndex)
+
+        # 1 devices
+        self.camera_box = QComboBox()
+        self.projector_box = QComboBox()
+        self.options_edit = QLineEdit("size=24x24 photons=600")
+        self.options_edit.setToolTip("KEY=VALUE options for both devices, separated by spaces")
+        self.open_button = QPushButton("Open devices")
+        self.open_button.clicked.connect(lambda: self.open_requested.emit(
+            self.camera_box.currentText(), self.projector_box.currentText(), self.options_edit.text()))
+        self.devices_label = _label()
+        devices = QFormLayout()
+        devices.addRow("Camera", self.camera_box)
+        devices.addRow("Projector", self.projector_box)
+        devices.addRow("Options", self.options_edit)
+        self.pages.addWidget(_page(devices, self.open_button, self.devices_label))
+
+        # 2 correspondence
+        self.correspondence_button = QPushButton("Project Gray code and decode")
+        self.correspondence_button.clicked.connect(self.correspondence_requested)
+        self.correspondence_label = _label("Shows OpenCV Gray code patterns, decodes the projector pixel each camera "
+                                           "pixel sees and fits a homography.")
+        self.mapping_view = ImagePanel("camera view: projector column seen (viridis), grey: none")
+        self.mapping_view.setMinimumHeight(260)
+        self.pages.addWidget(_page(self.correspondence_button, self.correspondence_label, self.mapping_view))
+
+        # 3 region and exposure
+        self.roi_boxes = [QSpinBox() for _ in range(4)]
+        for box in self.roi_boxes:
+            box.setRange(0, 100000)
+        roi = QHBoxLayout()
+        for name, box in zip(("y0", "x0", "y1", "x1"), self.roi_boxes):
+            roi.addWidget(QLabel(name))
+            roi.addWidget(box)
+        self.radius_box = QDoubleSpinBox()
+        self.radius_box.setRange(0.5, 1000)
+        self.radius_box.setValue(6.0)
+        self.radius_box.setSuffix(" grid steps")
+        self.probe_button = QPushButton("Probe exposures")
+        self.probe_button.clicked.connect(lambda: self.probe_requested.emit(self.roi(), self.radius_box.value()))
+        self.probe_label = _label("The region is in projector pixels (end exclusive); max_radius is the largest "
+                                  "distance at which light is attributed to a lit point.")
+        region = QFormLayout()
+        region.addRow("Region", roi)
+        region.addRow("max_radius", self.radius_box)
+        self.pages.addWidget(_page(region, self.probe_button, self.probe_label))
+
+        # 4 plan
+        self.plan_label = _label("Probe exposures first.")
+        self.out_edit = QLineEdit()
+        browse = QPushButton("Browse…")
+        browse.clicked.connect(self._browse)
+        out = QHBoxLayout()
+        out.addWidget(QLabel("Output folder"))
+        out.addWidget(self.out_edit, 1)
+        out.addWidget(browse)
+        self.pages.addWidget(_page(self.plan_label, out))
+
+        # 5 scan
+        self.scan_button = QPushButton("Start scan")
+        self.scan_button.clicked.connect(lambda: self.scan_requested.emit(self.out_edit.text(), False))
+        self.resume_button = QPushButton("Resume")
+        self.resume_button.clicked.connect(lambda: self.scan_requested.emit(self.out_edit.text(), True))
+        self.pause_button = QPushButton("Pause")
+        self.pause_button.clicked.connect(self.pause_requested)
+        buttons = QHBoxLayout()
+        for button in (self.scan_button, self.pause_button, self.resume_button):
+            buttons.addWidget(button)
+        self.scan_bar = QProgressBar()
+        self.scan_bar.setRange(0, 1000)
+        self.scan_label = _label()
+        self.pages.addWidget(_page(buttons, self.scan_bar, self.scan_label))
+
+        # 6 finish
+        self.finish_label = _label("The dataset appears here when the scan is complete.")
+        self.open_dataset_button = QPushButton("Open in the explorer")
+        self.open_dataset_button.setEnabled(False)
+        self.open_dataset_button.clicked.connect(lambda: self.open_dataset_requested.emit(self.out_edit.text()))
+        self.pages.addWidget(_page(self.finish_label, self.open_dataset_button))
+
+        layout = QHBoxLayout(self)
+        layout.addWidget(self.steps)
+        layout.addWidget(self.pages, 1)
+        self.steps.setCurrentRow(0)
+
+    def set_devices(self, cameras: list[str], projectors: list[str], failures: list[str]) -> None:
+        self.camera_box.clear()
+        self.camera_box.addItems(cameras)
+        self.projector_box.clear()
+        self.projector_box.addItems(projectors)
+        for box in (self.camera_box, self.projector_box):
+            index = box.findText("simulated")
+            if index >= 0:
+                box.setCurrentIndex(index)
+        if failures:
+            self.devices_label.setText("Skipped plugins:\n" + "\n".join(failures))
+
+    def go_to(self, step: int) -> None:
+        self.steps.setCurrentRow(step)
+
+    def roi(self) -> tuple[int, int, int, int]:
+        return tuple(box.value() for box in self.roi_boxes)
+
+    def set_roi(self, roi: tuple[int, int, int, int]) -> None:
+        for box, value in zip(self.roi_boxes, roi):
+            box.setValue(int(value))
+
+    def show_mapping(self, mapping: np.ndarray) -> None:
+        """Show where camera pixels look: the projector column as viridis, grey where none."""
+        x = mapping[..., 1]
+        seen = np.isfinite(x)
+        span = np.nanmax(x) - np.nanmin(x) if seen.any() else 1.0
+        scaled = np.where(seen, (x - (np.nanmin(x) if seen.any() else 0.0)) / (span or 1.0), 0.0)
+        pixels = pg.colormap.get("viridis").map(scaled.ravel(), mode="byte")[:, :3].reshape(*x.shape, 3)
+        pixels[~seen] = (72, 72, 80)
+        self.mapping_view.set_pixels(np.ascontiguousarray(pixels, np.uint8))
+
+    def set_scan_progress(self, fraction: float, text: str) -> None:
+        self.scan_bar.setValue(int(round(fraction * 1000)))
+        self.scan_label.setText(text)
+
+    def _browse(self) -> None:
+        folder = QFileDialog.getSaveFileName(self, "Dataset folder to create", self.out_edit.text() or "capture")[0]
+        if folder:
+            self.out_edit.setText(folder)
