@@ -139,6 +139,7 @@ class CaptureTab(QObject):
             self.correspondence = result
             height, width = self.projector.size
             wizard.show_mapping(result.mapping((0, 0, height, width)))
+            wizard.show_projector_view(result.projector_view((height, width)))
             wizard.correspondence_label.setText(
                 f"{result.inliers} camera pixels fit the homography (residual {result.residual_rms:.2f} "
                 f"projector pixels rms); {int(result.lit.sum())} camera pixels see projector light. "

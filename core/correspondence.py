@@ -48,6 +48,9 @@ class Correspondence:
     inliers, residual_rms
         Decoded pixels the homography explains (within INLIER_PX) and their RMS
         residual in projector pixels (decoded pixel centres against the fit).
+    white
+        (rows, cols) float64 grey camera view under the all-white pattern, black capture
+        subtracted.
     """
 
     homography: np.ndarray
@@ -55,6 +58,21 @@ class Correspondence:
     decoded: np.ndarray
     inliers: int
     residual_rms: float
+    white: np.ndarray
+
+    def projector_view(self, projector_size: tuple[int, int]) -> np.ndarray:
+        """(H, W) float64: the white view resampled to projector pixels (mean of the camera pixels
+        that see each one; NaN where none does). Where to draw a region of interest."""
+        mapping = self.mapping((0, 0, *projector_size))
+        seen = np.isfinite(mapping[..., 0])
+        y = np.floor(mapping[seen, 0] + 0.5).astype(np.int64)
+        x = np.floor(mapping[seen, 1] + 0.5).astype(np.int64)
+        total = np.zeros(projector_size)
+        count = np.zeros(projector_size)
+        np.add.at(total, (y, x), self.white[seen])
+        np.add.at(count, (y, x), 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count > 0, total / count, np.nan)
 
     def projector_position(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Projector (y, x) of camera pixel centres (rows, cols), by the fitted homography."""
@@ -136,7 +154,7 @@ def decode_gray_code(captures, black, white, projector_size: tuple[int, int]) ->
     distance = np.sqrt(((fitted - projector_points) ** 2).sum(1))
     inliers = distance <= INLIER_PX
     residual = float(np.sqrt((distance[inliers] ** 2).mean()))
-    return Correspondence(homography, lit, decoded, int(inliers.sum()), residual)
+    return Correspondence(homography, lit, decoded, int(inliers.sum()), residual, contrast)
 
 
 def _shot(camera: Camera, projector: Projector, exposure: float, show) -> np.ndarray:

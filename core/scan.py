@@ -30,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .atomic import atomic_file
@@ -208,6 +209,8 @@ class Scan:
                 raise ScanError(f"{self.out}: holds an unfinished scan; resume it (--resume) or choose another folder")
             if ScanPlan.from_json(plan_path.read_text(encoding="utf-8")) != self.plan:
                 raise ScanError(f"{plan_path}: the unfinished scan has another plan; resume with its settings")
+            for leftover in [*self.out.glob(".*.partial-*"), *(self.out / "frames").glob(".*.partial-*")]:
+                leftover.unlink()  # a write cut short by a crash; its frame is captured again
             return
         if self.out.exists() and any(self.out.iterdir()):
             raise ScanError(f"{self.out}: exists and is not empty; refusing to write a scan into it")
@@ -257,6 +260,8 @@ class Scan:
                 name = f"frames/{index:05d}.exr"
                 with atomic_file(self.out / name) as temporary:
                     write_exr_rgb(temporary, merged.radiance)
+                if merged.saturated_count:
+                    self._write_saturation_mask(index, merged.saturated.any(axis=-1))
                 entry = {"index": index, "file": name, "saturated": merged.saturated_count}
                 self._append_journal(entry)
                 done[index] = entry
@@ -269,6 +274,20 @@ class Scan:
         finally:
             projector.show_black()
         return self._write_manifest(saturated)
+
+    def _write_saturation_mask(self, index: int, mask: np.ndarray) -> None:
+        folder = self.out / SCAN_FOLDER / "saturated"
+        folder.mkdir(exist_ok=True)
+        with atomic_file(folder / f"{index:05d}.png") as temporary:
+            if not cv2.imwrite(str(temporary), mask.astype(np.uint8) * 255):
+                raise ScanError(f"{folder}: could not write a saturation mask")
+
+    def saturation_map(self) -> np.ndarray:
+        """(rows, cols) float32: frames in which each camera pixel saturated in every bracket."""
+        counts = np.zeros(self.mapping.shape[:2], np.float32)
+        for path in sorted((self.out / SCAN_FOLDER / "saturated").glob("[0-9]*.png")):
+            counts += cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
+        return counts
 
     def _append_journal(self, entry: dict) -> None:
         with open(self.journal_path, "a", encoding="utf-8") as journal:
@@ -284,9 +303,13 @@ class Scan:
 
     def _write_manifest(self, saturated: int) -> Path:
         height, width = self.plan.grid_shape
+        saturation = self.saturation_map()
+        with atomic_file(self.out / SCAN_FOLDER / "saturation.exr") as temporary:
+            write_exr_rgb(temporary, np.repeat(saturation[:, :, None], 3, axis=2))
         notes = (f"captured by ringlight: roi {list(self.plan.roi)}, exposures "
                  f"{', '.join(f'{e:g}' for e in self.plan.exposures)} s merged to counts/s; "
-                 f"{saturated} pixel-frames saturated in every bracket. {self.camera_notes}").strip()
+                 f"{saturated} pixel-frames saturated in every bracket (per camera pixel: "
+                 f"{SCAN_FOLDER}/saturation.exr). {self.camera_notes}").strip()
         manifest = {
             "format": "ringlight-impulse", "version": 1, "grid": {"height": height, "width": width},
             "colorspace": "sRGB", "frame_space": "camera", "mapping": "mapping.exr",

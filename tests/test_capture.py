@@ -13,7 +13,7 @@ from reference import write_dataset
 from ringlight.app.main import main
 from ringlight.core import Cancelled, RinglightError, open_dataset, transient_stack
 from ringlight.core.capture import measure_correspondence
-from ringlight.core.hardware import discover_plugins
+from ringlight.core.hardware import HardwareError, discover_plugins
 from ringlight.core.hdr import bracket_exposures, merge_brackets
 from ringlight.core.scan import Scan, ScanError, ScanPaused, ScanPlan
 from ringlight.core.simulated_rig import CameraSampling, SimulatedRig, preset_rig
@@ -69,6 +69,23 @@ def test_hdr_merge_is_exact_without_noise_and_flags_pixels_saturated_everywhere(
     assert merged.radiance[1, 1] == pytest.approx(4031 / 1e-3)
     with pytest.raises(RinglightError, match="one exposure per frame"):
         merge_brackets(frames[:2], exposures, 64, 4095)
+
+
+def test_pixels_saturated_in_every_bracket_are_mapped_per_camera_pixel(tmp_path):
+    from ringlight.core.exr import read_exr_rgb
+
+    rig = SimulatedRig(analytic_windows())
+    plan = ScanPlan((2, 2, 14, 14), 3.0, (0.05,))  # one long exposure: every lit point saturates
+    out = run_scan(tmp_path / "scan", rig, plan)
+    saturation = read_exr_rgb(out / ".scan/saturation.exr")[..., 0]
+    journal = [json.loads(line) for line in (out / ".scan/journal.jsonl").read_text().splitlines()]
+    assert sum(entry["saturated"] for entry in journal) > 0
+    # Each frame's count is of (pixel, channel) pairs; the map counts pixels with any channel.
+    assert 0 < saturation.sum() <= sum(entry["saturated"] for entry in journal)
+    lit_pixels = rig.sees_scene.sum()
+    assert saturation.max() <= len(journal) and (saturation > 0).sum() <= lit_pixels
+    assert "saturated in every bracket (per camera pixel: .scan/saturation.exr)" in json.loads(
+        (out / "dataset.json").read_text())["notes"]
 
 
 def run_scan(out, rig, plan=None, **kwargs):
@@ -197,3 +214,58 @@ def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys
     assert frame_files(tmp_path / "scan") == frame_files(tmp_path / "whole")
     assert main([*base[:-1], str(tmp_path / "whole")]) == 2  # never overwrites a dataset
     assert "already holds a finished dataset" in capsys.readouterr().err
+
+
+def test_opencv_camera_without_a_device_says_so():
+    from ringlight.core.opencv_camera import OpenCVCamera
+
+    with pytest.raises(HardwareError, match="no camera at index 97"):
+        OpenCVCamera("97").open()
+    with pytest.raises(HardwareError, match="index must be an integer"):
+        OpenCVCamera("usb")
+
+
+def test_screen_projector_draws_patterns_in_physical_pixels(qtbot):
+    from PySide6.QtGui import QGuiApplication
+
+    from ringlight.widgets.screen_projector import ScreenProjector
+
+    projector = ScreenProjector(screen="0", settle="0")
+    projector.open()
+    try:
+        screen = QGuiApplication.screens()[0]
+        ratio = screen.devicePixelRatio()
+        assert projector.size == (round(screen.geometry().height() * ratio), round(screen.geometry().width() * ratio))
+        pattern = np.zeros(projector.size, np.float32)
+        pattern[10:20, 30:35] = 1.0
+        projector.show(pattern)
+        image = projector.window.image
+        assert (image.width(), image.height()) == (projector.size[1], projector.size[0])
+        pixels = np.array([[image.pixelColor(x, y).red() for x in range(40)] for y in range(25)])
+        assert np.array_equal(pixels > 127, pattern[:25, :40] > 0.5)
+        with pytest.raises(HardwareError, match="is not the screen's"):
+            projector.show(np.zeros((3, 3)))
+    finally:
+        projector.close()
+    with pytest.raises(HardwareError, match="no screen 9"):
+        ScreenProjector(screen="9").open()
+
+
+def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path):
+    import subprocess
+
+    base = [sys.executable, "-m", "ringlight.app.main", "capture", "--camera", "simulated", "--projector",
+            "simulated", "--option", "size=10x10", "--option", "photons=200", "--max-radius", "3"]
+    process = subprocess.Popen([*base, "--out", str(tmp_path / "killed")], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL)
+    frames = tmp_path / "killed/frames"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (frames.exists() and len(list(frames.glob("*.exr"))) >= 5):
+        time.sleep(0.01)
+    process.kill()  # SIGKILL: no clean-up runs
+    process.wait()
+    assert not (tmp_path / "killed/dataset.json").exists()
+    assert subprocess.run([*base, "--out", str(tmp_path / "killed"), "--resume"], capture_output=True).returncode == 0
+    assert subprocess.run([*base, "--out", str(tmp_path / "whole")], capture_output=True).returncode == 0
+    assert frame_files(tmp_path / "killed") == frame_files(tmp_path / "whole")
+    assert not list((tmp_path / "killed").rglob("*partial*"))

@@ -469,6 +469,12 @@ def test_capture_wizard_runs_end_to_end_on_the_simulated_rig_and_opens_the_datas
     with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
         wizard.correspondence_button.click()
     assert "fit the homography" in wizard.correspondence_label.text()
+    # The region can be typed or dragged on the projector view; the two stay in step.
+    wizard.set_roi((2, 2, 10, 10))
+    assert wizard.region_view.region_geometry() == ("rectangle", (2, 2, 10, 10))
+    wizard.region_view.region_roi.setPos((3, 1))  # a drag: x 3, y 1
+    assert wizard.roi() == (1, 3, 9, 11)
+    wizard.set_roi((0, 0, 12, 12))
     wizard.radius_box.setValue(4.0)
     with qtbot.waitSignal(jobs.finished, timeout=LOAD_TIMEOUT_MS):
         wizard.probe_button.click()

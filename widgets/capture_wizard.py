@@ -113,12 +113,18 @@ class CaptureWizard(QWidget):
         self.radius_box.setSuffix(" grid steps")
         self.probe_button = QPushButton("Probe exposures")
         self.probe_button.clicked.connect(lambda: self.probe_requested.emit(self.roi(), self.radius_box.value()))
-        self.probe_label = _label("The region is in projector pixels (end exclusive); max_radius is the largest "
-                                  "distance at which light is attributed to a lit point.")
+        self.probe_label = _label("The region is in projector pixels (end exclusive): drag the rectangle on the "
+                                  "view or type it. max_radius is the largest distance at which light is "
+                                  "attributed to a lit point.")
+        self.region_view = ImagePanel("projector view under white light: drag the region")
+        self.region_view.setMinimumHeight(240)
+        self.region_view.region_changed.connect(self._on_region_dragged)
+        for box in self.roi_boxes:
+            box.valueChanged.connect(self._on_roi_typed)
         region = QFormLayout()
         region.addRow("Region", roi)
         region.addRow("max_radius", self.radius_box)
-        self.pages.addWidget(_page(region, self.probe_button, self.probe_label))
+        self.pages.addWidget(_page(region, self.region_view, self.probe_button, self.probe_label))
 
         # 4 plan
         self.plan_label = _label("Probe exposures first.")
@@ -189,6 +195,28 @@ class CaptureWizard(QWidget):
         pixels = pg.colormap.get("viridis").map(scaled.ravel(), mode="byte")[:, :3].reshape(*x.shape, 3)
         pixels[~seen] = (72, 72, 80)
         self.mapping_view.set_pixels(np.ascontiguousarray(pixels, np.uint8))
+
+    def show_projector_view(self, view: np.ndarray) -> None:
+        """Show the (H, W) projector-space white view (grey, NaN dark) with the region on it."""
+        finite = np.isfinite(view)
+        top = np.nanpercentile(view, 99) if finite.any() else 1.0
+        grey = np.clip(np.nan_to_num(view) / (top or 1.0) * 255, 0, 255).astype(np.uint8)
+        roi = self.roi()
+        self.region_view.set_pixels(np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2)))
+        self.region_view.set_region_mode("rectangle")  # its default rectangle is replaced at once
+        self.set_roi(roi)
+        self._on_roi_typed()
+
+    def _on_region_dragged(self) -> None:
+        kind, rectangle = self.region_view.region_geometry()
+        if kind == "rectangle":
+            for box, value in zip(self.roi_boxes, rectangle):
+                box.blockSignals(True)
+                box.setValue(int(value))
+                box.blockSignals(False)
+
+    def _on_roi_typed(self, *_):
+        self.region_view.set_rectangle(*self.roi())
 
     def set_scan_progress(self, fraction: float, text: str) -> None:
         self.scan_bar.setValue(int(round(fraction * 1000)))

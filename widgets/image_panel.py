@@ -123,6 +123,12 @@ class ImagePanel(pg.GraphicsView):
             self.view.addItem(self.region_roi)
         self.region_changed.emit()
 
+    def set_rectangle(self, y0: int, x0: int, y1: int, x1: int) -> None:
+        """Place the rectangle ROI (rectangle mode) without emitting ``region_changed``."""
+        if self.region_roi is not None and self._region_mode == "rectangle":
+            self.region_roi.setPos((x0, y0), finish=False)
+            self.region_roi.setSize((x1 - x0, y1 - y0), finish=False)
+
     def region_geometry(self) -> tuple[str, object]:
         """``("all", None)``, ``("rectangle", (y0, x0, y1, x1))`` clipped to the grid (end
         exclusive), or ``("polygon", (m, 2) [y, x] vertices)`` in view coordinates."""
