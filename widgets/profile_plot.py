@@ -29,6 +29,7 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr): transient")
         self.transient_plot.setXLink(self.ring_plot)
         self.transient_plot.setLabel("bottom", "radius r (grid steps)")
+        self.transient_plot.getAxis("bottom").enableAutoSIPrefix(False)
         self.ring_curves = [self.ring_plot.plot(pen=pen) for pen in CHANNEL_PENS]
         self.transient_curves = [self.transient_plot.plot(pen=pen) for pen in CHANNEL_PENS]
         self.zero_line = pg.InfiniteLine(0, angle=0, pen=pg.mkPen("#888", style=Qt.PenStyle.DotLine))
