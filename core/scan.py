@@ -38,6 +38,7 @@ from .errors import Cancelled, RinglightError
 from .exr import write_exr_channels, write_exr_rgb
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
+from .lattice import lattice_frames
 from .manifest import parse_manifest
 
 SCAN_FOLDER = ".scan"
@@ -84,18 +85,8 @@ class ScanPlan:
         return int(math.floor(2 * self.max_radius)) + 1
 
     def frames(self) -> list[np.ndarray]:
-        """Lit grid points per frame, (n, 2) [y, x] each; one point per frame when the lattice
-        would need as many frames as points."""
-        height, width = self.grid_shape
-        spacing = self.spacing
-        if spacing * spacing >= height * width:
-            return [np.array([[y, x]]) for y in range(height) for x in range(width)]
-        frames = []
-        for oy in range(min(spacing, height)):
-            for ox in range(min(spacing, width)):
-                ys, xs = np.mgrid[oy:height:spacing, ox:width:spacing]
-                frames.append(np.stack([ys.ravel(), xs.ravel()], 1))
-        return frames
+        """Lit grid points per frame, (n, 2) [y, x] each (see :func:`lattice_frames`)."""
+        return lattice_frames(*self.grid_shape, self.max_radius)
 
     def pattern(self, lit: np.ndarray, projector_size: tuple[int, int]) -> np.ndarray:
         """(H, W) float32 projector pattern lighting grid points ``lit``."""

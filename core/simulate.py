@@ -20,6 +20,7 @@ import numpy as np
 
 from . import photon
 from .dataset import ProgressCallback
+from .lattice import lattice_frames
 from .rings import disc_offsets
 from .scene import Material, Scene
 from .writer import DatasetWriter
@@ -125,20 +126,6 @@ def slab_reflectance(material: Material, n: float, photons: int = 20000, seed: i
                                           photons, seed, channel)
         rgb[channel] = total / photons * (1.0 - photon.specular_reflectance(n))
     return rgb
-
-
-def lattice_frames(height: int, width: int, max_radius: float) -> list[np.ndarray]:
-    """Lit points per frame: a lattice of spacing floor(2 max_radius) + 1 (> 2 max_radius), or
-    one point per frame when that is no more frames."""
-    spacing = int(math.floor(2 * max_radius)) + 1
-    if spacing * spacing >= height * width:
-        return [np.array([[y, x]]) for y in range(height) for x in range(width)]
-    frames = []
-    for oy in range(min(spacing, height)):
-        for ox in range(min(spacing, width)):
-            ys, xs = np.mgrid[oy:height:spacing, ox:width:spacing]
-            frames.append(np.stack([ys.ravel(), xs.ravel()], 1))
-    return frames
 
 
 def write_transport(transport: Transport, out, *, overwrite: bool = False,

@@ -11,7 +11,8 @@ from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
 from ringlight.core.photon import reflectance_run, specular_reflectance, trace_exits
 from ringlight.core.presets import load_scene, preset_names
 from ringlight.core.scene import SceneError, parse_scene
-from ringlight.core.simulate import lattice_frames, simulate_transport, write_transport
+from ringlight.core.lattice import lattice_frames
+from ringlight.core.simulate import simulate_transport, write_transport
 
 ONE_VOXEL = np.zeros((1, 1, 1), np.uint8)
 
