@@ -15,6 +15,7 @@ import numpy as np
 
 from .correspondence import Correspondence, capture_gray_code, decode_gray_code
 from .exposure_probe import ExposurePlan, probe_exposures
+from .exr import read_exr_channels
 from .hardware import Camera, Projector
 from .scan import SCAN_FOLDER, Scan, ScanError, ScanPlan, ScanProgress, as_rgb, capture_with_timeout, check_plan
 
@@ -66,8 +67,6 @@ def plan_scan(camera: Camera, projector: Projector, correspondence: Corresponden
 
 def resume_scan(out) -> Scan:
     """The unfinished scan in ``out``, from its stored plan and mapping."""
-    from .exr import read_exr_channels
-
     plan_path = Path(out) / SCAN_FOLDER / "plan.json"
     if not plan_path.is_file():
         raise ScanError(f"{out}: no unfinished scan to resume (no {SCAN_FOLDER}/plan.json)")

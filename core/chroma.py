@@ -102,6 +102,7 @@ class LayerResult:
     radii: tuple[float, ...]
     layers: tuple[LayerColour, ...]
     truth_xy: tuple[tuple[float, float], ...] | None = None
+    truth_srgb8: tuple[tuple[int, int, int], ...] | None = None
     errors: tuple[float, ...] | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
@@ -225,8 +226,9 @@ def recover_layers(path: Trajectory, radii, method: str = "paper", truth_rgb=Non
         layers.append(LayerColour(
             float(path.radii[index]), _pair(xy), _triple(rgb), srgb_swatch(rgb, colorspace), trusted, note,
         ))
-    truth_xy = errors = None
+    truth_xy = truth_srgb8 = errors = None
     if truth_rgb is not None:
+        truth_srgb8 = tuple(srgb_swatch(np.asarray(rgb, np.float64), colorspace) for rgb in truth_rgb)
         truth_xy = [chromaticity(np.asarray(rgb, np.float64), colorspace) for rgb in truth_rgb]
         errors = tuple(
             float(np.hypot(*(np.asarray(layer.xy) - true))) if k < len(truth_xy) else math.nan
@@ -235,8 +237,8 @@ def recover_layers(path: Trajectory, radii, method: str = "paper", truth_rgb=Non
         truth_xy = tuple(_pair(xy) for xy in truth_xy)
         if len(truth_rgb) != len(layers):
             warnings.append(f"{len(layers)} radii picked for {len(truth_rgb)} true layers; errors pair them top down")
-    return LayerResult(method, tuple(float(path.radii[i]) for i in indices), tuple(layers), truth_xy, errors,
-                       tuple(warnings))
+    return LayerResult(method, tuple(float(path.radii[i]) for i in indices), tuple(layers), truth_xy, truth_srgb8,
+                       errors, tuple(warnings))
 
 
 def propose_radii(path: Trajectory, count: int) -> list[float]:

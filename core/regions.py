@@ -52,14 +52,6 @@ def polygon_region(grid_shape: tuple[int, int], vertices) -> np.ndarray:
     return crossings % 2 == 1
 
 
-def checked_mask(mask, grid_shape: tuple[int, int]) -> np.ndarray:
-    """``mask`` as an (H, W) bool array; raises RegionError for a wrong shape."""
-    mask = np.asarray(mask)
-    if mask.shape != tuple(grid_shape):
-        raise RegionError(f"region mask is {mask.shape}, the grid is {tuple(grid_shape)}")
-    return mask.astype(bool)
-
-
 def parse_rectangle(text: str) -> tuple[int, int, int, int]:
     """``"Y0,X0,Y1,X1"`` -> integers (end exclusive)."""
     try:

@@ -173,7 +173,6 @@ def as_rgb(frame: np.ndarray) -> np.ndarray:
 class ScanProgress:
     done: int
     total: int
-    saturated_pixels: int
 
 
 class Scan:
@@ -258,7 +257,7 @@ class Scan:
                 done[index] = entry
                 saturated += merged.saturated_count
                 if progress is not None:
-                    progress(ScanProgress(len(done), len(self.frames), saturated))
+                    progress(ScanProgress(len(done), len(self.frames)))
         except HardwareError as error:
             raise ScanPaused(f"scan paused after {len(done)} of {len(self.frames)} frames: {error}; "
                              "fix the camera and resume") from None

@@ -87,7 +87,6 @@ class JobSlot(QObject):
         self._signals.cancelled.connect(self._on_cancelled)
         self._count = 0
         self._current: _Job | None = None
-        self.description = ""
 
     @property
     def busy(self) -> bool:
@@ -98,7 +97,6 @@ class JobSlot(QObject):
         self.cancel()
         self._count += 1
         self._current = _Job(self._count, work, self._signals)
-        self.description = description
         self.started.emit(description)
         self._pool.start(self._current)
 

@@ -9,7 +9,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from ringlight.core.chroma import METHODS, LayerResult, srgb_swatch, xy_to_unit_rgb
+from ringlight.core.chroma import METHODS, LayerResult
 
 from .chromaticity_diagram import ChromaticityDiagram
 
@@ -127,10 +127,8 @@ class LayerPanel(QWidget):
                 self.table.setItem(row, column, item)
             self.table.item(row, 4).setBackground(QColor(*layer.srgb8))
         self.table.resizeColumnsToContents()
-        truth_rgb8 = None
-        if result.truth_xy is not None:
-            truth_rgb8 = [srgb_swatch(xy_to_unit_rgb(xy, "sRGB"), "sRGB") for xy in result.truth_xy]
-            for row, rgb8 in enumerate(truth_rgb8[:len(result.layers)]):
-                self.table.item(row, 5).setBackground(QColor(*rgb8))
+        truth_rgb8 = list(result.truth_srgb8) if result.truth_srgb8 is not None else None
+        for row, rgb8 in enumerate((truth_rgb8 or [])[:len(result.layers)]):
+            self.table.item(row, 5).setBackground(QColor(*rgb8))
         self.diagram.set_layers([layer.xy for layer in result.layers], [layer.srgb8 for layer in result.layers],
                                 list(result.truth_xy) if result.truth_xy else None, truth_rgb8)

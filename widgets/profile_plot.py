@@ -70,9 +70,6 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
     def _place_point_label(self) -> None:
         self.point_label.setPos(self.ring_plot.vb.width(), 0)
 
-    def clear_profiles(self) -> None:
-        self.set_profiles(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
-
     def curve_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(radii, E, T) plotted now, before any log transform."""
         return self._radii, self._ring, self._transient
