@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import sys
 
-from ringlight.core.capture import camera_notes, measure_correspondence, plan_scan, resume_scan, run_scan
-from ringlight.core.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.regions import parse_rectangle
-from ringlight.core.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
+from ringlight.core.capture.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.workflow import (
+    camera_notes,
+    measure_correspondence,
+    plan_scan,
+    resume_scan,
+    run_scan,
+)
+from ringlight.core.colour.regions import parse_rectangle
 
 
 def add_command(subparsers, progress_bar) -> None:

@@ -6,10 +6,15 @@ import time
 from pathlib import Path
 
 from PySide6.QtCore import QObject, QThreadPool, Signal
-
-from ringlight.core.capture import camera_notes, measure_correspondence, plan_scan, resume_scan, run_scan
-from ringlight.core.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
+from ringlight.core.capture.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.workflow import (
+    camera_notes,
+    measure_correspondence,
+    plan_scan,
+    resume_scan,
+    run_scan,
+)
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.jobs import JobSlot
 

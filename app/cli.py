@@ -8,7 +8,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-
 from ringlight.core import (
     RinglightError,
     effective_max_radius,
@@ -21,9 +20,9 @@ from ringlight.core import (
     transient_stack,
     write_stack,
 )
-from ringlight.core.presets import ensure_demo_dataset, load_scene, preset_names, preset_notes
-from ringlight.core.scene import SceneError
-from ringlight.core.simulate import simulate_transport, write_transport
+from ringlight.core.simulate.presets import ensure_demo_dataset, load_scene, preset_names, preset_notes
+from ringlight.core.simulate.scene import SceneError
+from ringlight.core.simulate.transport import simulate_transport, write_transport
 
 from . import capture_cli, layers_cli
 

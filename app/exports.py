@@ -6,11 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from ringlight.core import Stack, write_stack
-from ringlight.core.display import DisplaySettings, display_levels, render
-from ringlight.core.image_export import write_movie, write_png, write_text
-from ringlight.core.profiles import PixelProfile, profile_csv
+from ringlight.core.colour.display import DisplaySettings, display_levels, render
+from ringlight.core.colour.image_export import write_movie, write_png, write_text
+from ringlight.core.rings.profiles import PixelProfile, profile_csv
 
 
 def stack_levels(stack: Stack, settings: DisplaySettings) -> list[tuple[float, float]]:

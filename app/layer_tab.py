@@ -10,13 +10,12 @@ from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import QObject, Signal
-
 from ringlight.core import ImpulseDataset, RinglightError, Stack
 from ringlight.core.atomic import atomic_file
-from ringlight.core.chroma import propose_radii, recover_layers, trajectory
-from ringlight.core.image_export import ExportError, write_text
-from ringlight.core.layer_report import LayerAnalysis, analysis_csv, analysis_json, truth_layers
-from ringlight.core.regions import full_region, polygon_region, rectangle_region
+from ringlight.core.colour.chroma import propose_radii, recover_layers, trajectory
+from ringlight.core.colour.image_export import ExportError, write_text
+from ringlight.core.colour.layer_report import LayerAnalysis, analysis_csv, analysis_json, truth_layers
+from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.jobs import JobSlot
 from ringlight.widgets.layer_panel import LayerPanel

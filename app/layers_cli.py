@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from ringlight.core import RinglightError, open_dataset
-from ringlight.core.chroma import METHODS
-from ringlight.core.image_export import write_text
-from ringlight.core.layer_report import analyse_layers, analysis_json, analysis_stack_request
-from ringlight.core.regions import full_region, parse_rectangle, rectangle_region
+from ringlight.core.colour.chroma import METHODS
+from ringlight.core.colour.image_export import write_text
+from ringlight.core.colour.layer_report import analyse_layers, analysis_json, analysis_stack_request
+from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 
 
 def add_command(subparsers, progress_bar) -> None:

@@ -15,15 +15,22 @@ import numpy as np
 from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (
-    QDockWidget, QFileDialog, QLabel, QMainWindow, QMessageBox, QSplitter, QTabWidget, QVBoxLayout, QWidget,
+    QDockWidget,
+    QFileDialog,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QSplitter,
+    QTabWidget,
+    QVBoxLayout,
+    QWidget,
 )
-
 from ringlight.core import RinglightError, ring_geometry
-from ringlight.core.dataset import warm_up_kernels
-from ringlight.core.display import DisplaySettings, display_levels, negative_fraction, render
-from ringlight.core.ground_truth import normalised_cross_correlation
-from ringlight.core.profiles import PixelProfile, pixel_profile
-from ringlight.core.stack_request import StackRequest
+from ringlight.core.colour.display import DisplaySettings, display_levels, negative_fraction, render
+from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.rings.profiles import PixelProfile, pixel_profile
+from ringlight.core.rings.stack_request import StackRequest
+from ringlight.core.rings.stacks import warm_up_kernels
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import VIEWS, DisplayControls
 from ringlight.widgets.image_panel import ImagePanel

@@ -36,11 +36,10 @@ from PySide6.QtWidgets import QApplication
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_stack import synthetic_dataset  # noqa: E402
-
 from ringlight.app.session import LoadedDataset, compute_view_stacks  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402
 from ringlight.core import DatasetWriter  # noqa: E402
-from ringlight.core.stack_request import StackRequest  # noqa: E402
+from ringlight.core.rings.stack_request import StackRequest  # noqa: E402
 
 
 class PaintCounter(QObject):

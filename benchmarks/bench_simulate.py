@@ -16,8 +16,7 @@ import math
 import time
 
 import numpy as np
-
-from ringlight.core.photon import reflectance_run
+from ringlight.core.simulate.photon import reflectance_run
 
 CASES = {
     "MCML slab (Table 6.1)": dict(mua=10.0, mus=90.0, g=0.75, n=1.0, depth=0.02, reference=0.09739,

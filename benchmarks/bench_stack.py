@@ -18,9 +18,8 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
-
 from ringlight.core import ImpulseDataset, disc_offsets, ring_geometry, transient_stack
-from ringlight.core.manifest import Manifest
+from ringlight.core.dataset.manifest import Manifest
 
 
 def synthetic_dataset(size: int, max_radius: float, seed: int = 0) -> ImpulseDataset:

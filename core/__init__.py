@@ -6,14 +6,20 @@
     stack.images            # (12, H, W, 3) float32, NaN where undefined
 """
 
-from .dataset import ImpulseDataset, effective_max_radius, open_dataset, response_memory_bytes
+from .dataset.exr import read_exr_rgb, write_exr_rgb
+from .dataset.impulse_dataset import (
+    ImpulseDataset,
+    disc_offsets,
+    effective_max_radius,
+    open_dataset,
+    response_memory_bytes,
+)
+from .dataset.manifest import Manifest, read_manifest
+from .dataset.writer import DatasetWriter
 from .errors import Cancelled, DatasetError, RinglightError, StackError
-from .exr import read_exr_rgb, write_exr_rgb
-from .manifest import Manifest, read_manifest
-from .rings import RingGeometry, annulus_pixel_area, disc_offsets, ring_geometry
-from .stack_io import read_stack, write_stack
-from .stacks import Stack, needed_radius, parse_radius_range, radius_range, ring_stack, transient_stack
-from .writer import DatasetWriter
+from .rings.geometry import RingGeometry, annulus_pixel_area, ring_geometry
+from .rings.stack_io import read_stack, write_stack
+from .rings.stacks import Stack, needed_radius, parse_radius_range, radius_range, ring_stack, transient_stack
 
 __all__ = [
     "Cancelled", "DatasetError", "DatasetWriter", "ImpulseDataset", "Manifest", "RingGeometry",

@@ -1,4 +1,4 @@
-"""Architecture contracts (pyproject's import-linter section) hold: core never imports Qt."""
+"""Architecture contracts (pyproject's import-linter section) hold: core never imports Qt and is layered."""
 
 import shutil
 import subprocess
@@ -13,7 +13,8 @@ def test_import_contracts_are_kept():
     assert lint, "import-linter is part of the test extra"
     result = subprocess.run([lint, "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "2 kept, 0 broken" in result.stdout
+    assert "3 kept, 0 broken" in result.stdout
+    assert "core is layered" in result.stdout
 
 
 def test_importing_core_loads_no_qt():

@@ -7,7 +7,6 @@ import sys
 import numpy as np
 import pytest
 from reference import random_impulses, write_dataset, write_exr, write_rgb
-
 from ringlight.app.main import main
 
 

@@ -6,12 +6,11 @@ import time
 
 import numpy as np
 import pytest
+import ringlight.core.dataset.frames as frames_module
 from numpy.testing import assert_array_equal
 from reference import random_impulses, write_dataset, write_rgb
-
-import ringlight.core.frames as frames_module
 from ringlight.core import open_dataset, ring_stack
-from ringlight.core.cache import CACHE_FOLDER_NAME
+from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
 
 
 @pytest.fixture

@@ -9,14 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from reference import write_dataset
-
 from ringlight.app.main import main
 from ringlight.core import Cancelled, RinglightError, open_dataset, transient_stack
-from ringlight.core.capture import measure_correspondence
-from ringlight.core.hardware import HardwareError, discover_plugins
-from ringlight.core.hdr import bracket_exposures, merge_brackets
-from ringlight.core.scan import Scan, ScanError, ScanPaused, ScanPlan
-from ringlight.core.simulated_rig import CameraSampling, SimulatedRig, preset_rig
+from ringlight.core.capture.hardware import HardwareError, discover_plugins
+from ringlight.core.capture.hdr import bracket_exposures, merge_brackets
+from ringlight.core.capture.scan import Scan, ScanError, ScanPaused, ScanPlan
+from ringlight.core.capture.simulated_rig import CameraSampling, SimulatedRig, preset_rig
+from ringlight.core.capture.workflow import measure_correspondence
 
 SIZE, RADIUS = 16, 5
 
@@ -72,7 +71,7 @@ def test_hdr_merge_is_exact_without_noise_and_flags_pixels_saturated_everywhere(
 
 
 def test_pixels_saturated_in_every_bracket_are_mapped_per_camera_pixel(tmp_path):
-    from ringlight.core.exr import read_exr_rgb
+    from ringlight.core.dataset.exr import read_exr_rgb
 
     rig = SimulatedRig(analytic_windows())
     plan = ScanPlan((2, 2, 14, 14), 3.0, (0.05,))  # one long exposure: every lit point saturates
@@ -144,7 +143,7 @@ def test_a_camera_that_stops_answering_pauses_the_scan(tmp_path):
 def test_a_full_disk_pauses_the_scan_before_writing(tmp_path, monkeypatch):
     import shutil
 
-    from ringlight.core import scan as scan_module
+    from ringlight.core.capture import scan as scan_module
 
     real = shutil.disk_usage
     monkeypatch.setattr(scan_module.shutil, "disk_usage", lambda path: real(path)._replace(free=1000))
@@ -217,7 +216,7 @@ def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys
 
 
 def test_opencv_camera_without_a_device_says_so():
-    from ringlight.core.opencv_camera import OpenCVCamera
+    from ringlight.core.capture.opencv_camera import OpenCVCamera
 
     with pytest.raises(HardwareError, match="no camera at index 97"):
         OpenCVCamera("97").open()
@@ -227,7 +226,6 @@ def test_opencv_camera_without_a_device_says_so():
 
 def test_screen_projector_draws_patterns_in_physical_pixels(qtbot):
     from PySide6.QtGui import QGuiApplication
-
     from ringlight.widgets.screen_projector import ScreenProjector
 
     projector = ScreenProjector(screen="0", settle="0")

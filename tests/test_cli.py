@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 from reference import brute_ring_image, random_impulses, write_dataset
-
 from ringlight.app.main import main
 from ringlight.core import read_exr_rgb, read_stack
 
@@ -84,5 +83,5 @@ def test_demo_command_makes_the_demo_dataset_once_and_describes_it(capsys, monke
     def no_second_simulation(*args, **kwargs):
         raise AssertionError("the demo is made once")
 
-    monkeypatch.setattr("ringlight.core.simulate.simulate_transport", no_second_simulation)
+    monkeypatch.setattr("ringlight.core.simulate.transport.simulate_transport", no_second_simulation)
     assert main(["demo"]) == 0

@@ -7,13 +7,17 @@ import math
 import numpy as np
 import pytest
 from reference import write_dataset
-
 from ringlight.app.main import main
 from ringlight.core import open_dataset, transient_stack
-from ringlight.core.chroma import (
-    LayerError, chromaticity, propose_radii, recover_layers, srgb_swatch, trajectory,
+from ringlight.core.colour.chroma import (
+    LayerError,
+    chromaticity,
+    propose_radii,
+    recover_layers,
+    srgb_swatch,
+    trajectory,
 )
-from ringlight.core.regions import RegionError, full_region, polygon_region, rectangle_region
+from ringlight.core.colour.regions import RegionError, full_region, polygon_region, rectangle_region
 
 # Published primaries and white points: IEC 61966-2-1 (sRGB, D65) and SMPTE ST 2065-1 / ACEScg (AP1).
 SRGB = {"red": (0.64, 0.33), "green": (0.30, 0.60), "blue": (0.15, 0.06), "white": (0.3127, 0.3290)}

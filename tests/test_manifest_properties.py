@@ -5,9 +5,8 @@ from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from ringlight.core import DatasetError
-from ringlight.core.manifest import parse_manifest
+from ringlight.core.dataset.manifest import parse_manifest
 
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-5, 50) | st.floats(allow_nan=False) | st.text(max_size=8),

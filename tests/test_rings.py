@@ -5,9 +5,9 @@ import math
 
 import numpy as np
 import pytest
-
 from ringlight.core import annulus_pixel_area, disc_offsets, ring_geometry
-from ringlight.core import rings, stacks
+from ringlight.core.rings import geometry as rings
+from ringlight.core.rings import stacks
 
 
 @pytest.mark.parametrize("radius, thickness", [(0, 1), (1, 1), (2.5, 1), (7.3, 2), (10, 0.5), (0.2, 3)])

@@ -5,14 +5,13 @@ import math
 import numba
 import numpy as np
 import pytest
-
 from ringlight.app.main import main
 from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
-from ringlight.core.photon import reflectance_run, specular_reflectance, trace_exits
-from ringlight.core.presets import load_scene, preset_names
-from ringlight.core.scene import SceneError, parse_scene
-from ringlight.core.lattice import lattice_frames
-from ringlight.core.simulate import simulate_transport, write_transport
+from ringlight.core.simulate.lattice import lattice_frames
+from ringlight.core.simulate.photon import reflectance_run, specular_reflectance, trace_exits
+from ringlight.core.simulate.presets import load_scene, preset_names
+from ringlight.core.simulate.scene import SceneError, parse_scene
+from ringlight.core.simulate.transport import simulate_transport, write_transport
 
 ONE_VOXEL = np.zeros((1, 1, 1), np.uint8)
 

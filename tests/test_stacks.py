@@ -10,7 +10,6 @@ from reference import (
     write_dataset,
     write_rgb,
 )
-
 from ringlight.core import (
     StackError,
     annulus_pixel_area,
@@ -144,8 +143,9 @@ def test_camera_frames_with_2x2_mapping_equal_grid_frames(tmp_path):
 
 
 def test_unobserved_camera_grid_points_are_nan(tmp_path):
-    from reference import write_exr
     import json
+
+    from reference import write_exr
     folder = tmp_path / "ds"
     map_y, map_x = np.mgrid[:4, :4].astype(np.float32)
     map_y[1, 2] = np.nan  # grid point [1, 2] is seen by no camera pixel

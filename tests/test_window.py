@@ -14,12 +14,11 @@ import pytest
 from PySide6.QtCore import QMimeData, QPoint, QPointF, QSettings, Qt, QUrl
 from PySide6.QtGui import QDropEvent
 from reference import brute_ring_image, random_impulses, supersampled_annulus_weight, write_dataset, write_rgb
-
 from ringlight.app.window import MainWindow
 from ringlight.core import read_stack
+from ringlight.core.colour.display import UNDEFINED_RGB
 from ringlight.core.colourspaces import colour_module
-from ringlight.core.display import UNDEFINED_RGB
-from ringlight.core.stack_request import StackRequest
+from ringlight.core.rings.stack_request import StackRequest
 from ringlight.widgets.image_panel import member_alpha
 
 HEIGHT, WIDTH, SUPPORT = 14, 12, 6.0
@@ -409,10 +408,9 @@ def test_cancelling_an_open_keeps_the_current_dataset(qtbot, window, dataset, tm
 
 
 def test_layers_tab_recovers_the_known_layers_from_picked_radii(qtbot, window, tmp_path):
+    from ringlight.core.colour.chroma import recover_layers, srgb_swatch, trajectory
+    from ringlight.core.colour.regions import rectangle_region
     from test_layers import LAYER_UNIT, synthetic_layers
-
-    from ringlight.core.chroma import recover_layers, srgb_swatch, trajectory
-    from ringlight.core.regions import rectangle_region
 
     folder = tmp_path / "layered"
     synthetic_layers(folder)
@@ -455,9 +453,8 @@ def test_layers_tab_recovers_the_known_layers_from_picked_radii(qtbot, window, t
 
 
 def test_capture_wizard_runs_end_to_end_on_the_simulated_rig_and_opens_the_dataset(qtbot, window, tmp_path):
-    from test_capture import frame_files
-
     from ringlight.app.main import main
+    from test_capture import frame_files
 
     wizard, jobs = window.capture_wizard, window.capture_tab.jobs
     window.main_tabs.setCurrentWidget(wizard)

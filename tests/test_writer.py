@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 from reference import brute_ring_image, random_impulses
-
 from ringlight.core import DatasetError, DatasetWriter, open_dataset, read_exr_rgb, read_manifest, ring_stack
 
 

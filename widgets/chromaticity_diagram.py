@@ -10,7 +10,6 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QWidget
-
 from ringlight.core.colourspaces import colour_module
 
 _PICK_DISTANCE = 0.02

@@ -7,11 +7,18 @@ import math
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QDoubleValidator
 from PySide6.QtWidgets import (
-    QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QSlider,
-    QToolButton, QWidget,
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QSlider,
+    QToolButton,
+    QWidget,
 )
-
-from ringlight.core.display import NORMALISATIONS, DisplaySettings
+from ringlight.core.colour.display import NORMALISATIONS, DisplaySettings
 
 VIEWS = {
     "transient": "Transient T_r",

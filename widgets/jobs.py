@@ -18,7 +18,6 @@ from collections.abc import Callable
 from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, Signal
-
 from ringlight.core import Cancelled, RinglightError
 
 Work = Callable[[Callable[[float], None]], Any]

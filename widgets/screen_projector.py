@@ -13,8 +13,7 @@ import numpy as np
 from PySide6.QtCore import QObject, Qt, QThread, Signal, Slot
 from PySide6.QtGui import QGuiApplication, QImage, QPainter
 from PySide6.QtWidgets import QApplication, QWidget
-
-from ringlight.core.hardware import HardwareError, HardwarePlugin
+from ringlight.core.capture.hardware import HardwareError, HardwarePlugin
 
 
 class _PatternWindow(QWidget):

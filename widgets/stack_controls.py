@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import QCheckBox, QDoubleSpinBox, QFormLayout, QLabel, QWidget
-
-from ringlight.core.stack_request import StackRequest
+from ringlight.core.rings.stack_request import StackRequest
 
 EDIT_DELAY_MS = 400
 """Edits are collected for this long before a recomputation is requested."""

@@ -33,13 +33,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import atomic_file
-from .errors import Cancelled, RinglightError
-from .exr import write_exr_channels, write_exr_rgb
+from ..atomic import atomic_file
+from ..dataset.exr import write_exr_channels, write_exr_rgb
+from ..dataset.manifest import parse_manifest
+from ..errors import Cancelled, RinglightError
+from ..simulate.lattice import lattice_frames
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
-from .lattice import lattice_frames
-from .manifest import parse_manifest
 
 SCAN_FOLDER = ".scan"
 CAPTURE_TIMEOUT_S = 30.0

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dataset import ImpulseDataset
+from ..dataset.impulse_dataset import ImpulseDataset
 from .stacks import ring_weight_matrix
 
 

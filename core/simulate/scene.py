@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RinglightError
-from .validation import Validator
+from ..errors import RinglightError
+from ..validation import Validator
 
 SCENE_FORMAT = "ringlight-scene"
 SCENE_VERSION = 1

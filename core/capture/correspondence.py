@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .errors import RinglightError
+from ..errors import RinglightError
 from .hardware import Camera, Projector
 
 INLIER_PX = 1.0

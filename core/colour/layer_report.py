@@ -9,10 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..dataset.impulse_dataset import ImpulseDataset
+from ..rings.stack_request import StackRequest, largest_stop
+from ..rings.stacks import transient_stack
 from .chroma import LayerResult, Trajectory, propose_radii, recover_layers, trajectory
-from .dataset import ImpulseDataset
-from .stack_request import StackRequest, largest_stop
-from .stacks import transient_stack
 
 
 @dataclass(frozen=True, eq=False)

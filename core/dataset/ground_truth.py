@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DatasetError
+from ..errors import DatasetError
 from .exr import read_exr_rgb
 from .manifest import Manifest
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_folder
-from .errors import DatasetError, StackError
-from .exr import read_exr_rgb, write_exr_rgb
+from ..atomic import atomic_folder
+from ..dataset.exr import read_exr_rgb, write_exr_rgb
+from ..errors import DatasetError, StackError
 from .stacks import Stack
 
 STACK_FORMAT = "ringlight-stack"

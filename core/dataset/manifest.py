@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .colourspaces import is_known_colourspace
-from .errors import DatasetError
-from .validation import Validator
+from ..colourspaces import is_known_colourspace
+from ..errors import DatasetError
+from ..validation import Validator
 
 FORMAT_NAME = "ringlight-impulse"
 FORMAT_VERSION = 1

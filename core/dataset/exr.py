@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from .errors import DatasetError
+from ..errors import DatasetError
 
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .colourspaces import colour_module
+from ..colourspaces import colour_module
 
 NORMALISATIONS = ("per-image", "global", "log", "manual")
 UNDEFINED_RGB = (72, 72, 80)

@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numba
 import numpy as np
 
-from .dataset import ImpulseDataset, ProgressCallback
-from .errors import StackError
-from .rings import ring_geometry
+from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
+from ..dataset.manifest import Manifest
+from ..errors import StackError
+from .geometry import ring_geometry
 
 _RADIUS_DECIMALS = 9
 
@@ -270,3 +272,20 @@ def _ring_sums(responses, validity, first, stop, weight_start, weights, row0, ro
                     images[j, y, x, 0] = s0 / total
                     images[j, y, x, 1] = s1 / total
                     images[j, y, x, 2] = s2 / total
+
+
+def warm_up_kernels() -> None:
+    """Load the compiled kernels once on tiny arrays.
+
+    Numba's first dispatch in a process sets up its typing context while holding the GIL for
+    about 0.1 s; an application calls this at start-up so that the first dataset opened in a
+    worker thread does not freeze its GUI thread for that long.
+    """
+    offsets = disc_offsets(1.0)
+    manifest = Manifest(
+        folder=Path("."), height=1, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
+        max_radius=1.0, frames=(), dark=None, ground_truth=None, notes=None,
+    )
+    dataset = ImpulseDataset(manifest, 1.0, offsets, np.zeros((1, 1, len(offsets), 3), np.float32),
+                             np.ones((1, 1), np.int32), np.ones((1, 1), bool))
+    ring_stack(dataset, [0.0])

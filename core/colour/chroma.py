@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .colourspaces import colour_module
-from .errors import RinglightError
-from .stacks import Stack
+from ..colourspaces import colour_module
+from ..errors import RinglightError
+from ..rings.stacks import Stack
 
 METHODS = ("paper", "radiance")
 MIN_SNR = 3.0

@@ -57,21 +57,6 @@ class RingGeometry:
         return positions[inside], self.weights[inside]
 
 
-def disc_offsets(max_radius: float) -> np.ndarray:
-    """All integer offsets with ``|d| <= max_radius``, as (K, 2) int64 ``[dy, dx]``.
-
-    Ordered by distance from the centre (then by angle): the layout of the response array's
-    offset axis, in which every default ring is one contiguous run of offsets.
-    """
-    reach = int(np.floor(max_radius))
-    dy, dx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
-    dy, dx = dy.ravel(), dx.ravel()
-    inside = dy * dy + dx * dx <= max_radius * max_radius + 1e-9
-    dy, dx = dy[inside], dx[inside]
-    order = np.lexsort((np.arctan2(dy, dx), dy * dy + dx * dx))
-    return np.stack([dy[order], dx[order]], axis=1).astype(np.int64)
-
-
 def ring_geometry(radius: float, thickness: float = 1.0, antialias: bool = False) -> RingGeometry:
     """Members and weights of the ring of ``radius`` and ``thickness`` (grid steps).
 

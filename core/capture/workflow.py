@@ -13,11 +13,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.exr import read_exr_channels
 from .correspondence import Correspondence, capture_gray_code, decode_gray_code
 from .exposure_probe import ExposurePlan, probe_exposures
-from .exr import read_exr_channels
 from .hardware import Camera, Projector
-from .scan import SCAN_FOLDER, Scan, ScanError, ScanPlan, ScanProgress, as_rgb, capture_with_timeout, check_plan
+from .scan import (
+    SCAN_FOLDER,
+    Scan,
+    ScanError,
+    ScanPlan,
+    ScanProgress,
+    as_rgb,
+    capture_with_timeout,
+    check_plan,
+)
 
 WHITE_FILL = 0.6
 

@@ -6,7 +6,7 @@ import json
 from importlib import resources
 from pathlib import Path
 
-from .cache import user_cache_root
+from ..dataset.cache import user_cache_root
 from .scene import Scene, SceneError, parse_scene, read_scene
 
 DEMO_PRESET = "red-bead"
@@ -48,8 +48,8 @@ def demo_dataset_path() -> Path:
 def ensure_demo_dataset(progress=None) -> Path:
     """Make the demo dataset (the red-bead preset at 32 x 32, 1500 photons per point, seed 0)
     in the user cache folder if it is not there yet; returns its folder."""
-    from .simulate import simulate_transport, write_transport
-    from .writer import is_dataset_folder
+    from ..dataset.writer import is_dataset_folder
+    from .transport import simulate_transport, write_transport
 
     path = demo_dataset_path()
     if not is_dataset_folder(path):

@@ -12,8 +12,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .dataset import ImpulseDataset, ProgressCallback
-from .errors import StackError
+from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
+from ..errors import StackError
 from .stacks import Stack, needed_radius, radius_range, ring_and_transient_stacks
 
 

@@ -18,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.impulse_dataset import ProgressCallback, disc_offsets
+from ..dataset.writer import DatasetWriter
 from . import photon
-from .dataset import ProgressCallback
 from .lattice import lattice_frames
-from .rings import disc_offsets
 from .scene import Material, Scene
-from .writer import DatasetWriter
 
 TRUTH_BLOCKS = 16
 POINTS_PER_CALL = 64

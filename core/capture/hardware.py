@@ -26,7 +26,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import RinglightError
+from ..errors import RinglightError
 
 ENTRY_POINT_GROUP = "ringlight.hardware"
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import atomic_file
-from .errors import RinglightError
+from ..atomic import atomic_file
+from ..errors import RinglightError
 
 MOVIE_MIN_WIDTH = 512
 """Movies of small grids are enlarged (nearest neighbour, integer factor) to at least this width

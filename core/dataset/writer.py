@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_folder
-from .errors import DatasetError
+from ..atomic import atomic_folder
+from ..errors import DatasetError
 from .exr import write_exr_channels, write_exr_rgb
 from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, parse_manifest
 

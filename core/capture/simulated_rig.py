@@ -189,8 +189,8 @@ class SimulatedProjector:
 
 @functools.lru_cache(maxsize=4)
 def _preset_rig(scene: str, size: str, photons: int, seed: int, fail_after: int | None) -> SimulatedRig:
-    from .presets import load_scene
-    from .simulate import simulate_transport
+    from ..simulate.presets import load_scene
+    from ..simulate.transport import simulate_transport
 
     height, width = (int(part) for part in size.lower().split("x"))
     transport = simulate_transport(load_scene(scene, size=(height, width)), photons=photons, seed=seed)

@@ -22,11 +22,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from ..errors import DatasetError
 from . import cache
-from .errors import DatasetError
 from .frames import FrameReader
 from .manifest import Manifest, read_manifest
-from .rings import disc_offsets
 
 ProgressCallback = Callable[[float], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
@@ -137,23 +136,19 @@ def _fill_validity(lit, observed, dy, dx, validity):
                 validity[y, x, k] = 1 if inside and observed[y, x] and lit[qy, qx] else 0
 
 
-def warm_up_kernels() -> None:
-    """Load the compiled kernels once on tiny arrays.
+def disc_offsets(max_radius: float) -> np.ndarray:
+    """All integer offsets with ``|d| <= max_radius``, as (K, 2) int64 ``[dy, dx]``.
 
-    Numba's first dispatch in a process sets up its typing context while holding the GIL for
-    about 0.1 s; an application calls this at start-up so that the first dataset opened in a
-    worker thread does not freeze its GUI thread for that long.
+    Ordered by distance from the centre (then by angle): the layout of the response array's
+    offset axis, in which every default ring is one contiguous run of offsets.
     """
-    from .stacks import ring_stack
-
-    offsets = disc_offsets(1.0)
-    manifest = Manifest(
-        folder=Path("."), height=1, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
-        max_radius=1.0, frames=(), dark=None, ground_truth=None, notes=None,
-    )
-    dataset = ImpulseDataset(manifest, 1.0, offsets, np.zeros((1, 1, len(offsets), 3), np.float32),
-                             np.ones((1, 1), np.int32), np.ones((1, 1), bool))
-    ring_stack(dataset, [0.0])
+    reach = int(np.floor(max_radius))
+    dy, dx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+    dy, dx = dy.ravel(), dx.ravel()
+    inside = dy * dy + dx * dx <= max_radius * max_radius + 1e-9
+    dy, dx = dy[inside], dx[inside]
+    order = np.lexsort((np.arctan2(dy, dx), dy * dy + dx * dx))
+    return np.stack([dy[order], dx[order]], axis=1).astype(np.int64)
 
 
 def response_memory_bytes(grid_shape: tuple[int, int], max_radius: float) -> int:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_folder
+from ..atomic import atomic_folder
 from .manifest import MANIFEST_NAME, Manifest
 
 LAYOUT_VERSION = 1

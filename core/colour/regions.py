@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import RinglightError
+from ..errors import RinglightError
 
 
 class RegionError(RinglightError):

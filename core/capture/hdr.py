@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import RinglightError
+from ..errors import RinglightError
 
 
 @dataclass(frozen=True, eq=False)

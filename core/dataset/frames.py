@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DatasetError
+from ..errors import DatasetError
 from .exr import read_exr_channels, read_exr_rgb
 from .manifest import FrameEntry, Manifest
 
