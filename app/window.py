@@ -7,8 +7,6 @@ in :class:`JobSlot` workers; their results are applied in the GUI thread.
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +23,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
-from ringlight.core import RinglightError, ring_geometry
-from ringlight.core.colour.display import DisplaySettings, display_levels, negative_fraction, render
-from ringlight.core.dataset.ground_truth import normalised_cross_correlation
-from ringlight.core.rings.profiles import PixelProfile, pixel_profile
+from ringlight.core import RinglightError
+from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
 from ringlight.widgets.capture_wizard import CaptureWizard
@@ -41,16 +37,17 @@ from ringlight.widgets.profile_plot import ProfilePlot
 from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
-from . import exports
 from .capture_tab import CaptureTab
+from .explore_view import ExploreView
+from .export_actions import ExportActions
 from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
+from .window_settings import WindowSettings
 
-RECENT_LIMIT = 10
 DEMO = "(demo)"
 
 
-class MainWindow(QMainWindow):
+class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
     dataset_loaded = Signal()
@@ -259,25 +256,6 @@ class MainWindow(QMainWindow):
             f"r {radii[0]:g}..{radii[-1]:g}"
         )
 
-    def _remember_recent(self, path: Path) -> None:
-        recent = [str(path)] + [entry for entry in self.recent_files() if entry != str(path)]
-        self.settings.setValue("recent_files", json.dumps(recent[:RECENT_LIMIT]))
-        self._rebuild_recent_menu()
-
-    def recent_files(self) -> list[str]:
-        try:
-            recent = json.loads(self.settings.value("recent_files", "[]"))
-        except (TypeError, ValueError):
-            return []
-        return [entry for entry in recent if isinstance(entry, str)]
-
-    def _rebuild_recent_menu(self) -> None:
-        self.recent_menu.clear()
-        for number, entry in enumerate(self.recent_files(), start=1):
-            action = self.recent_menu.addAction(f"&{number % 10} {entry}")
-            action.triggered.connect(lambda _=False, entry=entry: self.open_dataset(entry))
-        self.recent_menu.setEnabled(bool(self.recent_files()))
-
     # ----------------------------------------------------------------- stacks
     def request_stacks(self, request: StackRequest) -> None:
         """Recompute the stacks for ``request`` in a worker; the old ones stay shown meanwhile."""
@@ -305,219 +283,6 @@ class MainWindow(QMainWindow):
         self.layer_tab.set_data(self.loaded.dataset, stacks.pair.transient)
         self.stacks_ready.emit()
 
-    # ----------------------------------------------------------------- interaction
-    def pick(self, y: int, x: int) -> None:
-        """Mark grid point (y, x): ring overlay, profiles and (for the impulse view) the image."""
-        if self.loaded is None:
-            return
-        self.picked = (int(y), int(x))
-        if self.view() == "impulse":
-            self._refresh_image()
-        self._refresh_ring()
-        self._refresh_profiles()
-
-    def set_radius(self, radius: float) -> None:
-        """Show the stack radius nearest ``radius`` (grid steps)."""
-        self.scrub_bar.set_index(self.scrub_bar.nearest_index(radius))
-
-    def radius_index(self) -> int:
-        return self.scrub_bar.index()
-
-    def view(self) -> str:
-        return self.display_controls.view()
-
-    def display_settings(self) -> DisplaySettings:
-        return self.display_controls.settings()
-
-    def _on_index_changed(self, _index: int) -> None:
-        self._refresh_image()
-        self._refresh_ring()
-        self._mark_radius()
-
-    def _on_display_settings(self, settings: DisplaySettings) -> None:
-        self._refresh_image()
-
-    def _on_hover(self, y: int, x: int) -> None:
-        self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
-
-    def describe_pixel(self, y: int, x: int) -> str:
-        """Full-precision value of the shown image at (y, x) and the ring points behind it."""
-        if self._shown_image is None or self.stacks is None:
-            return ""
-        value = self._shown_image[y, x]
-        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
-        index = self.radius_index()
-        view = self.view()
-        if view in ("ring", "transient"):
-            stack = self.stacks.pair.transient
-            text += f"   ring points: {int(stack.counts[index, y, x])} at r"
-            if view == "transient":
-                text += f", {int(stack.outer_counts[index, y, x])} at r+dr"
-        return text
-
-    def cancel_all(self) -> None:
-        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
-            slot.cancel()
-        self.scrub_bar.play_button.setChecked(False)
-
-    def _reset_zoom(self) -> None:
-        for panel in (self.image_panel, self.truth_panel):
-            panel.view.autoRange(padding=0.02)
-
-    # ----------------------------------------------------------------- drawing
-    def current_image(self) -> np.ndarray | None:
-        """The (H, W, 3) linear image of the current view and radius."""
-        if self.loaded is None or self.stacks is None:
-            return None
-        view = self.view()
-        if view == "steady":
-            return self.loaded.steady_state
-        if view == "impulse":
-            if self._impulse_cache is None or self._impulse_cache[0] != self.picked:
-                self._impulse_cache = (self.picked, self.loaded.dataset.impulse_image(*self.picked))
-            return self._impulse_cache[1]
-        stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
-        return stack.images[self.radius_index()]
-
-    def current_levels(self) -> tuple[float, float]:
-        return self._levels
-
-    def _levels_for(self, image: np.ndarray, settings: DisplaySettings, source: str) -> tuple[float, float]:
-        if settings.normalisation != "global" or source in ("impulse", "steady"):
-            return display_levels(image, settings)
-        key = (source, id(self.stacks), settings.percentile, settings.diverging)
-        if key not in self._global_levels:
-            values = self.loaded.truth.images if source == "truth" else (
-                self.stacks.pair.transient.images if source == "transient" else self.stacks.pair.ring.images)
-            self._global_levels[key] = display_levels(values, settings)
-        return self._global_levels[key]
-
-    def _refresh_all(self) -> None:
-        self._refresh_image()
-        self._refresh_ring()
-        self._refresh_profiles()
-
-    def _refresh_image(self) -> None:
-        image = self.current_image()
-        if image is None:
-            return
-        settings = self.display_settings()
-        view = self.view()
-        colorspace = self.loaded.dataset.colorspace
-        self._levels = self._levels_for(image, settings, view)
-        self._shown_image = image
-        self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
-        self.image_panel.set_title(self._image_title())
-        self.display_controls.show_levels(self._levels, negative_fraction(image))
-        self._refresh_truth(settings, colorspace)
-        self.image_shown.emit()
-
-    def _image_title(self) -> str:
-        view = self.view()
-        if view == "impulse":
-            return f"impulse image of lit point y {self.picked[0]} x {self.picked[1]}"
-        if view == "steady":
-            return "steady state: all points lit"
-        request = self.stacks.pair.request
-        radius = self.stacks.pair.radii[self.radius_index()]
-        if view == "ring":
-            return f"E_r  r = {radius:g}  w = {request.thickness:g}"
-        return f"T_r  r = {radius:g}  dr = {request.dr:g}  w = {request.thickness:g}"
-
-    def _refresh_truth(self, settings: DisplaySettings, colorspace: str) -> None:
-        truth = self.loaded.truth
-        if truth is None:
-            return
-        index = self.radius_index()
-        radius = float(self.stacks.pair.radii[index])
-        step = self.stacks.pair.request.dr
-        bin_index = truth.nearest_bin(radius, step)
-        image = truth.images[bin_index]
-        truth_settings = settings if settings.normalisation != "manual" else settings.with_changes(normalisation="per-image")
-        levels = self._levels_for(image, truth_settings, "truth")
-        self.truth_panel.set_pixels(render(image, levels, truth_settings, colorspace))
-        low, high = truth.bounds[bin_index]
-        current = normalised_cross_correlation(self.stacks.pair.transient.images[index], image)
-        mean = float(np.nanmean(self.stacks.correlations)) if np.isfinite(self.stacks.correlations).any() else float("nan")
-        self.truth_panel.set_title(f"truth: path length [{low:g}, {high:g})\nNCC with T_r {current:.3f}, stack mean {mean:.3f}")
-        self.truth_correlation = current
-
-    def _refresh_ring(self) -> None:
-        if self.loaded is None or self.stacks is None or self.picked is None:
-            return
-        request = self.stacks.pair.request
-        radius = float(self.stacks.pair.radii[self.radius_index()])
-        dataset = self.loaded.dataset
-        ring = ring_geometry(radius, request.thickness, request.antialias)
-        positions, weights = ring.around(self.picked, dataset.grid_shape)
-        missing = dataset.lit_counts[positions[:, 0], positions[:, 1]] == 0
-        outer = radius + request.dr if self.view() == "transient" else None
-        self.image_panel.show_ring(self.picked, positions, weights, missing, radius, outer)
-
-    def _refresh_profiles(self) -> None:
-        if self.loaded is None or self.stacks is None or self.picked is None:
-            return
-        self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
-        self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient)
-        self.profile_plot.set_point(f"at y {self.picked[0]} x {self.picked[1]}")
-        self._mark_radius()
-
-    def _mark_radius(self) -> None:
-        if self.stacks is not None:
-            self.profile_plot.set_radius(float(self.stacks.pair.radii[self.radius_index()]))
-
-    # ----------------------------------------------------------------- exports
-    def _save_path(self, title: str, name: str, pattern: str) -> Path | None:
-        start = Path(self.settings.value("export_folder", str(Path.home()))) / name
-        path, _ = QFileDialog.getSaveFileName(self, title, str(start), pattern)
-        if not path:
-            return None
-        self.settings.setValue("export_folder", str(Path(path).parent))
-        return Path(path)
-
-    def _shown_stack(self):
-        return self.stacks.pair.ring if self.view() == "ring" else self.stacks.pair.transient
-
-    def choose_stack_export(self) -> None:
-        if self.stacks is not None and (path := self._save_path(
-                "Export stack as EXR: name a new folder (or an earlier stack export)",
-                f"{self._shown_stack().kind}-stack", "Stack folder (*)")):
-            self.export_stack(path)
-
-    def choose_png_export(self) -> None:
-        if self.stacks is not None and (path := self._save_path("Export view as PNG", "view.png", "PNG (*.png)")):
-            self.export_png(path)
-
-    def choose_movie_export(self) -> None:
-        if self.stacks is not None and (path := self._save_path("Export scrub as MP4", "scrub.mp4", "MP4 (*.mp4)")):
-            self.export_movie(path)
-
-    def choose_csv_export(self) -> None:
-        if self.profile is not None and (path := self._save_path("Export profiles as CSV", "profile.csv", "CSV (*.csv)")):
-            self.export_csv(path)
-
-    def choose_layer_export(self, kind: str) -> None:
-        patterns = {"json": "JSON (*.json)", "csv": "CSV (*.csv)", "png": "PNG (*.png)"}
-        name = "chromaticity.png" if kind == "png" else f"layers.{kind}"
-        if path := self._save_path(f"Export layers as {kind.upper()}", name, patterns[kind]):
-            self.layer_tab.export(kind, path)
-
-    def export_stack(self, folder: Path) -> None:
-        """Write the shown stack (E_r or T_r) to ``folder`` in a worker."""
-        self.export_jobs.start(f"Exporting stack to {folder.name}", exports.stack_work(self._shown_stack(), folder))
-
-    def export_png(self, path: Path) -> None:
-        self.export_jobs.start(f"Writing {path.name}", exports.png_work(self.image_panel.pixels(), path))
-
-    def export_movie(self, path: Path) -> None:
-        self.export_jobs.start(
-            f"Writing {path.name}",
-            exports.movie_work(self._shown_stack(), self.display_settings(), self.scrub_bar.fps_box.value(), path),
-        )
-
-    def export_csv(self, path: Path) -> None:
-        self.export_jobs.start(f"Writing {path.name}", exports.csv_work(self.profile, path))
-
     # ----------------------------------------------------------------- errors, settings, events
     def show_error(self, title: str, message: str) -> None:
         """Show ``message`` (core's one-line error) in a window-modal dialog that does not block."""
@@ -539,45 +304,6 @@ class MainWindow(QMainWindow):
             "Click or drag in the profiles: set the radius",
         ]
         QMessageBox.information(self, "Keyboard shortcuts", "\n".join(lines))
-
-    def _saved_request(self) -> StackRequest | None:
-        try:
-            return StackRequest(**json.loads(self.settings.value("stack_request", "")))
-        except (TypeError, ValueError):
-            return None
-
-    def _restore_settings(self) -> None:
-        geometry = self.settings.value("geometry")
-        if geometry is not None:
-            self.restoreGeometry(geometry)
-        state = self.settings.value("window_state")
-        if state is not None:
-            self.restoreState(state)
-        try:
-            document = json.loads(self.settings.value("display", ""))
-            document["manual_levels"] = tuple(document["manual_levels"])
-            self.display_controls.set_settings(DisplaySettings(**document))
-        except (TypeError, ValueError, KeyError):
-            pass
-        view = self.settings.value("view", "transient")
-        if view in VIEWS:
-            self.display_controls.set_view(view)
-        self.display_controls.profile_log_box.setChecked(self.settings.value("profile_log_y", "false") == "true")
-        self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
-        self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
-        self._rebuild_recent_menu()
-
-    def save_settings(self) -> None:
-        self.settings.setValue("geometry", self.saveGeometry())
-        self.settings.setValue("window_state", self.saveState())
-        self.settings.setValue("display", json.dumps(asdict(self.display_settings())))
-        self.settings.setValue("view", self.view())
-        self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
-        self.settings.setValue("fps", self.scrub_bar.fps_box.value())
-        self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
-        if self.stacks is not None:
-            self.settings.setValue("stack_request", json.dumps(asdict(self.stacks.pair.request)))
-        self.settings.sync()
 
     def shutdown(self) -> None:
         """Cancel all work and wait for the workers (so no job outlives the window)."""

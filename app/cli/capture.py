@@ -15,8 +15,10 @@ from ringlight.core.capture.workflow import (
 )
 from ringlight.core.colour.regions import parse_rectangle
 
+from .progress import progress_bar
 
-def add_command(subparsers, progress_bar) -> None:
+
+def add_command(subparsers) -> None:
     capture = subparsers.add_parser(
         "capture", help="capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)"
     )
@@ -29,10 +31,10 @@ def add_command(subparsers, progress_bar) -> None:
     capture.add_argument("--option", action="append", metavar="KEY=VALUE", help="option for both devices")
     capture.add_argument("--camera-option", action="append", metavar="KEY=VALUE")
     capture.add_argument("--projector-option", action="append", metavar="KEY=VALUE")
-    capture.set_defaults(handler=lambda args: run_capture(args, progress_bar))
+    capture.set_defaults(handler=run_capture)
 
 
-def run_capture(args, progress_bar) -> int:
+def run_capture(args) -> int:
     discovery = discover_plugins()
     for name, reason in discovery.failures:
         print(f"warning: hardware plugin {name} skipped: {reason}", file=sys.stderr)

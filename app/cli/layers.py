@@ -8,8 +8,10 @@ from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.layer_report import analyse_layers, analysis_json, analysis_stack_request
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 
+from .progress import progress_bar
 
-def add_command(subparsers, progress_bar) -> None:
+
+def add_command(subparsers) -> None:
     layers = subparsers.add_parser(
         "layers", help="recover layer colours from the chromaticities of transient images (paper Sec. 4.2)"
     )
@@ -23,7 +25,7 @@ def add_command(subparsers, progress_bar) -> None:
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
     layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
-    layers.set_defaults(handler=lambda args: run_layers(args, progress_bar))
+    layers.set_defaults(handler=run_layers)
 
 
 def parse_radii(text: str) -> list[float]:
@@ -33,7 +35,7 @@ def parse_radii(text: str) -> list[float]:
         raise RinglightError(f"--radii {text!r} must be numbers separated by commas, e.g. 2,5,8") from None
 
 
-def run_layers(args, progress_bar) -> int:
+def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(args.dataset, progress=progress)

@@ -1,0 +1,60 @@
+"""``ringlight info``: describe an impulse dataset."""
+
+from __future__ import annotations
+
+import numpy as np
+from ringlight.core import effective_max_radius, read_manifest, response_memory_bytes
+
+
+def add_command(subparsers) -> None:
+    info = subparsers.add_parser("info", help="describe an impulse dataset")
+    info.add_argument("dataset", help="dataset folder or its dataset.json")
+    info.set_defaults(handler=run_info)
+
+
+def run_info(args) -> int:
+    manifest = read_manifest(args.dataset)
+    counts = manifest.lit_counts()
+    lit = int(np.count_nonzero(counts))
+    missing = counts.size - lit
+    pitch = f", pitch {manifest.pitch_mm:g} mm" if manifest.pitch_mm else ""
+    points_per_frame = [len(frame.lit) for frame in manifest.frames]
+    exposures = sorted({frame.exposure for frame in manifest.frames})
+    lines = [
+        f"dataset      {manifest.folder}",
+        f"grid         {manifest.height} x {manifest.width}{pitch}",
+        f"colorspace   {manifest.colorspace}",
+        f"frames       {len(manifest.frames)} in {manifest.frame_space} frame space"
+        f" ({min(points_per_frame)}-{max(points_per_frame)} lit points per frame;"
+        f" exposures {', '.join(f'{e:g}' for e in exposures[:6])}{' ...' if len(exposures) > 6 else ''})",
+        f"lit points   {lit} (lit in several frames: {int(np.count_nonzero(counts > 1))})",
+        f"missing      {missing} point(s) lit in no frame",
+        f"dark frame   {manifest.dark or 'none'}",
+    ]
+    radius = effective_max_radius(manifest)
+    if manifest.max_radius is not None:
+        lines.append(f"max radius   {manifest.max_radius:g} grid steps")
+    else:
+        lines.append(
+            f"max radius   not set (one point per frame): up to the grid diagonal {radius:.1f}, "
+            "or the largest radius a stack asks for"
+        )
+    memory = response_memory_bytes((manifest.height, manifest.width), radius)
+    lines.append(f"memory       {memory / 2**20:.1f} MiB of responses at radius {radius:.4g}")
+    truth = manifest.ground_truth
+    if truth is None:
+        lines.append("ground truth none")
+    else:
+        images = truth.path_length_images
+        if images:
+            lines.append(
+                f"ground truth {len(images)} path-length images over "
+                f"[{min(i.min for i in images):g}, {max(i.max for i in images):g}) grid steps"
+            )
+        for layer in truth.layers:
+            rgb = ", ".join(f"{v:.3f}" for v in layer.rgb)
+            lines.append(f"  layer      {layer.name}: depth {layer.depth[0]:g}-{layer.depth[1]:g}, rgb ({rgb})")
+    if manifest.notes:
+        lines.append(f"notes        {manifest.notes}")
+    print("\n".join(lines))
+    return 0

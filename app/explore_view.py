@@ -1,0 +1,178 @@
+"""The Explore view's behaviour: picking, the radius, and drawing the image, truth, ring and profiles.
+
+A mixin of :class:`ringlight.app.window.MainWindow`: it reads the window's state (``loaded``,
+``stacks``, ``picked``) and widgets, and keeps the numbers it shows (``_shown_image``,
+``profile``, ``truth_correlation``) for the hover readout and the exports.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from ringlight.core import ring_geometry
+from ringlight.core.colour.display import DisplaySettings, display_levels, negative_fraction, render
+from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.rings.profiles import pixel_profile
+
+
+class ExploreView:
+    """Picking, scrubbing and drawing of the Explore tab (mixed into MainWindow)."""
+
+    def pick(self, y: int, x: int) -> None:
+        """Mark grid point (y, x): ring overlay, profiles and (for the impulse view) the image."""
+        if self.loaded is None:
+            return
+        self.picked = (int(y), int(x))
+        if self.view() == "impulse":
+            self._refresh_image()
+        self._refresh_ring()
+        self._refresh_profiles()
+
+    def set_radius(self, radius: float) -> None:
+        """Show the stack radius nearest ``radius`` (grid steps)."""
+        self.scrub_bar.set_index(self.scrub_bar.nearest_index(radius))
+
+    def radius_index(self) -> int:
+        return self.scrub_bar.index()
+
+    def view(self) -> str:
+        return self.display_controls.view()
+
+    def display_settings(self) -> DisplaySettings:
+        return self.display_controls.settings()
+
+    def _on_index_changed(self, _index: int) -> None:
+        self._refresh_image()
+        self._refresh_ring()
+        self._mark_radius()
+
+    def _on_display_settings(self, settings: DisplaySettings) -> None:
+        self._refresh_image()
+
+    def _on_hover(self, y: int, x: int) -> None:
+        self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
+
+    def describe_pixel(self, y: int, x: int) -> str:
+        """Full-precision value of the shown image at (y, x) and the ring points behind it."""
+        if self._shown_image is None or self.stacks is None:
+            return ""
+        value = self._shown_image[y, x]
+        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
+        index = self.radius_index()
+        view = self.view()
+        if view in ("ring", "transient"):
+            stack = self.stacks.pair.transient
+            text += f"   ring points: {int(stack.counts[index, y, x])} at r"
+            if view == "transient":
+                text += f", {int(stack.outer_counts[index, y, x])} at r+dr"
+        return text
+
+    def cancel_all(self) -> None:
+        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
+            slot.cancel()
+        self.scrub_bar.play_button.setChecked(False)
+
+    def _reset_zoom(self) -> None:
+        for panel in (self.image_panel, self.truth_panel):
+            panel.view.autoRange(padding=0.02)
+
+    # ----------------------------------------------------------------- drawing
+    def current_image(self) -> np.ndarray | None:
+        """The (H, W, 3) linear image of the current view and radius."""
+        if self.loaded is None or self.stacks is None:
+            return None
+        view = self.view()
+        if view == "steady":
+            return self.loaded.steady_state
+        if view == "impulse":
+            if self._impulse_cache is None or self._impulse_cache[0] != self.picked:
+                self._impulse_cache = (self.picked, self.loaded.dataset.impulse_image(*self.picked))
+            return self._impulse_cache[1]
+        stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
+        return stack.images[self.radius_index()]
+
+    def current_levels(self) -> tuple[float, float]:
+        return self._levels
+
+    def _levels_for(self, image: np.ndarray, settings: DisplaySettings, source: str) -> tuple[float, float]:
+        if settings.normalisation != "global" or source in ("impulse", "steady"):
+            return display_levels(image, settings)
+        key = (source, id(self.stacks), settings.percentile, settings.diverging)
+        if key not in self._global_levels:
+            values = self.loaded.truth.images if source == "truth" else (
+                self.stacks.pair.transient.images if source == "transient" else self.stacks.pair.ring.images)
+            self._global_levels[key] = display_levels(values, settings)
+        return self._global_levels[key]
+
+    def _refresh_all(self) -> None:
+        self._refresh_image()
+        self._refresh_ring()
+        self._refresh_profiles()
+
+    def _refresh_image(self) -> None:
+        image = self.current_image()
+        if image is None:
+            return
+        settings = self.display_settings()
+        view = self.view()
+        colorspace = self.loaded.dataset.colorspace
+        self._levels = self._levels_for(image, settings, view)
+        self._shown_image = image
+        self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
+        self.image_panel.set_title(self._image_title())
+        self.display_controls.show_levels(self._levels, negative_fraction(image))
+        self._refresh_truth(settings, colorspace)
+        self.image_shown.emit()
+
+    def _image_title(self) -> str:
+        view = self.view()
+        if view == "impulse":
+            return f"impulse image of lit point y {self.picked[0]} x {self.picked[1]}"
+        if view == "steady":
+            return "steady state: all points lit"
+        request = self.stacks.pair.request
+        radius = self.stacks.pair.radii[self.radius_index()]
+        if view == "ring":
+            return f"E_r  r = {radius:g}  w = {request.thickness:g}"
+        return f"T_r  r = {radius:g}  dr = {request.dr:g}  w = {request.thickness:g}"
+
+    def _refresh_truth(self, settings: DisplaySettings, colorspace: str) -> None:
+        truth = self.loaded.truth
+        if truth is None:
+            return
+        index = self.radius_index()
+        radius = float(self.stacks.pair.radii[index])
+        step = self.stacks.pair.request.dr
+        bin_index = truth.nearest_bin(radius, step)
+        image = truth.images[bin_index]
+        truth_settings = settings if settings.normalisation != "manual" else settings.with_changes(normalisation="per-image")
+        levels = self._levels_for(image, truth_settings, "truth")
+        self.truth_panel.set_pixels(render(image, levels, truth_settings, colorspace))
+        low, high = truth.bounds[bin_index]
+        current = normalised_cross_correlation(self.stacks.pair.transient.images[index], image)
+        mean = float(np.nanmean(self.stacks.correlations)) if np.isfinite(self.stacks.correlations).any() else float("nan")
+        self.truth_panel.set_title(f"truth: path length [{low:g}, {high:g})\nNCC with T_r {current:.3f}, stack mean {mean:.3f}")
+        self.truth_correlation = current
+
+    def _refresh_ring(self) -> None:
+        if self.loaded is None or self.stacks is None or self.picked is None:
+            return
+        request = self.stacks.pair.request
+        radius = float(self.stacks.pair.radii[self.radius_index()])
+        dataset = self.loaded.dataset
+        ring = ring_geometry(radius, request.thickness, request.antialias)
+        positions, weights = ring.around(self.picked, dataset.grid_shape)
+        missing = dataset.lit_counts[positions[:, 0], positions[:, 1]] == 0
+        outer = radius + request.dr if self.view() == "transient" else None
+        self.image_panel.show_ring(self.picked, positions, weights, missing, radius, outer)
+
+    def _refresh_profiles(self) -> None:
+        if self.loaded is None or self.stacks is None or self.picked is None:
+            return
+        self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
+        self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient)
+        self.profile_plot.set_point(f"at y {self.picked[0]} x {self.picked[1]}")
+        self._mark_radius()
+
+    def _mark_radius(self) -> None:
+        if self.stacks is not None:
+            self.profile_plot.set_radius(float(self.stacks.pair.radii[self.radius_index()]))

@@ -1,0 +1,78 @@
+"""What the window remembers between runs: layout, display settings, the stack request, recent files.
+
+A mixin of :class:`ringlight.app.window.MainWindow`, stored in the QSettings it was given.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from ringlight.core.colour.display import DisplaySettings
+from ringlight.core.rings.stack_request import StackRequest
+from ringlight.widgets.display_controls import VIEWS
+
+RECENT_LIMIT = 10
+
+
+class WindowSettings:
+    """Persistence of the window's state (mixed into MainWindow)."""
+
+    def _remember_recent(self, path: Path) -> None:
+        recent = [str(path)] + [entry for entry in self.recent_files() if entry != str(path)]
+        self.settings.setValue("recent_files", json.dumps(recent[:RECENT_LIMIT]))
+        self._rebuild_recent_menu()
+
+    def recent_files(self) -> list[str]:
+        try:
+            recent = json.loads(self.settings.value("recent_files", "[]"))
+        except (TypeError, ValueError):
+            return []
+        return [entry for entry in recent if isinstance(entry, str)]
+
+    def _rebuild_recent_menu(self) -> None:
+        self.recent_menu.clear()
+        for number, entry in enumerate(self.recent_files(), start=1):
+            action = self.recent_menu.addAction(f"&{number % 10} {entry}")
+            action.triggered.connect(lambda _=False, entry=entry: self.open_dataset(entry))
+        self.recent_menu.setEnabled(bool(self.recent_files()))
+
+    def _saved_request(self) -> StackRequest | None:
+        try:
+            return StackRequest(**json.loads(self.settings.value("stack_request", "")))
+        except (TypeError, ValueError):
+            return None
+
+    def _restore_settings(self) -> None:
+        geometry = self.settings.value("geometry")
+        if geometry is not None:
+            self.restoreGeometry(geometry)
+        state = self.settings.value("window_state")
+        if state is not None:
+            self.restoreState(state)
+        try:
+            document = json.loads(self.settings.value("display", ""))
+            document["manual_levels"] = tuple(document["manual_levels"])
+            self.display_controls.set_settings(DisplaySettings(**document))
+        except (TypeError, ValueError, KeyError):
+            pass
+        view = self.settings.value("view", "transient")
+        if view in VIEWS:
+            self.display_controls.set_view(view)
+        self.display_controls.profile_log_box.setChecked(self.settings.value("profile_log_y", "false") == "true")
+        self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
+        self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
+        self._rebuild_recent_menu()
+
+    def save_settings(self) -> None:
+        self.settings.setValue("geometry", self.saveGeometry())
+        self.settings.setValue("window_state", self.saveState())
+        self.settings.setValue("display", json.dumps(asdict(self.display_settings())))
+        self.settings.setValue("view", self.view())
+        self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
+        self.settings.setValue("fps", self.scrub_bar.fps_box.value())
+        self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
+        if self.stacks is not None:
+            self.settings.setValue("stack_request", json.dumps(asdict(self.stacks.pair.request)))
+        self.settings.sync()
