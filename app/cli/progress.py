@@ -12,6 +12,8 @@ def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
     """A tqdm bar on stderr (shown on terminals only) driven by fractions in [0, 1]."""
     from tqdm import tqdm
 
+    # No monitor thread: it would outlive the command when the CLI runs inside another program.
+    tqdm.monitor_interval = 0
     with tqdm(total=1000, desc=description, file=sys.stderr, disable=None, leave=False,
               bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]") as bar:
         def update(fraction: float) -> None:

@@ -1,0 +1,105 @@
+"""Every script in examples/ runs as it is, and what it prints or saves is right.
+
+Each example runs in a subprocess with the suite's interpreter; its output is checked against
+the library called directly here (reading back files, opening datasets) or brute force.
+"""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from ringlight.core import open_dataset, read_stack
+from ringlight.core.colour.display import DisplaySettings, display_levels, render
+from ringlight.core.simulate.presets import ensure_demo_dataset
+
+from reference import brute_ring_image
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def demo_cache(tmp_path_factory):
+    """One demo dataset for the examples that open it (simulated once, ~15 s)."""
+    return tmp_path_factory.mktemp("examples-cache")
+
+
+def run_example(name: str, *args, cache: Path, cwd: Path) -> str:
+    environment = {**os.environ, "RINGLIGHT_CACHE_DIR": str(cache)}
+    result = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd, env=environment,
+                            capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr
+    assert not list(cwd.iterdir()), "examples never write into the current folder by surprise"
+    return result.stdout
+
+
+def test_every_example_is_tested_and_short():
+    scripts = sorted(path.name for path in EXAMPLES.glob("*.py"))
+    tested = re.findall(r'run_example\("([a-z_]+\.py)"', Path(__file__).read_text())
+    assert scripts == sorted(set(tested))
+    for path in EXAMPLES.glob("*.py"):
+        if path.name != "plugin_skeleton.py":
+            assert len(path.read_text().splitlines()) < 40, path.name
+
+
+def test_open_demo_example_saves_the_transient_png(demo_cache, tmp_path, monkeypatch):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("open_demo_save_transient.py", tmp_path / "out", cache=demo_cache, cwd=tmp_path / "cwd")
+    pixels = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / "transient_r2.png")), cv2.COLOR_BGR2RGB)
+    assert pixels.shape == (32, 32, 3) and "T_r at r = 2" in out
+    # The PNG is T_2 = E_2 - E_3 brute-forced from the dataset's impulse images, drawn by the
+    # display pipeline with its default settings (per-image 99.5th percentile).
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(demo_cache))
+    dataset = open_dataset(ensure_demo_dataset())
+    impulses = {(y, x): dataset.impulse_image(y, x) for y in range(32) for x in range(32)}
+    transient = brute_ring_image(impulses, 32, 32, 2.0) - brute_ring_image(impulses, 32, 32, 3.0)
+    settings = DisplaySettings()
+    expected = render(transient, display_levels(transient, settings), settings, dataset.colorspace)
+    assert np.abs(pixels.astype(int) - expected.astype(int)).max() <= 1
+
+
+def test_export_stack_example_writes_the_stack_it_prints(demo_cache, tmp_path):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("export_stack.py", cache=demo_cache, cwd=tmp_path / "cwd")
+    folder = Path(re.search(r"wrote (\S+)", out).group(1))
+    document, images = read_stack(folder)
+    assert out.splitlines()[1] == "radii " + " ".join(f"{r:g}" for r in document["radii"]) == "radii 0 1 2 3 4 5 6"
+    assert out.splitlines()[2] == "shape 7 32 32 3" and images.shape == (7, 32, 32, 3)
+
+
+def test_simulate_example_writes_a_dataset_that_opens(tmp_path):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("simulate_scene.py", tmp_path / "sim", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
+    dataset = open_dataset(tmp_path / "sim")
+    assert f"grid 16 x 16, {len(dataset.manifest.frames)} frames" in out
+    names = [layer.name for layer in dataset.manifest.ground_truth.layers]
+    assert [line.split(":")[0] for line in out.splitlines() if line.startswith("layer ")] == [f"layer {n}" for n in names]
+
+
+def test_layer_colour_example_prints_three_layers_with_their_errors(tmp_path):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("layer_colours.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
+    rows = [line.split() for line in out.splitlines()]
+    assert [row[3] for row in rows] == ["1", "3", "5"]
+    for row in rows:
+        x, y, error = float(row[5]), float(row[6]), float(row[-1])
+        assert 0 < x < 0.8 and 0 < y < 0.9 and 0 <= error < 0.3  # chromaticities, and errors as measured (<= 0.15)
+
+
+def test_simulated_scan_example_captures_a_dataset_that_opens(tmp_path):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("simulated_scan.py", tmp_path / "scan", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
+    dataset = open_dataset(tmp_path / "scan")
+    # max_radius 3: a lattice of spacing floor(2 * 3) + 1 = 7 over 12 x 12 needs 7 x 7 frames
+    assert len(dataset.manifest.frames) == 49 and dataset.grid_shape == (12, 12)
+    assert f"49 frames for a 12 x 12 grid, {dataset.missing_count} points missing" in out
+
+
+def test_plugin_skeleton_follows_the_protocols(tmp_path):
+    (tmp_path / "cwd").mkdir()
+    out = run_example("plugin_skeleton.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
+    assert out.splitlines() == ["camera follows the protocol: True", "projector follows the protocol: True"]
