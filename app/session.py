@@ -88,7 +88,7 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
         progress = scaled(progress, 0.5, 1.0)
     manifest = read_manifest(path)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
-    dataset = open_dataset(path, radius=radius, progress=scaled(progress, 0.0, 0.5))
+    dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5))  # parsed once
     dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
     steady_state = dataset.steady_state()

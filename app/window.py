@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
+from PySide6.QtCore import QSettings, QSize, Qt, QThreadPool, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (
     QDockWidget,
@@ -129,7 +129,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
         self.statusBar().addPermanentWidget(self.dataset_label)
-        self.resize(1400, 860)
+        self.resize(_first_size(self))
 
     def _dock(self, title: str, widget: QWidget, area) -> QDockWidget:
         dock = QDockWidget(title, self)
@@ -334,6 +334,17 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         if path is not None:
             event.acceptProposedAction()
             self.open_dataset(path)
+
+
+def _first_size(window: QWidget) -> QSize:
+    """1400 x 860 pixels, or less where the screen is smaller (a 1366 x 768 laptop), leaving
+    room for the window frame and title bar: saved geometry replaces it on later runs."""
+    size = QSize(1400, 860)
+    screen = window.screen()
+    if screen is None:
+        return size
+    free = screen.availableGeometry().size()
+    return size.boundedTo(QSize(free.width() - 16, free.height() - 48))
 
 
 def _dropped_dataset(mime) -> Path | None:

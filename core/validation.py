@@ -1,9 +1,90 @@
-"""Type checks for JSON documents (manifests, scenes) that raise one error naming the file and key."""
+"""Reading and checking JSON documents (manifests, scenes, stack and cache files).
+
+:func:`read_json` is the one bounded reader every JSON file of ringlight goes through: a size
+limit before parsing, integer literals of at most :data:`MAX_INT_DIGITS` digits, no NaN or
+Infinity literals, bounded nesting. :class:`Validator` checks the decoded values. Both raise the
+caller's error family with one line naming the file (and key).
+"""
 
 from __future__ import annotations
 
+import json
 import math
-from pathlib import PurePosixPath
+import os
+import reprlib
+import stat
+from pathlib import Path
+
+MAX_JSON_BYTES = 256 * 2**20
+"""Largest JSON file read (a one-point-per-frame manifest of a 1024 x 1024 grid is ~80 MB)."""
+MAX_INT_DIGITS = 30
+"""Longest integer literal accepted; Python would otherwise spend quadratic time on huge ones."""
+MAX_NAME_BYTES = 255
+"""Longest file-name component (bytes, UTF-8) on the file systems ringlight writes to."""
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = 60
+_SHORT.maxother = 60
+_SHORT.maxlist = _SHORT.maxdict = 4
+_SHORT.maxlevel = 2
+
+
+def short_repr(value: object) -> str:
+    """A one-line repr of at most about 80 characters, whatever the nesting or length of ``value``."""
+    return _SHORT.repr(value).replace("\n", " ")
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer literal of {len(text)} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def read_json(path: str | os.PathLike, error: type[Exception], what: str = "JSON file",
+              max_bytes: int = MAX_JSON_BYTES) -> object:
+    """Decode the JSON file ``path``; any problem raises ``error`` with one line naming it.
+
+    Refused: a path that is not a regular file (a FIFO or device would block or never end), a
+    file over ``max_bytes``, invalid UTF-8 or JSON, integer literals over :data:`MAX_INT_DIGITS`
+    digits, NaN and Infinity literals, and nesting deeper than the interpreter can decode.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb", opener=_nonblocking) as handle:
+            info = os.fstat(handle.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise error(f"{path}: the {what} is not a regular file")
+            if info.st_size > max_bytes:
+                raise error(f"{path}: the {what} is {info.st_size / 2**20:.0f} MiB, over the "
+                            f"{max_bytes / 2**20:.0f} MiB a {what} may have")
+            data = handle.read(max_bytes + 1)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except OSError as problem:
+        raise error(f"{path}: the {what} cannot be read ({problem.strerror or problem})") from None
+    if len(data) > max_bytes:
+        raise error(f"{path}: the {what} is over the {max_bytes / 2**20:.0f} MiB a {what} may have")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as problem:
+        raise error(f"{path}: the {what} is not UTF-8 text (byte {problem.start})") from None
+    try:
+        return json.loads(text, parse_int=_bounded_int, parse_constant=_no_constant)
+    except json.JSONDecodeError as problem:
+        raise error(f"{path}: invalid JSON at line {problem.lineno}: {problem.msg}") from None
+    except RecursionError:
+        raise error(f"{path}: the {what} is nested too deeply") from None
+    except ValueError as problem:
+        raise error(f"{path}: invalid JSON: {problem}") from None
+
+
+def _nonblocking(name, flags):
+    # O_NONBLOCK: opening a FIFO must not wait for a writer; regular files are unaffected.
+    return os.open(name, flags | os.O_NONBLOCK)
 
 
 class Validator:
@@ -15,7 +96,7 @@ class Validator:
         self.error = error
 
     def fail(self, key: str, expected: str, value: object) -> Exception:
-        return self.error(f"{self.where}: '{key}' must be {expected}, got {value!r}")
+        return self.error(f"{self.where}: '{key}' must be {expected}, got {short_repr(value)}")
 
     def mapping(self, value: object, key: str, allowed: set[str] | None, required: set[str]) -> dict:
         """A JSON object with no keys beyond ``allowed`` (None: any) and all of ``required``."""
@@ -23,7 +104,7 @@ class Validator:
             raise self.fail(key, "an object", value)
         if allowed is not None and (unknown := sorted(set(value) - allowed)):
             raise self.error(
-                f"{self.where}: unknown key(s) {', '.join(map(repr, unknown))} in {key} "
+                f"{self.where}: unknown key(s) {', '.join(map(short_repr, unknown[:5]))}{' ...' if len(unknown) > 5 else ''} in {key} "
                 f"(allowed: {', '.join(sorted(allowed))})"
             )
         if absent := sorted(required - set(value)):
@@ -63,9 +144,18 @@ class Validator:
         return tuple(self.number(item, key) for item in items)
 
     def relative_file(self, value: object, key: str) -> str:
-        """A '/'-separated relative path that stays inside the document's folder."""
+        """A '/'-separated relative path that stays inside the document's folder, with a name
+        every file system can hold (no NUL, valid Unicode, components of at most 255 bytes)."""
         name = self.string(value, key)
-        path = PurePosixPath(name)
-        if not name or path.is_absolute() or ".." in path.parts or "\\" in name:
+        parts = name.split("/")
+        if not name or name.startswith("/") or ".." in parts or "\\" in name:
             raise self.fail(key, "a relative path inside the dataset folder (with '/')", value)
+        if "\0" in name:
+            raise self.fail(key, "a file name without NUL characters", value)
+        try:
+            encoded = [part.encode("utf-8") for part in parts]
+        except UnicodeEncodeError:
+            raise self.fail(key, "a file name in valid Unicode", value) from None
+        if max(map(len, encoded)) > MAX_NAME_BYTES:
+            raise self.fail(key, f"a file name of at most {MAX_NAME_BYTES} bytes per folder level", value)
         return name

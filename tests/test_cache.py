@@ -27,9 +27,9 @@ class CountingReads:
         self.count = 0
         original = frames_module.read_exr_rgb
 
-        def counted(path):
+        def counted(path, *args):
             self.count += 1
-            return original(path)
+            return original(path, *args)
 
         monkeypatch.setattr(frames_module, "read_exr_rgb", counted)
 

@@ -1,10 +1,13 @@
 """Packed cache of a dataset's response array, so that a second open skips EXR decoding.
 
 A cache entry is a folder with ``responses.npy``, ``lit_counts.npy``, ``observed.npy`` and
-``meta.json``. ``meta.json`` holds the key (a hash of the manifest's bytes, the size and mtime of
-every frame, dark and mapping file, the effective max radius and this module's layout version)
-and a CRC-32 of each array file. An entry whose key differs, or whose files fail their checks
-(missing, truncated, wrong header, wrong CRC), is ignored and rebuilt: a cache is never trusted.
+``meta.json``. ``meta.json`` holds the key (a hash of the manifest's bytes; the size, mtime,
+inode and ctime of every frame, dark and mapping file; the effective max radius and this module's
+layout version) and a CRC-32 of each array file. The ctime changes whenever a file is replaced or
+its mtime is set back, so a frame swapped for another of the same size is noticed. An entry whose
+key differs, or whose files fail their checks (not regular files, missing, truncated, wrong header,
+wrong CRC, a meta.json of the wrong shape), is ignored and rebuilt: a cache is never trusted, and a
+FIFO, device or symbolic link planted in it is never opened.
 
 Entries live in ``DATASET/.ringlight-cache`` when the dataset folder is writable, else under the
 user cache folder (``$RINGLIGHT_CACHE_DIR``, else ``$XDG_CACHE_HOME/ringlight``, else
@@ -17,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_folder
+from ..errors import RinglightError
+from ..validation import read_json
 from .manifest import MANIFEST_NAME, Manifest
 
 LAYOUT_VERSION = 1
@@ -55,8 +61,8 @@ def cache_key(manifest: Manifest, max_radius: float) -> str:
     digest.update((manifest.folder / MANIFEST_NAME).read_bytes())
     for name in manifest.referenced_files():
         try:
-            stat = (manifest.folder / name).stat()
-            digest.update(f"\n{name} {stat.st_size} {stat.st_mtime_ns}".encode())
+            info = (manifest.folder / name).stat()
+            digest.update(f"\n{name} {info.st_size} {info.st_mtime_ns} {info.st_ino} {info.st_ctime_ns}".encode())
         except OSError:
             digest.update(f"\n{name} missing".encode())
     return digest.hexdigest()
@@ -76,22 +82,30 @@ def cache_location(dataset_folder: Path) -> Path:
 
 def load_cache(location: Path, key: str) -> CachedArrays | None:
     """Return the cached arrays for ``key``, or None when absent, stale or corrupt."""
-    meta_path = location / "meta.json"
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if meta.get("key") != key:
+        if not stat.S_ISDIR(os.lstat(location).st_mode):
+            return None
+        meta = read_json(location / "meta.json", _CacheInvalid, "cache meta.json", max_bytes=2**16)
+        if not isinstance(meta, dict) or meta.get("key") != key:
+            return None
+        crc32, shapes = meta.get("crc32"), meta.get("shapes")
+        if not isinstance(crc32, dict) or not isinstance(shapes, dict):
             return None
         arrays = {}
         for name in _ARRAYS:
             path = location / f"{name}.npy"
-            if _crc32(path) != meta["crc32"][name]:
+            if not stat.S_ISREG(os.lstat(path).st_mode) or _crc32(path) != crc32.get(name):
                 return None
             arrays[name] = np.load(path, mmap_mode="r" if name == "responses" else None, allow_pickle=False)
-            if list(arrays[name].shape) != meta["shapes"][name]:
+            if list(arrays[name].shape) != shapes.get(name):
                 return None
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, _CacheInvalid):
         return None
     return CachedArrays(**arrays)
+
+
+class _CacheInvalid(RinglightError):
+    """A cache file that cannot be used; the cache is rebuilt, so users never see this."""
 
 
 def save_cache(location: Path, key: str, arrays: CachedArrays) -> bool:
@@ -113,7 +127,9 @@ def save_cache(location: Path, key: str, arrays: CachedArrays) -> bool:
 
 def _crc32(path: Path, chunk: int = 1 << 24) -> int:
     crc = 0
-    with open(path, "rb") as handle:
+    # O_NOFOLLOW and O_NONBLOCK: a symbolic link or FIFO put in place of a cache file is refused.
+    descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    with os.fdopen(descriptor, "rb") as handle:
         while block := handle.read(chunk):
             crc = zlib.crc32(block, crc)
     return crc

@@ -7,6 +7,10 @@ files are written as float (32-bit) unless ``half=True``.
 from __future__ import annotations
 
 import os
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +19,32 @@ import OpenEXR
 from ..errors import DatasetError
 
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
+MAX_PIXELS = 2**26
+"""Largest image (pixels) decoded: 67 megapixels, beyond any camera a rig uses. The size is
+checked in the header before anything is decoded, so a small file cannot claim gigabytes."""
+
+_QUIET_LOCK = threading.Lock()
+
+
+@contextmanager
+def _quiet_library() -> Iterator[None]:
+    """Silence what the OpenEXR C++ library itself prints on stdout and stderr for damaged files,
+    so that the user sees ringlight's one line and nothing else."""
+    with _QUIET_LOCK:
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:
+                stream.flush()
+        saved = [os.dup(1), os.dup(2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 1)
+            os.dup2(null, 2)
+            yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for descriptor in (*saved, null):
+                os.close(descriptor)
 
 
 def _check_readable(path: Path) -> None:
@@ -31,7 +61,8 @@ def _check_readable(path: Path) -> None:
         raise DatasetError(f"{path}: not an OpenEXR file")
 
 
-def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...]) -> np.ndarray:
+def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
+                      expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read the named channels of an EXR file.
 
     Parameters
@@ -40,6 +71,8 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...]) -> np.nda
         The EXR file.
     names
         Channel names to read, in the order wanted, e.g. ``("R", "G", "B")``.
+    expected_shape
+        ``(height, width)`` the image must have (checked in the header, before decoding).
 
     Returns
     -------
@@ -48,13 +81,16 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...]) -> np.nda
     Raises
     ------
     DatasetError
-        When the file is missing, unreadable, not an EXR, truncated or corrupt, or lacks one of
-        the channels; the message names the file.
+        When the file is missing, unreadable, not an EXR, truncated or corrupt, larger than
+        :data:`MAX_PIXELS` or than ``expected_shape``, or lacks one of the channels; the message
+        names the file.
     """
     path = Path(path)
-    _check_readable(path)
+    height, width = exr_size(path)
+    if expected_shape is not None and (height, width) != tuple(expected_shape):
+        raise DatasetError(f"{path}: image is {height} x {width}, expected {expected_shape[0]} x {expected_shape[1]}")
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
+        with _quiet_library(), OpenEXR.File(str(path), separate_channels=True) as exr:
             channels = exr.channels()
             missing = [name for name in names if name not in channels]
             if missing:
@@ -66,27 +102,44 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...]) -> np.nda
     except DatasetError:
         raise
     except Exception as error:  # OpenEXR raises RuntimeError/ValueError for damaged data
-        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({error})") from None
-    if any(plane.ndim != 2 or plane.shape != planes[0].shape for plane in planes):
-        raise DatasetError(f"{path}: channels {', '.join(names)} differ in size")
+        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({_first_line(error)})") from None
+    if any(plane.ndim != 2 or plane.shape != (height, width) for plane in planes):
+        raise DatasetError(f"{path}: channels {', '.join(names)} differ in size from the header's data window")
     return np.stack(planes, axis=-1)
 
 
-def read_exr_rgb(path: str | os.PathLike) -> np.ndarray:
+def _first_line(error: Exception) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+
+
+def read_exr_rgb(path: str | os.PathLike, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read the R, G, B channels of an EXR file as an (H, W, 3) float32 array."""
-    return read_exr_channels(path, ("R", "G", "B"))
+    return read_exr_channels(path, ("R", "G", "B"), expected_shape)
 
 
 def exr_size(path: str | os.PathLike) -> tuple[int, int]:
-    """Return ``(height, width)`` of an EXR file from its header alone."""
+    """Return ``(height, width)`` of an EXR file from its header alone.
+
+    Raises :class:`DatasetError` for a missing, non-EXR or damaged file, a deep (per-sample)
+    file, and an image over :data:`MAX_PIXELS`.
+    """
     path = Path(path)
     _check_readable(path)
     try:
-        with OpenEXR.File(str(path), header_only=True) as exr:
-            low, high = exr.header()["dataWindow"]
+        with _quiet_library(), OpenEXR.File(str(path), header_only=True) as exr:
+            header = exr.header()
+            low, high = header["dataWindow"]
     except Exception as error:
-        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({error})") from None
-    return int(high[1] - low[1] + 1), int(high[0] - low[0] + 1)
+        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({_first_line(error)})") from None
+    if "deep" in str(header.get("type", "")).lower():
+        raise DatasetError(f"{path}: deep (per-sample) OpenEXR files are not supported")
+    height, width = int(high[1]) - int(low[1]) + 1, int(high[0]) - int(low[0]) + 1
+    if height <= 0 or width <= 0:
+        raise DatasetError(f"{path}: empty data window {height} x {width}")
+    if height * width > MAX_PIXELS:
+        raise DatasetError(f"{path}: the header says {height} x {width} pixels, over the "
+                           f"{MAX_PIXELS / 2**20:.0f} megapixels ringlight decodes")
+    return height, width
 
 
 def write_exr_channels(

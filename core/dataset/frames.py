@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import read_exr_channels, read_exr_rgb
+from .exr import exr_size, read_exr_channels, read_exr_rgb
 from .manifest import FrameEntry, Manifest
 
 
@@ -49,23 +49,28 @@ class FrameReader:
     """Reads a dataset's frames as grid-space linear radiance (H, W, 3) float32.
 
     radiance = frame / exposure - dark: the dark frame is in exposure-1 units (FORMAT.md).
-    Frames of ``frame_space`` "camera" are averaged onto the grid through the mapping.
+    Frames of ``frame_space`` "camera" are averaged onto the grid through the mapping. Files
+    resolving outside the dataset folder are refused unless ``allow_outside``.
     """
 
-    def __init__(self, manifest: Manifest):
+    def __init__(self, manifest: Manifest, allow_outside: bool = False):
         self.manifest = manifest
+        self.allow_outside = allow_outside
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         if manifest.frame_space == "camera":
-            mapping_path = manifest.folder / manifest.mapping
+            mapping_path = manifest.file_path(manifest.mapping, allow_outside)
             yx = read_exr_channels(mapping_path, ("y", "x"))
             self.mapping = CameraMapping(yx[..., 0], yx[..., 1], self.grid_shape)
+            if not self.mapping.observed.any():
+                raise DatasetError(f"{mapping_path}: no camera pixel maps into the "
+                                   f"{manifest.height} x {manifest.width} grid (all NaN or outside)")
             self.frame_shape = self.mapping.camera_shape
         else:
             self.frame_shape = self.grid_shape
         self.dark: np.ndarray | None = None
         if manifest.dark is not None:
-            dark_path = manifest.folder / manifest.dark
+            dark_path = manifest.file_path(manifest.dark, allow_outside)
             dark = self._read_sized(dark_path, "dark frame")
             bad = ~np.isfinite(dark)
             if bad.any():
@@ -80,14 +85,14 @@ class FrameReader:
         return self.mapping.observed
 
     def _read_sized(self, path: Path, what: str) -> np.ndarray:
-        image = read_exr_rgb(path)
-        if image.shape[:2] != tuple(self.frame_shape):
+        height, width = exr_size(path)  # the header, before anything is decoded
+        if (height, width) != tuple(self.frame_shape):
             expected = "the mapping" if self.mapping is not None else "the grid"
             raise DatasetError(
-                f"{path}: {what} is {image.shape[0]} x {image.shape[1]}, expected "
+                f"{path}: {what} is {height} x {width}, expected "
                 f"{self.frame_shape[0]} x {self.frame_shape[1]} (the size of {expected})"
             )
-        return image
+        return read_exr_rgb(path, (height, width))
 
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
@@ -95,10 +100,15 @@ class FrameReader:
     def read(self, frame: FrameEntry) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance and how many of
         its pixel values were NaN or Inf (the caller decides how to report them)."""
-        image = self._read_sized(self.manifest.folder / frame.file, "frame")
+        image = self._read_sized(self.manifest.file_path(frame.file, self.allow_outside), "frame")
         bad = int(np.count_nonzero(~np.isfinite(image)))
-        radiance = self._to_grid(image)
-        radiance = radiance / np.float32(frame.exposure)
+        grid = self._to_grid(image)
+        with np.errstate(over="ignore", under="ignore"):
+            radiance = grid / np.float32(frame.exposure)
+        finite = np.isfinite(grid)
+        if (~np.isfinite(radiance) & finite).any() or ((radiance == 0) & (grid != 0) & finite).any():
+            raise DatasetError(f"{self.manifest.folder / frame.file}: dividing by the exposure {frame.exposure:g} "
+                               "takes values out of float32's range")
         if self.dark is not None:
             radiance -= self.dark
         return radiance.astype(np.float32, copy=False), bad

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import read_exr_rgb
+from .exr import exr_size, read_exr_rgb
 from .manifest import Manifest
 
 
@@ -44,7 +44,7 @@ class PathLengthImages:
 
 
 def read_path_length_images(
-    manifest: Manifest, progress: Callable[[float], None] | None = None
+    manifest: Manifest, progress: Callable[[float], None] | None = None, allow_outside: bool = False
 ) -> PathLengthImages | None:
     """The dataset's path-length images, or None when it has none.
 
@@ -55,14 +55,14 @@ def read_path_length_images(
         return None
     images = np.empty((len(entries), manifest.height, manifest.width, 3), np.float32)
     for index, entry in enumerate(entries):
-        path = manifest.folder / entry.file
-        image = read_exr_rgb(path)
-        if image.shape[:2] != (manifest.height, manifest.width):
+        path = manifest.file_path(entry.file, allow_outside)
+        height, width = exr_size(path)  # the header, before anything is decoded
+        if (height, width) != (manifest.height, manifest.width):
             raise DatasetError(
-                f"{path}: ground-truth image is {image.shape[1]}x{image.shape[0]}, "
+                f"{path}: ground-truth image is {width}x{height}, "
                 f"the grid is {manifest.width}x{manifest.height}"
             )
-        images[index] = image
+        images[index] = read_exr_rgb(path, (height, width))
         if progress is not None:
             progress((index + 1) / len(entries))
     bounds = np.array([(entry.min, entry.max) for entry in entries], np.float64)

@@ -151,9 +151,18 @@ def disc_offsets(max_radius: float) -> np.ndarray:
     return np.stack([dy[order], dx[order]], axis=1).astype(np.int64)
 
 
+def disc_offset_count(max_radius: float) -> int:
+    """``len(disc_offsets(max_radius))``, counted row by row without building the offsets."""
+    reach = int(np.floor(max_radius))
+    rows = np.arange(-reach, reach + 1, dtype=np.float64)
+    half_widths = np.minimum(np.floor(np.sqrt(np.maximum(max_radius * max_radius + 1e-9 - rows * rows, 0.0))), reach)
+    return int((2 * half_widths + 1).sum())
+
+
 def response_memory_bytes(grid_shape: tuple[int, int], max_radius: float) -> int:
-    """Bytes of the (H, W, K, 3) float32 response array for a grid and max radius."""
-    return grid_shape[0] * grid_shape[1] * len(disc_offsets(max_radius)) * 3 * 4
+    """Bytes of the (H, W, K, 3) float32 response array for a grid and max radius (arithmetic
+    only: a huge grid or radius is refused before anything of its size is allocated)."""
+    return int(grid_shape[0]) * int(grid_shape[1]) * disc_offset_count(max_radius) * 3 * 4
 
 
 def effective_max_radius(manifest: Manifest, radius: float | None = None) -> float:
@@ -166,19 +175,20 @@ def effective_max_radius(manifest: Manifest, radius: float | None = None) -> flo
 
 
 def open_dataset(
-    path: str | Path,
+    path: str | Path | Manifest,
     *,
     radius: float | None = None,
     use_cache: bool = True,
     progress: ProgressCallback | None = None,
     memory_limit: int = MEMORY_LIMIT_BYTES,
+    allow_outside: bool = False,
 ) -> ImpulseDataset:
     """Open an impulse dataset folder (or its ``dataset.json``).
 
     Parameters
     ----------
     path
-        Dataset folder or manifest.
+        Dataset folder, its ``dataset.json``, or a :class:`Manifest` already read.
     radius
         For datasets without ``max_radius`` (one lit point per frame): the largest distance in
         grid steps any ring will reach; responses are kept up to it. Default: the grid diagonal.
@@ -189,26 +199,29 @@ def open_dataset(
         Called with the fraction of frames read; may raise :class:`Cancelled`.
     memory_limit
         Refuse to build a response array larger than this many bytes.
+    allow_outside
+        Read frames, dark and mapping files that resolve (through symbolic links) outside the
+        dataset folder; refused by default.
 
     Raises
     ------
     DatasetError
         For any problem with the manifest or a file, naming the file.
     """
-    manifest = read_manifest(path)
+    manifest = path if isinstance(path, Manifest) else read_manifest(path)
     max_radius = effective_max_radius(manifest, radius)
-    offsets = disc_offsets(max_radius)
     needed = response_memory_bytes((manifest.height, manifest.width), max_radius)
     if needed > memory_limit:
         raise DatasetError(
             f"{manifest.path}: responses up to radius {max_radius:g} need {needed / 2**30:.1f} GiB "
             f"(limit {memory_limit / 2**30:.1f} GiB); open with a smaller radius"
         )
+    offsets = disc_offsets(max_radius)
     location = cache.cache_location(manifest.folder) if use_cache else None
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
     arrays = cache.load_cache(location, key) if use_cache else None
     if arrays is None:
-        arrays = _assemble_responses(manifest, offsets, progress)
+        arrays = _assemble_responses(manifest, offsets, progress, allow_outside)
         if use_cache:
             cache.save_cache(location, key, arrays)
     elif progress is not None:
@@ -220,11 +233,11 @@ def open_dataset(
 
 
 def _assemble_responses(
-    manifest: Manifest, offsets: np.ndarray, progress: ProgressCallback | None
+    manifest: Manifest, offsets: np.ndarray, progress: ProgressCallback | None, allow_outside: bool = False
 ) -> cache.CachedArrays:
     """Read every frame and scatter each lit point's light into the offset layout."""
     height, width = manifest.height, manifest.width
-    reader = FrameReader(manifest)
+    reader = FrameReader(manifest, allow_outside)
     lit_counts = manifest.lit_counts()
     inverse_counts = np.where(lit_counts > 0, 1.0 / np.maximum(lit_counts, 1), 0.0).astype(np.float32)
     responses = np.zeros((height, width, len(offsets), 3), np.float32)

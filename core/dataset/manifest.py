@@ -7,7 +7,6 @@ Parsing never touches image data: it checks the manifest's structure, types and 
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +15,7 @@ import numpy as np
 
 from ..colourspaces import is_known_colourspace
 from ..errors import DatasetError
-from ..validation import Validator
+from ..validation import Validator, read_json, short_repr
 
 FORMAT_NAME = "ringlight-impulse"
 FORMAT_VERSION = 1
@@ -31,6 +30,13 @@ _FRAME_KEYS = {"file", "lit", "exposure"}
 _TRUTH_KEYS = {"path_length_images", "layers"}
 _PATH_IMAGE_KEYS = {"file", "min", "max"}
 _LAYER_KEYS = {"name", "depth", "rgb"}
+
+MAX_GRID_POINTS = 2**26
+"""Largest grid (H x W) a manifest may declare: 8192 x 8192, far beyond any projector."""
+MAX_RADIUS_LIMIT = 1024.0
+"""Largest ``max_radius`` (grid steps) a manifest may declare."""
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,10 +103,24 @@ class Manifest:
 
     def lit_counts(self) -> np.ndarray:
         """(H, W) int32: in how many frames each grid point is lit (0 = missing)."""
-        counts = np.zeros((self.height, self.width), np.int32)
-        for frame in self.frames:
-            np.add.at(counts, (frame.lit[:, 0], frame.lit[:, 1]), 1)
-        return counts
+        lit = np.concatenate([frame.lit for frame in self.frames])
+        counts = np.bincount(lit[:, 0] * self.width + lit[:, 1], minlength=self.height * self.width)
+        return counts.astype(np.int32).reshape(self.height, self.width)
+
+    def file_path(self, name: str, allow_outside: bool = False) -> Path:
+        """The path of file ``name`` of the manifest, checked to stay inside the dataset folder.
+
+        A file (or a folder on its way, such as ``frames/``) that is a symbolic link resolving
+        outside the dataset folder is refused unless ``allow_outside`` (for labs that keep frames
+        on another disk and link them in).
+        """
+        path = self.folder / name
+        if not allow_outside:
+            real, root = path.resolve(), self.folder.resolve()
+            if not real.is_relative_to(root):
+                raise DatasetError(f"{path}: resolves to {real}, outside the dataset folder {root}; "
+                                   "allow files outside it explicitly (--allow-outside) to read it")
+        return path
 
     def referenced_files(self) -> list[str]:
         """Every file the manifest names that loading reads (frames, dark, mapping)."""
@@ -125,15 +145,9 @@ def read_manifest(folder: str | Path) -> Manifest:
     path = folder / MANIFEST_NAME
     if not folder.exists():
         raise DatasetError(f"{folder}: no such dataset folder")
-    if not path.is_file():
+    if not path.exists():
         raise DatasetError(f"{path}: manifest not found")
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as error:
-        raise DatasetError(f"{path}: cannot be read ({error})") from None
-    except json.JSONDecodeError as error:
-        raise DatasetError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
-    return parse_manifest(document, folder)
+    return parse_manifest(read_json(path, DatasetError, "manifest"), folder)
 
 
 def parse_manifest(document: object, folder: Path) -> Manifest:
@@ -150,6 +164,9 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
     grid = check.mapping(doc["grid"], "grid", _GRID_KEYS, required={"height", "width"})
     height = check.positive_int(grid["height"], "grid.height")
     width = check.positive_int(grid["width"], "grid.width")
+    if height * width > MAX_GRID_POINTS:
+        raise DatasetError(f"{where}: grid {height} x {width} has over {MAX_GRID_POINTS:,} points; "
+                           "no projector region is that large")
     pitch_mm = check.positive_number(grid["pitch_mm"], "grid.pitch_mm") if "pitch_mm" in grid else None
 
     colorspace = check.string(doc.get("colorspace", "sRGB"), "colorspace")
@@ -164,6 +181,8 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
     if frame_space == "grid" and mapping is not None:
         raise DatasetError(f"{where}: 'mapping' is only allowed with 'frame_space' \"camera\"")
     max_radius = check.positive_number(doc["max_radius"], "max_radius") if "max_radius" in doc else None
+    if max_radius is not None and max_radius > MAX_RADIUS_LIMIT:
+        raise DatasetError(f"{where}: 'max_radius' {max_radius:g} is over {MAX_RADIUS_LIMIT:g} grid steps")
     dark = check.relative_file(doc["dark"], "dark") if "dark" in doc else None
     notes = check.string(doc["notes"], "notes") if "notes" in doc else None
 
@@ -193,22 +212,24 @@ def _parse_frame(check: Validator, entry: object, index: int, height: int, width
     points = check.sequence(frame["lit"], f"{name}.lit")
     if not points:
         raise DatasetError(f"{check.where}: {name} ({file}) lights no point")
-    lit = np.empty((len(points), 2), np.int64)
-    for row, point in enumerate(points):
-        if (
-            not isinstance(point, list) or len(point) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in point)
-        ):
-            raise DatasetError(f"{check.where}: {name}.lit[{row}] must be [y, x] integers, got {point!r}")
-        y, x = point
-        if not (0 <= y < height and 0 <= x < width):
-            raise DatasetError(
-                f"{check.where}: {name} ({file}) lights [{y}, {x}], outside the {height} x {width} grid"
-            )
-        lit[row] = point
-    if len({(int(y), int(x)) for y, x in lit}) != len(lit):
+    # One pass of cheap type tests, then numpy: 100,000-frame manifests parse in about a second.
+    if not all(type(point) is list and len(point) == 2 and type(point[0]) is int and type(point[1]) is int
+               for point in points):
+        bad = next(point for point in points if not (
+            type(point) is list and len(point) == 2 and type(point[0]) is int and type(point[1]) is int))
+        raise DatasetError(f"{check.where}: {name}.lit[{points.index(bad)}] must be [y, x] integers, "
+                           f"got {short_repr(bad)}")
+    lit = np.array(points, np.int64).reshape(-1, 2)
+    outside = (lit[:, 0] < 0) | (lit[:, 0] >= height) | (lit[:, 1] < 0) | (lit[:, 1] >= width)
+    if outside.any():
+        y, x = lit[np.argmax(outside)].tolist()
+        raise DatasetError(f"{check.where}: {name} ({file}) lights [{y}, {x}], outside the {height} x {width} grid")
+    if len(lit) > 1 and len(np.unique(lit[:, 0] * width + lit[:, 1])) != len(lit):
         raise DatasetError(f"{check.where}: {name} ({file}) lists a lit point twice")
     exposure = check.positive_number(frame.get("exposure", 1.0), f"{name}.exposure")
+    if not FLOAT32_TINY <= exposure <= FLOAT32_MAX:
+        raise DatasetError(f"{check.where}: {name}.exposure {exposure:g} cannot be represented in float32 "
+                           f"(it must lie in [{FLOAT32_TINY:.3g}, {FLOAT32_MAX:.3g}])")
     return FrameEntry(file=file, lit=lit, exposure=exposure)
 
 
@@ -234,19 +255,54 @@ def _parse_ground_truth(check: Validator, value: object) -> GroundTruth:
 
 
 def _check_multiplexed_spacing(where: Path, frames: tuple[FrameEntry, ...], max_radius: float) -> None:
-    limit_sq = (2.0 * max_radius) ** 2
+    limit = 2.0 * max_radius
     for index, frame in enumerate(frames):
-        lit = frame.lit.astype(np.float64)
-        for start in range(0, len(lit), 512):
-            block = lit[start:start + 512]
-            dist_sq = ((block[:, None, :] - lit[None, :, :]) ** 2).sum(-1)
-            rows = np.arange(len(block))
-            dist_sq[rows, start + rows] = np.inf
-            if (dist_sq <= limit_sq).any():
-                a, b = np.unravel_index(np.argmin(dist_sq), dist_sq.shape)
-                p, q = frame.lit[start + a], frame.lit[b]
-                raise DatasetError(
-                    f"{where}: frames[{index}] ({frame.file}) lights {p.tolist()} and {q.tolist()} "
-                    f"{math.sqrt(dist_sq[a, b]):.3g} apart; multiplexed points must be more than "
-                    f"2 * max_radius = {2 * max_radius:g} apart"
-                )
+        pair = close_pair(frame.lit, limit)
+        if pair is not None:
+            p, q = frame.lit[min(pair)], frame.lit[max(pair)]  # in the manifest's order
+            raise DatasetError(
+                f"{where}: frames[{index}] ({frame.file}) lights {p.tolist()} and {q.tolist()} "
+                f"{math.dist(p.tolist(), q.tolist()):.3g} apart; multiplexed points must be more than "
+                f"2 * max_radius = {limit:g} apart"
+            )
+
+
+def close_pair(points: np.ndarray, limit: float) -> tuple[int, int] | None:
+    """Indices of two of the (n, 2) integer ``points`` at most ``limit`` apart, or None.
+
+    Linear time: points are binned into square cells of side ``floor(limit) + 1``, so a close
+    pair lies in one cell or two neighbouring ones, and a cell of points pairwise farther than
+    ``limit`` apart holds at most 4 of them (a square of side ``a <= limit`` holds at most 4
+    points at mutual distances over ``a``); a fuller cell is checked by brute force.
+    """
+    count = len(points)
+    if count < 2:
+        return None
+    side = math.floor(limit) + 1
+    cells = points // side + 1  # >= 1, so that neighbour -1 stays non-negative
+    stride = int(cells[:, 1].max()) + 2
+    key = cells[:, 0] * stride + cells[:, 1]
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts, sizes = np.unique(sorted_key, return_index=True, return_counts=True)[1:]
+    if sizes.max() > 4:
+        members = order[starts[np.argmax(sizes)]:][:5]
+        distances = np.hypot(*(points[members][:, None] - points[members][None]).transpose(2, 0, 1))
+        distances[np.diag_indices(len(members))] = np.inf
+        a, b = np.unravel_index(np.argmin(distances), distances.shape)
+        return int(members[a]), int(members[b])
+    everyone = np.arange(count)
+    limit_sq = limit * limit
+    for shift in (-stride - 1, -stride, -stride + 1, -1, 0, 1, stride - 1, stride, stride + 1):
+        target = key + shift
+        first = np.searchsorted(sorted_key, target)
+        for slot in range(4):
+            at = np.minimum(first + slot, count - 1)
+            other = order[at]
+            valid = (first + slot < count) & (sorted_key[at] == target) & (other != everyone)
+            distance_sq = ((points - points[other]) ** 2).sum(axis=1)
+            hit = valid & (distance_sq <= limit_sq)
+            if hit.any():
+                first_hit = int(np.argmax(hit))
+                return first_hit, int(other[first_hit])
+    return None
