@@ -39,6 +39,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
 
     from .window import MainWindow
 
+    _quiet_offscreen_warnings()
     app = QApplication.instance() or QApplication([sys.argv[0]])
     app.setOrganizationName(APPLICATION)
     app.setApplicationName(APPLICATION)
@@ -93,6 +94,24 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
             _dispose(window)
     print(f"wrote {out}")
     return 0
+
+
+def _quiet_offscreen_warnings() -> None:
+    """Drop the offscreen platform's "does not support propagateSizeHints()" notice: it is
+    printed for every window and says nothing to a user."""
+    from PySide6.QtCore import qInstallMessageHandler
+
+    previous = None
+
+    def handler(kind, context, message):
+        if "propagateSizeHints" in message:
+            return
+        if previous is not None:
+            previous(kind, context, message)
+        else:
+            sys.stderr.write(message + "\n")
+
+    previous = qInstallMessageHandler(handler)
 
 
 def _dispose(window) -> None:

@@ -7,7 +7,11 @@ explorer window: ``ringlight [DATASET] [--screenshot FILE.png [--radius R] [--pi
 from __future__ import annotations
 
 import argparse
+import ctypes.util
+import difflib
+import os
 import sys
+from pathlib import Path
 
 from . import cli
 
@@ -44,9 +48,39 @@ def main(argv: list[str] | None = None) -> int:
         return cli.run_handler(args.handler, args)
     parser = build_window_parser()
     args = parser.parse_args(argv)
+    problem = _dataset_problem(args.dataset, commands) or (None if args.screenshot else display_problem())
+    if problem:
+        print(f"ringlight: error: {problem}", file=sys.stderr)
+        return cli.EXIT_USER_ERROR
     from . import gui  # Qt is imported only for the window
 
     return gui.run(parser, args)
+
+
+def _dataset_problem(dataset: str | None, commands: list[str]) -> str | None:
+    """Why ``dataset`` cannot be opened before any window appears (a typo of a command, say)."""
+    if dataset is None or Path(dataset).exists():
+        return None
+    close = difflib.get_close_matches(dataset, commands, n=1)
+    hint = f"; did you mean 'ringlight {close[0]}'?" if close else f" (commands: {', '.join(commands)})"
+    return f"{dataset}: no such dataset folder or command{hint}"
+
+
+def display_problem() -> str | None:
+    """Why Qt could not open a window here, in one line, or None.
+
+    Without a display, or on X11 without the xcb-cursor library, Qt aborts the process with a
+    misleading message; this is checked first (Linux only; other systems always have a display).
+    """
+    if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
+        return None
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        return ("no display to open a window on (DISPLAY and WAYLAND_DISPLAY are unset); run it on a desktop, "
+                "or use --screenshot FILE.png, or the command-line tools (ringlight --help)")
+    if not os.environ.get("WAYLAND_DISPLAY") and ctypes.util.find_library("xcb-cursor") is None:
+        return ("Qt needs the X11 library libxcb-cursor (Debian/Ubuntu: apt install libxcb-cursor0 and the "
+                "other xcb libraries listed in README.md)")
+    return None
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QGridLayout,
     QHBoxLayout,
     QLabel,
     QLineEdit,
@@ -103,10 +104,10 @@ class CaptureWizard(QWidget):
         self.roi_boxes = [QSpinBox() for _ in range(4)]
         for box in self.roi_boxes:
             box.setRange(0, 100000)
-        roi = QHBoxLayout()
-        for name, box in zip(("y0", "x0", "y1", "x1"), self.roi_boxes):
-            roi.addWidget(QLabel(name))
-            roi.addWidget(box)
+        roi = QGridLayout()  # two rows, so that the page fits beside the step list on a small screen
+        for index, (name, box) in enumerate(zip(("y0", "x0", "y1", "x1"), self.roi_boxes)):
+            roi.addWidget(QLabel(name), index // 2, 2 * (index % 2))
+            roi.addWidget(box, index // 2, 2 * (index % 2) + 1)
         self.radius_box = QDoubleSpinBox()
         self.radius_box.setRange(0.5, 1000)
         self.radius_box.setValue(6.0)

@@ -84,13 +84,17 @@ class LayerPanel(QWidget):
             button.clicked.connect(lambda _=False, key=key: self.export_requested.emit(key))
             exports.addWidget(button)
 
-        controls = QHBoxLayout()
-        for widget in (QLabel("Region"), self.region_box, QLabel("Method"), self.method_box, pick, clear,
-                       self.auto_box, auto):
-            controls.addWidget(widget)
-        controls.addStretch(1)
+        # Two rows of controls: one row would make the Analysis dock too wide for a 1366 px screen.
+        choices, picking = QHBoxLayout(), QHBoxLayout()
+        for widget in (QLabel("Region"), self.region_box, QLabel("Method"), self.method_box):
+            choices.addWidget(widget)
+        for widget in (pick, clear, self.auto_box, auto):
+            picking.addWidget(widget)
+        choices.addStretch(1)
+        picking.addStretch(1)
         layout = QVBoxLayout(self)
-        layout.addLayout(controls)
+        layout.addLayout(choices)
+        layout.addLayout(picking)
         layout.addWidget(self.picked_label)
         layout.addWidget(self.diagram, 1)
         layout.addWidget(self.table)

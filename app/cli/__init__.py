@@ -18,7 +18,18 @@ EXIT_USER_ERROR = 2
 def add_commands(subparsers) -> None:
     """Register every sub-command on an argparse subparsers object, in the order of ``--help``."""
     for command in (info, stack, simulate, layers, capture, demo):
-        command.add_command(subparsers)
+        command.add_command(_Described(subparsers))
+
+
+class _Described:
+    """Adds sub-command parsers whose ``--help`` opens with the line the command list shows."""
+
+    def __init__(self, subparsers):
+        self._subparsers = subparsers
+
+    def add_parser(self, name: str, **options):
+        options.setdefault("description", options.get("help"))
+        return self._subparsers.add_parser(name, **options)
 
 
 def run_handler(handler, args) -> int:

@@ -22,11 +22,12 @@ def add_command(subparsers) -> None:
     capture = subparsers.add_parser(
         "capture", help="capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)"
     )
-    capture.add_argument("--camera", required=True, help="camera name (see --list)")
-    capture.add_argument("--projector", required=True, help="projector name (see --list)")
+    capture.add_argument("--list", action="store_true", help="list the cameras and projectors of every plugin and exit")
+    capture.add_argument("--camera", help="camera name (see --list)")
+    capture.add_argument("--projector", help="projector name (see --list)")
     capture.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="projector pixels to scan, end exclusive (default: all)")
     capture.add_argument("--max-radius", type=float, default=8.0, help="grid steps (default 8)")
-    capture.add_argument("--out", required=True, help="dataset folder (new, or an unfinished scan with --resume)")
+    capture.add_argument("--out", help="dataset folder (new, or an unfinished scan with --resume)")
     capture.add_argument("--resume", action="store_true", help="continue the unfinished scan in --out")
     capture.add_argument("--option", action="append", metavar="KEY=VALUE", help="option for both devices")
     capture.add_argument("--camera-option", action="append", metavar="KEY=VALUE")
@@ -38,6 +39,14 @@ def run_capture(args) -> int:
     discovery = discover_plugins()
     for name, reason in discovery.failures:
         print(f"warning: hardware plugin {name} skipped: {reason}", file=sys.stderr)
+    if args.list:
+        print("cameras     " + ", ".join(sorted(discovery.cameras())))
+        print("projectors  " + ", ".join(sorted(discovery.projectors())))
+        return 0
+    absent = [flag for flag, value in (("--camera", args.camera), ("--projector", args.projector), ("--out", args.out))
+              if not value]
+    if absent:
+        raise ScanError(f"capture needs {', '.join(absent)} (see ringlight capture --list for device names)")
     shared = parse_options(args.option)
     camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)})
     projector = make_device(discovery.projectors(), args.projector, {**shared, **parse_options(args.projector_option)})

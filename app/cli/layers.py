@@ -25,20 +25,26 @@ def add_command(subparsers) -> None:
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
     layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
+    layers.add_argument("--allow-outside", action="store_true",
+                       help="read frames that resolve (through symbolic links) outside the dataset folder")
     layers.set_defaults(handler=run_layers)
 
 
 def parse_radii(text: str) -> list[float]:
+    """``"2,5,8"`` -> [2.0, 5.0, 8.0]; checked before any dataset is loaded."""
     try:
-        return [float(part) for part in text.split(",")]
+        radii = [float(part) for part in text.split(",")]
     except ValueError:
         raise RinglightError(f"--radii {text!r} must be numbers separated by commas, e.g. 2,5,8") from None
+    if any(b <= a for a, b in zip(radii, radii[1:])) or any(r < 0 for r in radii):
+        raise RinglightError(f"--radii {text!r} must be non-negative and increase strictly, e.g. 2,5,8")
+    return radii
 
 
 def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
     with progress_bar("opening the dataset") as progress:
-        dataset = open_dataset(args.dataset, progress=progress)
+        dataset = open_dataset(args.dataset, progress=progress, allow_outside=args.allow_outside)
     if args.roi:
         y0, x0, y1, x1 = parse_rectangle(args.roi)
         region = rectangle_region(dataset.grid_shape, y0, x0, y1, x1)

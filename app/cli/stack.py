@@ -26,6 +26,8 @@ def add_command(subparsers) -> None:
     stack.add_argument("--antialias", action="store_true", help="weight ring pixels by area")
     stack.add_argument("--out", required=True, help="output folder (new, empty, or an earlier stack)")
     stack.add_argument("--no-cache", action="store_true", help="neither read nor write the packed cache")
+    stack.add_argument("--allow-outside", action="store_true",
+                       help="read frames that resolve (through symbolic links) outside the dataset folder")
     stack.set_defaults(handler=run_stack)
 
 
@@ -38,7 +40,8 @@ def run_stack(args) -> int:
     step = args.dr if args.dr is not None else default_step
     reach = needed_radius(radii, args.thickness, step if args.kind == "transient" else 0.0, args.antialias)
     with progress_bar("reading frames") as progress:
-        dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress)
+        dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress,
+                               allow_outside=args.allow_outside)
     with progress_bar("computing rings") as progress:
         if args.kind == "ring":
             stack = ring_stack(dataset, radii, args.thickness, args.antialias, progress=progress)
