@@ -55,6 +55,7 @@ class LayerTab(QObject):
         self.dataset, self.stack = dataset, stack
         if new_dataset:
             self.picked = []
+            self.panel.diagram.reset_view()  # the new trajectory may lie outside the old zoom
         else:
             self.picked = [r for r in self.picked if np.isclose(stack.radii, r).any()]
         if new_dataset or self.region.shape != dataset.grid_shape:
@@ -155,7 +156,11 @@ class LayerTab(QObject):
     def export(self, kind: str, path: Path) -> None:
         """Write the analysis as ``"json"`` or ``"csv"``, or the diagram as ``"png"``."""
         if kind == "png":
-            image = self.panel.diagram.grab().toImage()  # QImage: safe to save off the GUI thread
+            diagram = self.panel.diagram
+            shown = diagram.getPlotItem().vb.viewRange()
+            diagram.reset_view()  # the whole diagram, not the user's zoom
+            image = diagram.grab().toImage()  # QImage: safe to save off the GUI thread
+            diagram.setRange(xRange=shown[0], yRange=shown[1], padding=0)
 
             def work(progress):
                 with atomic_file(path) as temporary:

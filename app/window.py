@@ -186,7 +186,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.load_jobs.finished.connect(self._on_loaded)
         self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
         self.stack_jobs.finished.connect(self._on_stacks_ready)
-        self.stack_jobs.failed.connect(lambda message: self.show_error("Could not compute the stack", message))
+        self.stack_jobs.failed.connect(self._on_stacks_failed)
         self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
         self.export_jobs.finished.connect(lambda path: self.statusBar().showMessage(f"Exported {path}", 8000))
         self.export_jobs.failed.connect(lambda message: self.show_error("Export failed", message))
@@ -216,7 +216,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
     def open_dataset(self, path: str | Path | None) -> None:
         """Open ``path`` (None: the demo dataset) in a worker; the current dataset stays until
         the new one is ready, and stays on failure."""
-        request = self.stack_controls.request() if self.loaded is not None else self._saved_request()
+        request = self.saved_request(path)
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
@@ -226,6 +226,9 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.open_dataset(path)
 
     def _on_loaded(self, loaded: LoadedDataset) -> None:
+        another = self.loaded is None or self.loaded.dataset.path != loaded.dataset.path
+        if self.loaded is not None:
+            self._remember_request()
         self.loaded = loaded
         self._impulse_cache = None
         self._global_levels.clear()
@@ -233,8 +236,9 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
         self.truth_panel.setVisible(loaded.truth is not None)
         height, width = dataset.grid_shape
-        if self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
-            self.picked = (height // 2, width // 2)
+        if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
+            self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
+            self.hover_label.clear()
         self._install_stacks(loaded.stacks)
         self._remember_recent(dataset.path)
         self.settings.setValue("last_folder", str(dataset.path.parent))
@@ -270,6 +274,10 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
     def _on_stacks_ready(self, stacks: ViewStacks) -> None:
         self._install_stacks(stacks)
         self._update_title()
+
+    def _on_stacks_failed(self, message: str) -> None:
+        self.show_error("Could not compute the stack", message)
+        self._on_stacks_cancelled()  # the controls show the stack that is on screen, not the refused one
 
     def _on_stacks_cancelled(self) -> None:
         if self.stacks is not None and self.loaded is not None:

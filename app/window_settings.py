@@ -14,6 +14,12 @@ from ringlight.core.rings.stack_request import StackRequest
 from ringlight.widgets.display_controls import VIEWS
 
 RECENT_LIMIT = 10
+REQUEST_LIMIT = 50
+"""Datasets whose stack request is remembered (the most recently shown)."""
+
+
+def _request_key(path) -> str:
+    return "(demo)" if path is None else str(Path(path).resolve())
 
 
 class WindowSettings:
@@ -38,11 +44,32 @@ class WindowSettings:
             action.triggered.connect(lambda _=False, entry=entry: self.open_dataset(entry))
         self.recent_menu.setEnabled(bool(self.recent_files()))
 
-    def _saved_request(self) -> StackRequest | None:
+    def _saved_requests(self) -> dict[str, dict]:
         try:
-            return StackRequest(**json.loads(self.settings.value("stack_request", "")))
+            saved = json.loads(self.settings.value("stack_requests", "{}"))
         except (TypeError, ValueError):
+            return {}
+        return saved if isinstance(saved, dict) else {}
+
+    def saved_request(self, path) -> StackRequest | None:
+        """The stack request last shown for dataset ``path`` (None: the demo), if any.
+
+        Requests are remembered per dataset: one clamped to a small dataset's max_radius must
+        not become the next dataset's default.
+        """
+        try:
+            return StackRequest(**self._saved_requests()[_request_key(path)])
+        except (KeyError, TypeError, ValueError):
             return None
+
+    def _remember_request(self) -> None:
+        if self.stacks is None or self.loaded is None:
+            return
+        saved = self._saved_requests()
+        key = _request_key(self.loaded.dataset.path)
+        saved.pop(key, None)
+        saved[key] = asdict(self.stacks.pair.request)
+        self.settings.setValue("stack_requests", json.dumps(dict(list(saved.items())[-REQUEST_LIMIT:])))
 
     def _restore_settings(self) -> None:
         geometry = self.settings.value("geometry")
@@ -73,6 +100,5 @@ class WindowSettings:
         self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
         self.settings.setValue("fps", self.scrub_bar.fps_box.value())
         self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
-        if self.stacks is not None:
-            self.settings.setValue("stack_request", json.dumps(asdict(self.stacks.pair.request)))
+        self._remember_request()
         self.settings.sync()

@@ -37,7 +37,7 @@ class ChromaticityDiagram(pg.PlotWidget):
         for side in ("bottom", "left"):
             self.getAxis(side).enableAutoSIPrefix(False)
         self.showGrid(x=True, y=True, alpha=0.15)
-        self.setRange(xRange=(0, 0.8), yRange=(0, 0.9), padding=0.02)
+        self.reset_view()
         locus = spectral_locus()
         self.plot(locus[:, 0], locus[:, 1], pen=pg.mkPen("#bbbbbb", width=1.5))
         srgb = colour.RGB_COLOURSPACES["sRGB"]
@@ -64,6 +64,10 @@ class ChromaticityDiagram(pg.PlotWidget):
         self.scene().sigMouseClicked.connect(self._on_scene_clicked)
         self._radii = np.zeros(0)
         self._xy = np.zeros((0, 2))
+
+    def reset_view(self) -> None:
+        """Show the whole diagram (the spectral locus), whatever the user zoomed to."""
+        self.setRange(xRange=(0, 0.8), yRange=(0, 0.9), padding=0.02)
 
     def set_trajectory(self, radii: np.ndarray, xy: np.ndarray) -> None:
         """Plot (n, 2) chromaticities of (n,) radii; NaN entries are left out."""

@@ -1,0 +1,74 @@
+"""The window's controls and readouts always describe the dataset and stack on screen."""
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QSettings
+from reference import random_impulses, write_dataset
+from ringlight.app.window import MainWindow
+from ringlight.core.rings.stack_request import StackRequest, largest_stop
+
+TIMEOUT_MS = 120_000
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(window)
+    window.show()
+    yield window
+    window.shutdown()
+
+
+def make_dataset(folder, size, max_radius, seed):
+    impulses = random_impulses(np.random.default_rng(seed), size, size, support=max_radius)
+    write_dataset(folder, size, size, impulses, max_radius=max_radius)
+    return folder
+
+
+def open_and_wait(qtbot, window, path):
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(path)
+
+
+def test_a_small_dataset_does_not_clamp_the_next_ones_stack(qtbot, window, tmp_path):
+    small = make_dataset(tmp_path / "small", 9, 3, seed=1)
+    large = make_dataset(tmp_path / "large", 12, 8, seed=2)
+    # r1 + dr + w/2 must stay within max_radius: 6 for max_radius 8, 1 for max_radius 3.
+    large_stop, small_stop = largest_stop(8, StackRequest(0.0, 0.0)), largest_stop(3, StackRequest(0.0, 0.0))
+    assert (large_stop, small_stop) == (6.0, 1.0)
+    open_and_wait(qtbot, window, large)
+    assert window.stack_controls.request().stop == large_stop
+    open_and_wait(qtbot, window, small)
+    assert window.stack_controls.request().stop == small_stop
+    open_and_wait(qtbot, window, large)
+    assert window.stack_controls.request().stop == large_stop  # its own request, not the small one's clamp
+    window.save_settings()
+    again = MainWindow(window.settings)
+    qtbot.addWidget(again)
+    try:
+        assert again.saved_request(large).stop == large_stop and again.saved_request(small).stop == small_stop
+    finally:
+        again.shutdown()
+
+
+def test_a_refused_request_leaves_the_controls_showing_the_stack_on_screen(qtbot, window, tmp_path):
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 9, 3, seed=3))
+    shown = window.stacks.pair.request
+    refused = shown.with_changes(stop=12.0)  # beyond max_radius 3
+    window.stack_controls.set_request(refused)
+    with qtbot.waitSignal(window.error_shown, timeout=TIMEOUT_MS):
+        window.request_stacks(refused)
+    assert "max_radius" in window.last_error
+    assert window.stack_controls.request() == shown == window.stacks.pair.request
+
+
+def test_opening_another_dataset_resets_pick_hover_and_diagram(qtbot, window, tmp_path):
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "a", 12, 4, seed=4))
+    window.pick(1, 2)
+    window.hover_label.setText(window.describe_pixel(1, 2))
+    window.layer_panel.diagram.setRange(xRange=(0.3, 0.31), yRange=(0.3, 0.31), padding=0)
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "b", 10, 4, seed=5))
+    assert window.picked == (5, 5)  # the new dataset's centre
+    assert window.hover_label.text() == ""
+    (x0, x1), (y0, y1) = window.layer_panel.diagram.getPlotItem().vb.viewRange()
+    assert x0 <= 0.0 and x1 >= 0.8 and y0 <= 0.0 and y1 >= 0.9  # the whole CIE diagram
