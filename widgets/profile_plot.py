@@ -14,6 +14,32 @@ from PySide6.QtWidgets import QWidget
 CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
 
 
+class ValueAxis(pg.AxisItem):
+    """A y axis whose log-mode labels are plain values with 3 significant digits ("4e+04",
+    "0.0012"): pyqtgraph's own log labels cut mantissas ("10^4.6" reads as "10^4") and, within one
+    decade, label minor ticks on top of each other. One level is labelled: the decades when two or
+    more are in view, else 2..9 times a decade, else evenly spaced values."""
+
+    def tickStrings(self, values, scale, spacing):
+        if not self.logMode:
+            return super().tickStrings(values, scale, spacing)
+        return [f"{10.0 ** value:.3g}" for value in values]
+
+    def tickValues(self, minVal, maxVal, size):
+        levels = super().tickValues(minVal, maxVal, size)
+        if not self.logMode:
+            return levels
+        decades = [level for level in levels if level[0] is not None and level[0] >= 1.0 and len(level[1]) >= 2]
+        if decades:
+            return decades[:1]
+        if levels and len(levels[-1][1]) >= 2:
+            return levels[-1:]
+        low, high = 10.0 ** minVal, 10.0 ** maxVal
+        step = 10.0 ** np.floor(np.log10((high - low) / 2))
+        values = np.arange(np.ceil(low / step) * step, high, step)
+        return [(None, list(np.log10(values[values > 0])))]
+
+
 class ProfilePlot(pg.GraphicsLayoutWidget):
     """Two stacked plots sharing the radius axis: ring light E(r) above, transient T(r) below.
 
@@ -25,8 +51,10 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
-        self.ring_plot = self.addPlot(row=0, col=0, title="E(r): ring light")
-        self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr): transient")
+        self.ring_plot = self.addPlot(row=0, col=0, title="E(r): ring light",
+                                      axisItems={"left": ValueAxis("left")})
+        self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr): transient",
+                                           axisItems={"left": ValueAxis("left")})
         self.transient_plot.setXLink(self.ring_plot)
         self.transient_plot.setLabel("bottom", "radius r (grid steps)")
         self.transient_plot.getAxis("bottom").enableAutoSIPrefix(False)

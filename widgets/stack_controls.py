@@ -15,7 +15,7 @@ def _spin(minimum: float, maximum: float, step: float, tooltip: str) -> QDoubleS
     box.setRange(minimum, maximum)
     box.setDecimals(2)
     box.setSingleStep(step)
-    box.setSuffix(" px")
+    box.setSuffix(" grid steps")
     box.setKeyboardTracking(False)
     box.setToolTip(tooltip)
     return box
