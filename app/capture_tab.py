@@ -96,6 +96,7 @@ class CaptureTab(QObject):
         self._started = time.monotonic()
         self._first_fraction = None
         self.wizard.go_to(4)
+        self.wizard.set_scan_state("running")
         self._start("scan", f"Scanning {len(scan.frames)} frames",
                     lambda progress: run_scan(scan, camera, projector, resume,
                                               lambda state: progress(state.done / state.total)))
@@ -164,6 +165,7 @@ class CaptureTab(QObject):
                 f"counts/s: {len(plan.exposures)} brackets.")
             wizard.go_to(3)
         elif self._step == "scan":
+            wizard.set_scan_state("idle")
             wizard.set_scan_progress(1.0, f"Finished: {result}")
             wizard.finish_label.setText(f"Dataset written to {result}.")
             wizard.open_dataset_button.setEnabled(True)
@@ -171,10 +173,12 @@ class CaptureTab(QObject):
 
     def _on_failed(self, message: str) -> None:
         if self._step == "scan":
+            self.wizard.set_scan_state("paused")
             self.wizard.set_scan_progress(self.wizard.scan_bar.value() / 1000, message.splitlines()[0])
         self.error.emit("Capture", message)
 
     def _on_cancelled(self) -> None:
         if self._step == "scan":
+            self.wizard.set_scan_state("paused")
             self.wizard.set_scan_progress(self.wizard.scan_bar.value() / 1000,
                                           "Paused: every captured frame is kept. Press Resume to continue.")

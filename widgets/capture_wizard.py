@@ -160,10 +160,23 @@ class CaptureWizard(QWidget):
         self.open_dataset_button.clicked.connect(lambda: self.open_dataset_requested.emit(self.out_edit.text()))
         self.pages.addWidget(_page(self.finish_label, self.open_dataset_button))
 
+        self.back_button = QPushButton("< Back")
+        self.back_button.clicked.connect(lambda: self.go_to(self.steps.currentRow() - 1))
+        self.next_button = QPushButton("Next >")
+        self.next_button.clicked.connect(lambda: self.go_to(self.steps.currentRow() + 1))
+        navigation = QHBoxLayout()
+        navigation.addStretch(1)
+        navigation.addWidget(self.back_button)
+        navigation.addWidget(self.next_button)
+        right = QVBoxLayout()
+        right.addWidget(self.pages, 1)
+        right.addLayout(navigation)
         layout = QHBoxLayout(self)
         layout.addWidget(self.steps)
-        layout.addWidget(self.pages, 1)
+        layout.addLayout(right, 1)
+        self.steps.currentRowChanged.connect(self._update_navigation)
         self.steps.setCurrentRow(0)
+        self.set_scan_state("idle")
 
     def set_devices(self, cameras: list[str], projectors: list[str], failures: list[str]) -> None:
         self.camera_box.clear()
@@ -178,7 +191,11 @@ class CaptureWizard(QWidget):
             self.devices_label.setText("Skipped plugins:\n" + "\n".join(failures))
 
     def go_to(self, step: int) -> None:
-        self.steps.setCurrentRow(step)
+        self.steps.setCurrentRow(max(0, min(step, len(STEPS) - 1)))
+
+    def _update_navigation(self, step: int) -> None:
+        self.back_button.setEnabled(step > 0)
+        self.next_button.setEnabled(step < len(STEPS) - 1)
 
     def roi(self) -> tuple[int, int, int, int]:
         return tuple(box.value() for box in self.roi_boxes)
@@ -220,8 +237,17 @@ class CaptureWizard(QWidget):
         self.region_view.set_rectangle(*self.roi())
 
     def set_scan_progress(self, fraction: float, text: str) -> None:
+        """Show ``fraction`` of the scan done; the bar's percentage is the one the text uses."""
         self.scan_bar.setValue(int(round(fraction * 1000)))
+        self.scan_bar.setFormat(f"{fraction:.0%}")
         self.scan_label.setText(text)
+
+    def set_scan_state(self, state: str) -> None:
+        """Enable the scan buttons for ``"idle"``, ``"running"`` or ``"paused"`` (only Resume then:
+        a fresh start would refuse the folder holding the unfinished scan)."""
+        self.scan_button.setEnabled(state == "idle")
+        self.pause_button.setEnabled(state == "running")
+        self.resume_button.setEnabled(state in ("idle", "paused"))
 
     def _browse(self) -> None:
         folder = QFileDialog.getSaveFileName(self, "Dataset folder to create", self.out_edit.text() or "capture")[0]

@@ -26,11 +26,15 @@ class JobIndicator(QWidget):
         for widget in (self.label, self.bar, self.cancel_button):
             layout.addWidget(widget)
         slot.started.connect(self._on_started)
-        slot.progress.connect(lambda fraction: self.bar.setValue(int(round(fraction * 1000))))
+        slot.progress.connect(self._on_progress)
         slot.idle.connect(self.hide)
         self.hide()
 
     def _on_started(self, description: str) -> None:
         self.label.setText(description)
-        self.bar.setValue(0)
+        self.bar.setRange(0, 0)  # busy until the job reports how far it is
         self.show()
+
+    def _on_progress(self, fraction: float) -> None:
+        self.bar.setRange(0, 1000)
+        self.bar.setValue(int(round(fraction * 1000)))

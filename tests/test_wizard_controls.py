@@ -1,0 +1,51 @@
+"""The capture wizard's own controls: Back/Next, scan buttons by state, one percentage."""
+
+import pytest
+
+pytest.importorskip("PySide6")
+from ringlight.widgets.capture_wizard import STEPS, CaptureWizard  # noqa: E402
+from ringlight.widgets.job_indicator import JobIndicator  # noqa: E402
+from ringlight.widgets.jobs import JobSlot  # noqa: E402
+
+
+def test_back_and_next_walk_every_step(qtbot):
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    assert wizard.steps.currentRow() == 0 and not wizard.back_button.isEnabled()
+    for step in range(1, len(STEPS)):
+        wizard.next_button.click()
+        assert wizard.steps.currentRow() == step == wizard.pages.currentIndex()
+    assert not wizard.next_button.isEnabled()
+    wizard.back_button.click()
+    assert wizard.steps.currentRow() == len(STEPS) - 2
+
+
+@pytest.mark.parametrize("state, start, pause, resume", [
+    ("idle", True, False, True), ("running", False, True, False), ("paused", False, False, True)])
+def test_scan_buttons_follow_the_scan_state(qtbot, state, start, pause, resume):
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    wizard.set_scan_state(state)
+    assert (wizard.scan_button.isEnabled(), wizard.pause_button.isEnabled(), wizard.resume_button.isEnabled()) == (
+        start, pause, resume)
+
+
+def test_progress_bar_and_label_give_the_same_percentage(qtbot):
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    fraction = 0.7866  # the bar's own text would truncate to 78 %, the label rounds to 79 %
+    wizard.set_scan_progress(fraction, f"{fraction:.0%} done")
+    assert wizard.scan_bar.text() == "79%" and wizard.scan_label.text().startswith("79%")
+
+
+def test_job_indicator_is_busy_until_progress_arrives(qtbot):
+    from PySide6.QtCore import QThreadPool
+
+    pool = QThreadPool()
+    slot = JobSlot(pool)
+    indicator = JobIndicator(slot)
+    qtbot.addWidget(indicator)
+    slot.started.emit("Opening devices")
+    assert (indicator.bar.minimum(), indicator.bar.maximum()) == (0, 0)  # Qt's busy indicator
+    slot.progress.emit(0.25)
+    assert (indicator.bar.maximum(), indicator.bar.value()) == (1000, 250)
