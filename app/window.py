@@ -45,6 +45,7 @@ from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_vi
 from .window_settings import WindowSettings
 
 DEMO = "(demo)"
+EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
 class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
@@ -185,6 +186,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
     def _connect(self) -> None:
         self.load_jobs.finished.connect(self._on_loaded)
         self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
+        self.load_jobs.idle.connect(self._hint_when_empty)
         self.stack_jobs.finished.connect(self._on_stacks_ready)
         self.stack_jobs.failed.connect(self._on_stacks_failed)
         self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
@@ -220,6 +222,12 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
+
+    def _hint_when_empty(self) -> None:
+        """With no dataset shown (first start, an open cancelled or failed), say how to get one."""
+        if self.loaded is None:
+            self.image_panel.set_title(EMPTY_HINT)
+            self.statusBar().showMessage(EMPTY_HINT)
 
     def _open_captured(self, path: str) -> None:
         self.main_tabs.setCurrentIndex(0)

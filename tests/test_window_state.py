@@ -72,3 +72,13 @@ def test_opening_another_dataset_resets_pick_hover_and_diagram(qtbot, window, tm
     assert window.hover_label.text() == ""
     (x0, x1), (y0, y1) = window.layer_panel.diagram.getPlotItem().vb.viewRange()
     assert x0 <= 0.0 and x1 >= 0.8 and y0 <= 0.0 and y1 >= 0.9  # the whole CIE diagram
+
+
+def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, window, tmp_path):
+    from ringlight.app.window import EMPTY_HINT
+
+    with qtbot.waitSignal(window.load_jobs.idle, timeout=TIMEOUT_MS):
+        window.open_dataset(make_dataset(tmp_path / "d", 9, 3, seed=6))
+        window.cancel_all()
+    assert window.loaded is None
+    assert window.image_panel.title.toPlainText() == EMPTY_HINT
