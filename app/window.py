@@ -45,6 +45,14 @@ from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_vi
 from .window_settings import WindowSettings
 
 DEMO = "(demo)"
+ABOUT = """ringlight {version}: variable ring light imaging
+
+Transient images of light inside translucent surfaces from a projector and a camera, after
+K. Nishino, A. Subpa-asa, Y. Asano, M. Shimano and I. Sato, "Variable Ring Light Imaging:
+Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018.
+
+README.md: "Explorer window" (this window), "Capture", "Command line", "Safety".
+License: BSD-3-Clause."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
@@ -97,6 +105,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.image_panel = ImagePanel()
         self.truth_panel = ImagePanel("ground truth")
         self.truth_panel.hide()
+        self.truth_panel.view.setXLink(self.image_panel.view)  # zoom and pan both together
+        self.truth_panel.view.setYLink(self.image_panel.view)
         self.splitter = QSplitter(Qt.Orientation.Horizontal)
         self.splitter.addWidget(self.image_panel)
         self.splitter.addWidget(self.truth_panel)
@@ -182,6 +192,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
             view_menu.addAction(dock.toggleViewAction())
         help_menu = self.menuBar().addMenu("&Help")
         self._action(help_menu, "&Keyboard shortcuts", self._show_shortcuts, "F1")
+        self._action(help_menu, "&About ringlight", self._show_about)
 
     def _connect(self) -> None:
         self.load_jobs.finished.connect(self._on_loaded)
@@ -311,15 +322,33 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.statusBar().showMessage(f"{title}: {message.splitlines()[0]}", 10000)
         self.error_shown.emit(message)
 
-    def _show_shortcuts(self) -> None:
-        lines = [
-            "Ctrl+O  open dataset", "Ctrl+1..4  transient / ring / impulse / steady state",
-            "[ and ]  previous / next radius", "Space  play / pause", "Esc  cancel running work",
-            "Ctrl+0  reset zoom", "Ctrl+L  layers tab; P  pick the current radius for layers", "Ctrl+E  export stack (EXR)", "Ctrl+Shift+P / M / C  export PNG / movie / CSV",
-            "Left drag on the image: pick pixels; wheel: zoom; middle drag: pan",
+    def shortcut_lines(self) -> list[str]:
+        """"KEYS  menu > action" for every menu action with a shortcut, read from the menus
+        themselves so that the sheet always matches them, then the mouse gestures."""
+        lines = []
+        for menu_action in self.menuBar().actions():
+            menu = menu_action.menu()
+            for action in menu.actions() if menu is not None else ():
+                keys = action.shortcut().toString(QKeySequence.SequenceFormat.NativeText)
+                if keys:
+                    lines.append(f"{keys:<14} {menu.title().replace('&', '')} > "
+                                 f"{action.text().replace('&', '').rstrip('…')}")
+        return lines + [
+            "Left click or drag on the image: pick a pixel; wheel: zoom; middle drag: pan",
             "Click or drag in the profiles: set the radius",
         ]
-        QMessageBox.information(self, "Keyboard shortcuts", "\n".join(lines))
+
+    def _show_shortcuts(self) -> None:
+        self._information("Keyboard shortcuts", "\n".join(self.shortcut_lines()))
+
+    def _show_about(self) -> None:
+        self._information("About ringlight", ABOUT.format(version=_version()))
+
+    def _information(self, title: str, text: str) -> None:
+        box = QMessageBox(QMessageBox.Icon.Information, title, text, QMessageBox.StandardButton.Ok, self)
+        box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        box.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        box.open()  # not exec(): the window keeps running behind it
 
     def shutdown(self) -> None:
         """Cancel all work and wait for the workers (so no job outlives the window)."""
@@ -361,6 +390,15 @@ def _first_size(window: QWidget) -> QSize:
         return size
     free = screen.availableGeometry().size()
     return size.boundedTo(QSize(free.width() - 16, free.height() - 48))
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ringlight")
+    except PackageNotFoundError:
+        return "(not installed)"
 
 
 def _dropped_dataset(mime) -> Path | None:

@@ -82,3 +82,25 @@ def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, windo
         window.cancel_all()
     assert window.loaded is None
     assert window.image_panel.title.toPlainText() == EMPTY_HINT
+
+
+def test_shortcut_sheet_lists_every_menu_shortcut(window):
+    from PySide6.QtGui import QKeySequence
+
+    sheet = "\n".join(window.shortcut_lines())
+    shortcuts = [action.shortcut().toString(QKeySequence.SequenceFormat.NativeText)
+                 for menu in window.menuBar().actions() for action in menu.menu().actions()]
+    shortcuts = [keys for keys in shortcuts if keys]
+    assert len(shortcuts) >= 15
+    for keys in shortcuts:
+        assert keys in sheet
+    assert "Ctrl+O" in sheet and "Export stack as EXR" in sheet
+
+
+def test_truth_panel_zooms_and_pans_with_the_image(qtbot, window, tmp_path):
+    window.truth_panel.show()
+    qtbot.waitUntil(lambda: window.truth_panel.isVisible())
+    window.image_panel.view.setRange(xRange=(2, 5), yRange=(1, 4), padding=0)
+    image, truth = window.image_panel.view.viewRange(), window.truth_panel.view.viewRange()
+    for axis in range(2):  # the same part of the grid in the middle of both panels
+        assert abs(sum(image[axis]) / 2 - sum(truth[axis]) / 2) < 0.05 * (image[axis][1] - image[axis][0])
