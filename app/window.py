@@ -255,6 +255,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
         self.truth_panel.setVisible(loaded.truth is not None)
         height, width = dataset.grid_shape
+        self.image_panel.set_scale_bar(dataset.manifest.pitch_mm, width)
         if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
             self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
             self.hover_label.clear()

@@ -1,5 +1,7 @@
 """The window's controls and readouts always describe the dataset and stack on screen."""
 
+import json
+
 import numpy as np
 import pytest
 from PySide6.QtCore import QSettings
@@ -104,3 +106,20 @@ def test_truth_panel_zooms_and_pans_with_the_image(qtbot, window, tmp_path):
     image, truth = window.image_panel.view.viewRange(), window.truth_panel.view.viewRange()
     for axis in range(2):  # the same part of the grid in the middle of both panels
         assert abs(sum(image[axis]) / 2 - sum(truth[axis]) / 2) < 0.05 * (image[axis][1] - image[axis][0])
+
+
+@pytest.mark.parametrize("target, length", [(0.64, 0.5), (3.2, 2.0), (1.0, 1.0), (7.9, 5.0), (12.0, 10.0)])
+def test_scale_bar_takes_the_round_length_below_a_fifth_of_the_width(target, length):
+    from ringlight.widgets.image_panel import scale_bar_length
+
+    assert scale_bar_length(target) == length
+
+
+def test_scale_bar_shows_millimetres_when_the_pitch_is_known(qtbot, window, tmp_path):
+    folder = make_dataset(tmp_path / "d", 32, 3, seed=7)
+    manifest = json.loads((folder / "dataset.json").read_text())
+    manifest["grid"]["pitch_mm"] = 0.1  # 32 steps = 3.2 mm: a fifth is 0.64 mm, the bar 0.5 mm = 5 steps
+    (folder / "dataset.json").write_text(json.dumps(manifest))
+    open_and_wait(qtbot, window, folder)
+    bar = window.image_panel.scale_bar
+    assert bar.text.toPlainText() == "0.5 mm" and bar.size == pytest.approx(5.0)

@@ -24,6 +24,12 @@ def member_alpha(weights: np.ndarray) -> np.ndarray:
     return np.round(40 + 140 * np.clip(weights, 0, 1)).astype(np.uint8)
 
 
+def scale_bar_length(target: float) -> float:
+    """The round length (1, 2 or 5 times a power of ten) nearest ``target`` from below."""
+    power = 10.0 ** np.floor(np.log10(target))
+    return float(max(step * power for step in (1, 2, 5) if step * power <= target * (1 + 1e-9)))
+
+
 class _PickingViewBox(pg.ViewBox):
     """A ViewBox whose left button picks pixels instead of panning."""
 
@@ -81,6 +87,7 @@ class ImagePanel(pg.GraphicsView):
         self._region_mode = "all"
         self.region_roi: pg.ROI | None = None
         self._overlay = np.zeros((0, 0, 4), np.uint8)
+        self.scale_bar: pg.ScaleBar | None = None
         self.scene().sigMouseMoved.connect(self._on_mouse_moved)
         self.setMinimumSize(240, 240)
 
@@ -90,6 +97,21 @@ class ImagePanel(pg.GraphicsView):
 
     def set_title(self, text: str) -> None:
         self.title.setText(text)
+
+    def set_scale_bar(self, pitch_mm: float | None, grid_width: int) -> None:
+        """Show a scale bar in mm (bottom right) when the grid's ``pitch_mm`` is known, of a
+        round length near a fifth of the grid's width; None removes it."""
+        if self.scale_bar is not None:
+            self.scale_bar.setParentItem(None)
+            self.scene().removeItem(self.scale_bar)
+            self.scale_bar = None
+        if not pitch_mm:
+            return
+        length_mm = scale_bar_length(grid_width * pitch_mm / 5)
+        self.scale_bar = pg.ScaleBar(size=length_mm / pitch_mm, suffix="")
+        self.scale_bar.text.setText(f"{length_mm:g} mm")
+        self.scale_bar.setParentItem(self.view)
+        self.scale_bar.anchor((1, 1), (1, 1), offset=(-12, -12))
 
     def set_pixels(self, pixels: np.ndarray) -> None:
         """Show (H, W, 3) uint8 RGB ``pixels``; a new grid size resets the zoom."""
