@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from PySide6.QtCore import Qt, QTimer, Signal
-from PySide6.QtWidgets import QCheckBox, QHBoxLayout, QLabel, QSlider, QSpinBox, QToolButton, QWidget
+from PySide6.QtWidgets import QCheckBox, QDoubleSpinBox, QHBoxLayout, QLabel, QSlider, QSpinBox, QToolButton, QWidget
 
 
 class ScrubBar(QWidget):
@@ -30,6 +30,12 @@ class ScrubBar(QWidget):
         self.slider.valueChanged.connect(self._on_value_changed)
         self.radius_label = QLabel("r = -")
         self.radius_label.setMinimumWidth(110)
+        self.radius_box = QDoubleSpinBox()
+        self.radius_box.setDecimals(2)
+        self.radius_box.setPrefix("go to r ")
+        self.radius_box.setKeyboardTracking(False)  # act on Enter or focus out, not every keystroke
+        self.radius_box.setToolTip("Type a radius (grid steps): the nearest radius of the stack is shown")
+        self.radius_box.valueChanged.connect(lambda radius: self.set_index(self.nearest_index(radius)))
         self.back_button = QToolButton(text="◀")
         self.back_button.setToolTip("Previous radius ([)")
         self.back_button.clicked.connect(lambda: self.step(-1))
@@ -51,7 +57,7 @@ class ScrubBar(QWidget):
         self.timer.timeout.connect(self._advance)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(4, 2, 4, 2)
-        for widget in (self.radius_label, self.back_button, self.slider, self.forward_button,
+        for widget in (self.radius_label, self.radius_box, self.back_button, self.slider, self.forward_button,
                        self.play_button, self.fps_box, self.loop_box):
             layout.addWidget(widget, 1 if widget is self.slider else 0)
         self.set_radii(np.zeros(0))
@@ -103,6 +109,12 @@ class ScrubBar(QWidget):
 
     def _update_label(self) -> None:
         radius = self.radius()
+        self.radius_box.blockSignals(True)
+        if len(self._radii):
+            self.radius_box.setRange(float(self._radii.min()), float(self._radii.max()))
+        if radius is not None:
+            self.radius_box.setValue(radius)
+        self.radius_box.blockSignals(False)
         self.radius_label.setText("r = -" if radius is None else f"r = {radius:g}  ({self.index() + 1}/{len(self._radii)})")
 
     def _on_play_toggled(self, playing: bool) -> None:
