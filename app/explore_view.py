@@ -11,6 +11,7 @@ import numpy as np
 from ringlight.core import ring_geometry
 from ringlight.core.colour.display import DisplaySettings, display_levels, negative_fraction, render
 from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.colour.regions import region_statistics
 from ringlight.core.rings.profiles import pixel_profile
 
 
@@ -121,7 +122,18 @@ class ExploreView:
         self.image_panel.set_title(self._image_title())
         self.display_controls.show_levels(self._levels, negative_fraction(image))
         self._refresh_truth(settings, colorspace)
+        self.show_region_statistics()
         self.image_shown.emit()
+
+    def show_region_statistics(self) -> None:
+        """Count, mean and std of the shown image over the Layers tab's region (when one is drawn)."""
+        region = self.layer_tab.region
+        if self._shown_image is None or region.shape != self._shown_image.shape[:2] or region.all():
+            self.region_label.setText("")
+            return
+        count, mean, std = region_statistics(self._shown_image, region)
+        self.region_label.setText(f"region: {count} px, mean RGB {' '.join(f'{m:.4g}' for m in mean)}, "
+                                  f"std {' '.join(f'{s:.3g}' for s in std)}")
 
     def _image_title(self) -> str:
         view = self.view()

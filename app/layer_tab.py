@@ -26,6 +26,7 @@ class LayerTab(QObject):
     """Keeps the picked radii and the last analysis; ``analysis_changed`` after each update."""
 
     analysis_changed = Signal()
+    region_changed = Signal()
 
     def __init__(self, panel: LayerPanel, image_panel: ImagePanel, scrub_bar: ScrubBar, exports: JobSlot,
                  parent: QObject | None = None):
@@ -83,6 +84,7 @@ class LayerTab(QObject):
             self.region = np.zeros(self.dataset.grid_shape, bool)
             self.region_description = "empty"
             self.panel.show_message(str(error))
+        self.region_changed.emit()
         self.refresh()
 
     def toggle_pick(self, radius: float | None) -> None:

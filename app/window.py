@@ -136,6 +136,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.hover_label = QLabel()
         self.hover_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.statusBar().addWidget(self.hover_label, 1)
+        self.region_label = QLabel()
+        self.statusBar().addPermanentWidget(self.region_label)
         for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
@@ -214,6 +216,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
         self.stack_controls.request_changed.connect(self.request_stacks)
         self.layer_panel.export_requested.connect(self.choose_layer_export)
+        self.layer_tab.region_changed.connect(self.show_region_statistics)
         self.capture_tab.error.connect(self.show_error)
         self.capture_tab.dataset_ready.connect(self._open_captured)
         self.analysis_tabs.currentChanged.connect(lambda _: self.layer_tab.on_shown())

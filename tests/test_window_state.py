@@ -123,3 +123,16 @@ def test_scale_bar_shows_millimetres_when_the_pitch_is_known(qtbot, window, tmp_
     open_and_wait(qtbot, window, folder)
     bar = window.image_panel.scale_bar
     assert bar.text.toPlainText() == "0.5 mm" and bar.size == pytest.approx(5.0)
+
+
+def test_region_statistics_of_the_shown_image(qtbot, window, tmp_path):
+    from ringlight.core.colour.regions import rectangle_region, region_statistics
+
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=8))
+    window.layer_tab.region = rectangle_region((12, 12), 2, 3, 6, 9)  # rows 2..5, columns 3..8
+    window.show_region_statistics()
+    image = window.current_image()[2:6, 3:9].reshape(-1, 3).astype(np.float64)
+    image = image[np.isfinite(image).all(axis=1)]  # brute force over the rectangle
+    assert f"region: {len(image)} px, mean RGB {' '.join(f'{m:.4g}' for m in image.mean(0))}" in window.region_label.text()
+    count, mean, std = region_statistics(window.current_image(), window.layer_tab.region)
+    np.testing.assert_allclose(std, image.std(0), rtol=1e-9)

@@ -61,3 +61,16 @@ def parse_rectangle(text: str) -> tuple[int, int, int, int]:
     if len(values) != 4:
         raise RegionError(f"region {text!r} must be Y0,X0,Y1,X1 (integers, end exclusive), e.g. 4,4,20,20")
     return values
+
+
+def region_statistics(image: np.ndarray, region: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """Count, mean and standard deviation of an (H, W, 3) image over an (H, W) bool region.
+
+    Pixels with a NaN channel (undefined) are left out. Returns ``(count, mean (3,), std (3,))``;
+    mean and std are NaN when no pixel counts.
+    """
+    values = np.asarray(image, np.float64)[np.asarray(region, bool)]
+    values = values[np.isfinite(values).all(axis=1)]
+    if not len(values):
+        return 0, np.full(3, np.nan), np.full(3, np.nan)
+    return len(values), values.mean(axis=0), values.std(axis=0)
