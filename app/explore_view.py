@@ -121,9 +121,18 @@ class ExploreView:
         self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
         self.image_panel.set_title(self._image_title())
         self.display_controls.show_levels(self._levels, negative_fraction(image))
+        self.levels_histogram.set_image(image * np.float32(2.0 ** settings.exposure_stops), self._levels)
         self._refresh_truth(settings, colorspace)
         self.show_region_statistics()
         self.image_shown.emit()
+
+    def set_manual_levels(self, low: float, high: float) -> None:
+        """Switch to manual levels ``(low, high)`` (linear values after exposure), as dragged."""
+        if high <= low:
+            return
+        settings = self.display_settings().with_changes(normalisation="manual", manual_levels=(low, high))
+        self.display_controls.set_settings(settings)
+        self._refresh_image()
 
     def show_region_statistics(self) -> None:
         """Count, mean and std of the shown image over the Layers tab's region (when one is drawn)."""

@@ -33,6 +33,7 @@ from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.job_indicator import JobIndicator
 from ringlight.widgets.jobs import JobSlot
 from ringlight.widgets.layer_panel import LayerPanel
+from ringlight.widgets.levels_histogram import LevelsHistogram
 from ringlight.widgets.profile_plot import ProfilePlot
 from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
@@ -129,7 +130,14 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.analysis_tabs = QTabWidget()
         self.analysis_tabs.addTab(self.profile_plot, "Profiles")
         self.analysis_tabs.addTab(self.layer_panel, "Layers")
-        self.display_dock = self._dock("Display", self.display_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.levels_histogram = LevelsHistogram()
+        self.levels_histogram.setToolTip("Values of the shown image; drag the region's edges to set manual levels")
+        display = QWidget()
+        display_layout = QVBoxLayout(display)
+        display_layout.setContentsMargins(0, 0, 0, 0)
+        display_layout.addWidget(self.display_controls)
+        display_layout.addWidget(self.levels_histogram)
+        self.display_dock = self._dock("Display", display, Qt.DockWidgetArea.LeftDockWidgetArea)
         self.stack_dock = self._dock("Stack", self.stack_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
         self.profile_dock = self._dock("Analysis", self.analysis_tabs, Qt.DockWidgetArea.RightDockWidgetArea)
 
@@ -217,6 +225,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self.stack_controls.request_changed.connect(self.request_stacks)
         self.layer_panel.export_requested.connect(self.choose_layer_export)
         self.layer_tab.region_changed.connect(self.show_region_statistics)
+        self.levels_histogram.levels_dragged.connect(self.set_manual_levels)
         self.capture_tab.error.connect(self.show_error)
         self.capture_tab.dataset_ready.connect(self._open_captured)
         self.analysis_tabs.currentChanged.connect(lambda _: self.layer_tab.on_shown())

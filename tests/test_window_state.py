@@ -136,3 +136,22 @@ def test_region_statistics_of_the_shown_image(qtbot, window, tmp_path):
     assert f"region: {len(image)} px, mean RGB {' '.join(f'{m:.4g}' for m in image.mean(0))}" in window.region_label.text()
     count, mean, std = region_statistics(window.current_image(), window.layer_tab.region)
     np.testing.assert_allclose(std, image.std(0), rtol=1e-9)
+
+
+def test_dragging_the_levels_histogram_sets_manual_levels(qtbot, window, tmp_path):
+    from ringlight.core.colour.display import render
+    from ringlight.widgets.levels_histogram import value_histogram
+
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=9))
+    image = window.current_image()
+    edges, counts = value_histogram(image)
+    assert counts.sum() == np.isfinite(image).sum()  # every finite channel value is counted
+    low, high = float(edges[10]), float(edges[90])
+    region = window.levels_histogram.region
+    region.setRegion((low, high))
+    region.sigRegionChangeFinished.emit(region)  # the end of a drag
+    settings = window.display_settings()
+    assert settings.normalisation == "manual"
+    np.testing.assert_allclose(settings.manual_levels, (low, high), rtol=1e-5)
+    expected = render(image, settings.manual_levels, settings, window.loaded.dataset.colorspace)
+    np.testing.assert_array_equal(window.image_panel.pixels(), expected)

@@ -29,10 +29,10 @@ class ScrubBar(QWidget):
         self.slider.setToolTip("Ring radius: arrows step, PgUp/PgDn jump 5, [ and ] anywhere")
         self.slider.valueChanged.connect(self._on_value_changed)
         self.radius_label = QLabel("r = -")
-        self.radius_label.setMinimumWidth(110)
+        self.radius_label.setMinimumWidth(90)
         self.radius_box = QDoubleSpinBox()
         self.radius_box.setDecimals(2)
-        self.radius_box.setPrefix("go to r ")
+        self.radius_box.setMaximumWidth(90)
         self.radius_box.setKeyboardTracking(False)  # act on Enter or focus out, not every keystroke
         self.radius_box.setToolTip("Type a radius (grid steps): the nearest radius of the stack is shown")
         self.radius_box.valueChanged.connect(lambda radius: self.set_index(self.nearest_index(radius)))
