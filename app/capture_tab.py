@@ -7,7 +7,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QThreadPool, Signal
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.capture.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.scan import Scan, ScanError, estimate_disk, format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     measure_correspondence,
@@ -87,7 +87,7 @@ class CaptureTab(QObject):
             else:
                 needed, free = estimate_disk(self.planned.plan, self.planned.mapping.shape[:2], Path(out))
                 if needed > free:
-                    raise ScanError(f"{out}: the scan needs about {needed / 2**20:.0f} MiB, {free / 2**20:.0f} MiB free")
+                    raise ScanError(f"{out}: the scan needs about {format_bytes(needed)}, {format_bytes(free)} free")
                 scan = Scan(out, self.planned.plan, self.planned.mapping, camera_notes(self.camera))
         except ScanError as problem:
             self.error.emit("Capture", str(problem))
@@ -158,8 +158,8 @@ class CaptureTab(QObject):
             wizard.plan_label.setText(
                 f"{grid[0]} x {grid[1]} grid, lattice spacing {plan.spacing}: {len(plan.frames())} frames instead of "
                 f"{grid[0] * grid[1]}. Exposures {', '.join(f'{e:.3g}' for e in plan.exposures)} s. About "
-                f"{plan.estimated_seconds(settle=self.projector.settle_time):.0f} s and {needed / 2**20:.1f} MiB "
-                f"({free / 2**30:.1f} GiB free).")
+                f"{plan.estimated_seconds(settle=self.projector.settle_time):.0f} s and {format_bytes(needed)} "
+                f"({format_bytes(free)} free).")
             wizard.probe_label.setText(
                 f"Brightest impulse {result.exposure.peak_rate:.3g} counts/s, faint light {result.exposure.faint_rate:.3g} "
                 f"counts/s: {len(plan.exposures)} brackets.")

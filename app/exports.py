@@ -29,7 +29,7 @@ def png_work(pixels: np.ndarray, path: Path):
     pixels = pixels.copy()
 
     def work(progress):
-        write_png(path, pixels)
+        write_png(path, pixels, overwrite=True)  # the save dialog asked the user
         progress(1.0)
         return path
     return work
@@ -44,7 +44,7 @@ def movie_work(stack: Stack, settings: DisplaySettings, fps: float, path: Path):
         labels = [f"{symbol}_r  r = {radius:g}{step}" for radius in stack.radii]
         return write_movie(
             path, lambda index: render(stack.images[index], levels[index], settings, stack.colorspace),
-            labels, fps, progress,
+            labels, fps, progress, overwrite=True,  # the save dialog asked the user
         )
     return work
 
@@ -52,7 +52,7 @@ def movie_work(stack: Stack, settings: DisplaySettings, fps: float, path: Path):
 def csv_work(profile: PixelProfile, path: Path):
     """Write the picked pixel's profiles as CSV."""
     def work(progress):
-        write_text(path, profile_csv(profile))
+        write_text(path, profile_csv(profile), overwrite=True)
         progress(1.0)
         return path
     return work

@@ -8,7 +8,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ringlight.core.atomic import atomic_file
+from ringlight.core import RinglightError
+from ringlight.core.atomic import atomic_file, check_output_file
 
 APPLICATION = "ringlight"
 
@@ -30,7 +31,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         pick = parse_pick(args.pick)
     except ValueError as error:
         parser.error(str(error))
-    if (args.radius is not None or pick is not None) and not args.screenshot:
+    if (args.radius is not None or pick is not None or args.overwrite) and not args.screenshot:
         parser.error("--radius and --pick go with --screenshot")
     if args.screenshot and not os.environ.get("QT_QPA_PLATFORM"):
         os.environ["QT_QPA_PLATFORM"] = "offscreen"
@@ -44,7 +45,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     app.setOrganizationName(APPLICATION)
     app.setApplicationName(APPLICATION)
     if args.screenshot:
-        return take_screenshot(args.dataset, Path(args.screenshot), args.radius, pick)
+        return take_screenshot(args.dataset, Path(args.screenshot), args.radius, pick, args.overwrite)
     window = MainWindow(QSettings())
     window.show()
     window.open_dataset(args.dataset)
@@ -53,10 +54,17 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     return status
 
 
-def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: tuple[int, int] | None) -> int:
+def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: tuple[int, int] | None,
+                    overwrite: bool = False) -> int:
     """Open ``dataset`` (None: the demo) in a fresh window with default settings, show
     ``radius`` and ``pick``, save the window as PNG to ``out`` and return an exit status."""
     from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
+
+    try:
+        check_output_file(out, overwrite)  # before any window: an existing file is not replaced
+    except RinglightError as error:
+        print(f"ringlight: error: {error}", file=sys.stderr)
+        return 2
 
     from .window import MainWindow
 
@@ -84,7 +92,7 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
                 window.set_radius(radius)
             QCoreApplication.processEvents()  # pending layout (panels shown on load) before the grab
             pixmap = window.grab()
-            with atomic_file(out) as temporary:
+            with atomic_file(out, overwrite=overwrite) as temporary:
                 if not pixmap.save(str(temporary), "PNG"):
                     print(f"ringlight: error: {out}: could not write the PNG", file=sys.stderr)
                     return 2

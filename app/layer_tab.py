@@ -165,7 +165,7 @@ class LayerTab(QObject):
             diagram.setRange(xRange=shown[0], yRange=shown[1], padding=0)
 
             def work(progress):
-                with atomic_file(path) as temporary:
+                with atomic_file(path, overwrite=True) as temporary:  # the save dialog asked
                     if not image.save(str(temporary), "PNG"):
                         raise ExportError(f"{path}: could not write the PNG")
                 progress(1.0)
@@ -177,7 +177,7 @@ class LayerTab(QObject):
             text = analysis_json(self.analysis, str(self.dataset.path)) if kind == "json" else analysis_csv(self.analysis)
 
             def work(progress):
-                write_text(path, text)
+                write_text(path, text, overwrite=True)
                 progress(1.0)
                 return path
         self.exports.start(f"Writing {path.name}", work)

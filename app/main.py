@@ -37,6 +37,7 @@ def build_window_parser() -> argparse.ArgumentParser:
     parser.add_argument("--screenshot", metavar="FILE.png", help="render the window offscreen to FILE.png and exit")
     parser.add_argument("--radius", type=float, default=None, help="with --screenshot: radius to show (grid steps)")
     parser.add_argument("--pick", default=None, metavar="Y,X", help="with --screenshot: pixel to pick")
+    parser.add_argument("--overwrite", action="store_true", help="with --screenshot: replace an existing FILE.png")
     return parser
 
 

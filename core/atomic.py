@@ -1,67 +1,380 @@
-"""Atomic creation of output folders: build beside the target, then rename into place."""
+"""Writing outputs without ever destroying user data: the one rule every writer follows.
+
+**An output may replace only files ringlight itself wrote there, and never deletes anything else.**
+
+Single files (PNG, MP4, CSV, JSON), :func:`atomic_file`
+    Written to a hidden ``.NAME.partial-HEX.EXT`` beside the target and published by one rename.
+    A target that exists (a file, or a link, even a dangling one) is refused unless the caller
+    passes ``overwrite=True``: the window does after its save dialog asked the user, the command
+    line does only with ``--force``. Without ``overwrite`` the file is published with a hard link,
+    which fails if the name appeared meanwhile, so nothing is ever replaced by a race.
+
+Folders (stack exports, datasets), :func:`output_folder`
+    A folder output has a manifest that names its files (``stack.json`` its images,
+    ``dataset.json`` its frames); the writer's ``owner`` function reads it. The new folder is
+    built in a hidden ``.NAME.partial-HEX`` beside the target, then
+
+    - an absent or empty target: the new folder is renamed into place (one rename);
+    - a target holding an earlier output of the same kind, and nothing but the files its manifest
+      names, ringlight's own subfolders (``.ringlight-cache``, ``.scan``) and ringlight's hidden
+      temporaries: the old folder is renamed aside, checked again (a file dropped in since the
+      first check sends it back, untouched), the new one renamed in, and the old one deleted;
+    - a target holding anything else (a ``thesis.tex``, an empty subfolder): refused with one line
+      naming the folder and one such file; nothing is deleted, moved or merged. Refusing, rather
+      than swapping only ringlight's files in, keeps every output whole (one rename publishes it)
+      and leaves the user's files exactly where they were;
+    - the current folder, a folder holding it, or a mount point: refused (a mount point cannot be
+      renamed, and renaming the current folder would pull it from under the user's shell);
+    - a symbolic link: the folder it points to is the target; a dangling link is refused.
+
+Ringlight's private folders (the dataset cache) use :func:`atomic_folder`: the same mechanics, with
+every file inside counted as ringlight's and a link in the folder's place removed, not followed.
+
+Every error names the user's path, never a hidden temporary. A process killed outright leaves at
+most a hidden ``.NAME.partial-HEX`` (an unfinished new output) and, if killed between the two
+renames of a replacement, the previous output complete in a hidden ``.NAME.old-HEX``.
+"""
 
 from __future__ import annotations
 
+import errno
+import fnmatch
 import os
+import re
 import secrets
 import shutil
-import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+
+from .errors import RinglightError
+
+_TEMPORARY = re.compile(r"\..+\.(partial|old)-[0-9a-f]{12}(\.[^/]*)?")
+"""Names of this module's hidden temporaries (``.NAME.partial-HEX[.EXT]``, ``.NAME.old-HEX``)."""
+
+
+class OutputError(RinglightError):
+    """An output cannot be written where it was asked for (the message says why and what to do)."""
+
+
+@dataclass(frozen=True)
+class Owned:
+    """What ringlight wrote in an output folder.
+
+    Attributes
+    ----------
+    files
+        Relative POSIX paths of the files (and folders) ringlight made; the folders leading to
+        them count as ringlight's too, if all they hold is.
+    trees
+        :mod:`fnmatch` patterns of relative folder paths whose whole content is ringlight's
+        (``".ringlight-cache"``).
+    """
+
+    files: frozenset[str] = frozenset()
+    trees: tuple[str, ...] = ()
+
+    def leads_to(self, relative: str) -> bool:
+        """True when ``relative`` is a folder on the way to one of :attr:`files`."""
+        return any(name.startswith(relative + "/") for name in self.files)
+
+
+OwnerOf = Callable[[Path], "Owned | None"]
+"""Reads an existing folder's manifest: what ringlight wrote there, or None when the folder is
+not an output of this kind."""
+
+EVERYTHING = Owned(trees=("*",))
+"""For ringlight's private folders: every entry is ringlight's."""
+
+
+def is_temporary(name: str) -> bool:
+    """True for the names of this module's hidden temporaries (``.NAME.partial-HEX[.EXT]``)."""
+    return _TEMPORARY.fullmatch(name) is not None
+
+
+def foreign_entry(folder: Path, owned: Owned) -> str | None:
+    """The relative path of one entry of ``folder`` that ringlight did not write, or None.
+
+    A folder named in ``owned.files`` or leading to one is walked: what it holds must be
+    ringlight's too. Links are never followed (a link is an entry like a file); the walk stops at
+    the first foreign entry, so a huge folder costs little.
+    """
+    def walk(directory: Path, prefix: str) -> str | None:
+        with os.scandir(directory) as entries:
+            for entry in sorted(entries, key=lambda entry: entry.name):
+                relative = prefix + entry.name
+                if is_temporary(entry.name) or any(fnmatch.fnmatchcase(relative, tree) for tree in owned.trees):
+                    continue
+                if entry.is_dir(follow_symlinks=False):
+                    if relative in owned.files or owned.leads_to(relative):
+                        found = walk(Path(entry.path), relative + "/")
+                        if found is None:
+                            continue
+                        return found
+                elif relative in owned.files:
+                    continue
+                return relative
+        return None
+    return walk(folder, "")
+
+
+@dataclass(frozen=True)
+class _Target:
+    shown: Path
+    """The path as the user gave it: every message names this."""
+    real: Path
+    """Absolute, links resolved: every operation uses this."""
+
+
+def _target(path: str | os.PathLike) -> _Target:
+    shown = Path(path)
+    absolute = Path(os.path.abspath(shown))  # "." and ".." become names that can be renamed
+    if absolute.is_symlink() and not absolute.exists():
+        raise OutputError(f"{shown}: is a symbolic link to {os.readlink(absolute)}, which does not exist; "
+                          "create that folder or give another path")
+    return _Target(shown, Path(os.path.realpath(absolute)))
+
+
+def _holds_current_folder(folder: Path) -> bool:
+    try:
+        current = Path(os.path.realpath(os.getcwd()))
+    except OSError:  # the current folder was deleted
+        return False
+    return current == folder or folder in current.parents
+
+
+def _check(target: _Target, owner: OwnerOf, kind: str, replace: bool) -> bool:
+    """Raise OutputError unless ``target`` may receive the output; True when it exists."""
+    real, shown = target.real, target.shown
+    try:
+        if not real.exists():
+            return False
+        if not real.is_dir():
+            raise OutputError(f"{shown}: exists and is not a folder; refusing to overwrite it")
+        if _holds_current_folder(real):
+            raise OutputError(f"{shown}: is the current folder (or holds it); ringlight publishes a {kind} "
+                              f"by renaming a new folder into place, so write it to a new folder, e.g. "
+                              f"{shown / kind}")
+        if os.path.ismount(real):
+            raise OutputError(f"{shown}: is a mount point, which cannot be replaced; "
+                              f"write to a folder inside it, e.g. {shown / kind}")
+        owned = owner(real)
+        if owned is None:
+            foreign = foreign_entry(real, Owned())
+            if foreign is not None:
+                raise OutputError(f"{shown}: exists and is not a ringlight {kind} folder (it holds {foreign}); "
+                                  "refusing to overwrite it: choose another folder")
+            return True
+        if not replace:
+            raise OutputError(f"{shown}: already holds a {kind}; refusing to overwrite it "
+                              "(pass overwrite, --overwrite on the command line, to replace it)")
+        foreign = foreign_entry(real, owned)
+        if foreign is not None:
+            raise OutputError(f"{shown}: holds {foreign}, which ringlight did not write; refusing to "
+                              f"overwrite the {kind}: move that file away or choose another folder")
+    except OSError as error:
+        raise _named(error, shown) from error
+    return True
+
+
+def check_output_folder(path: str | os.PathLike, owner: OwnerOf, kind: str, replace: bool = True) -> None:
+    """Raise :class:`OutputError` unless :func:`output_folder` may write ``path``.
+
+    Writers call this before long work, so that a refusal comes before minutes of computing.
+    """
+    _check(_target(path), owner, kind, replace)
+
+
+@contextmanager
+def output_folder(path: str | os.PathLike, owner: OwnerOf, kind: str, replace: bool = True) -> Iterator[Path]:
+    """Yield a staging folder; on a clean exit it becomes ``path`` under the module's rule.
+
+    Parameters
+    ----------
+    path
+        The output folder as the user gave it.
+    owner
+        Reads an existing folder's manifest (see :data:`OwnerOf`).
+    kind
+        What the output is, for messages: ``"stack"``, ``"dataset"``.
+    replace
+        Whether an earlier output of this kind may be replaced (``False``: only an absent or
+        empty folder is written).
+
+    On any exception (KeyboardInterrupt included) the staging folder is removed and ``path`` is
+    untouched; an OSError about the staging folder is raised as :class:`OutputError` naming
+    ``path``.
+    """
+    target = _target(path)
+    _check(target, owner, kind, replace)
+    staging = target.real.parent / f".{target.real.name}.partial-{secrets.token_hex(6)}"
+    try:
+        target.real.parent.mkdir(parents=True, exist_ok=True)
+        # mkdir, not mkdtemp: the folder gets the user's usual permissions, not 0700.
+        staging.mkdir()
+    except OSError as error:
+        raise _named(error, target.shown) from error
+    try:
+        try:
+            yield staging
+        except BaseException as error:
+            raise _renamed(error, staging, target.shown)
+        _publish(staging, target, owner, kind, replace)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 @contextmanager
 def atomic_folder(final: str | os.PathLike) -> Iterator[Path]:
-    """Yield a staging folder beside ``final``; on a clean exit it replaces ``final``.
+    """:func:`output_folder` for ringlight's private folders (the cache): all inside is ours.
 
-    On any exception (KeyboardInterrupt included) the staging folder is removed and ``final`` is
-    untouched. A process killed outright leaves only a hidden ``.NAME.partial-*`` folder, never a
-    half-written ``final``. Callers decide beforehand whether replacing ``final`` is allowed.
+    A link planted under the private name is removed, never followed: the folder it points to
+    is not ringlight's.
     """
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    # mkdir, not mkdtemp: the folder gets the user's usual permissions, not 0700.
-    staging = final.parent / f".{final.name}.partial-{secrets.token_hex(6)}"
-    staging.mkdir()
-    try:
-        yield staging
-        replace_folder(staging, final)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-
-
-def replace_folder(new: Path, final: Path) -> None:
-    """Move folder ``new`` to ``final``, replacing any folder there; ``final`` is never partial."""
-    if final.exists():
-        trash = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
-        os.rename(final, trash / final.name)
+    link = Path(os.path.abspath(final))
+    if link.is_symlink():
         try:
-            os.rename(new, final)
+            link.unlink()
+        except OSError as error:
+            raise _named(error, Path(final)) from error
+    with output_folder(final, lambda folder: EVERYTHING, "cache") as staging:
+        yield staging
+
+
+def _publish(staging: Path, target: _Target, owner: OwnerOf, kind: str, replace: bool) -> None:
+    real, shown = target.real, target.shown
+    try:
+        if not _check(target, owner, kind, replace) or not any(real.iterdir()):
+            os.rename(staging, real)  # onto an absent name or an empty folder: one atomic step
+            return
+        trash = real.parent / f".{real.name}.old-{secrets.token_hex(6)}"
+        os.rename(real, trash)
+        owned = owner(trash)
+        foreign = foreign_entry(trash, owned if owned is not None else Owned())
+        if foreign is not None:  # dropped in since the first check: put everything back
+            os.rename(trash, real)
+            raise OutputError(f"{shown}: {foreign} appeared while the {kind} was written; refusing to "
+                              "overwrite the folder: move that file away and write again")
+        try:
+            os.rename(staging, real)
         except OSError:
-            os.rename(trash / final.name, final)
+            os.rename(trash, real)
             raise
-        finally:
-            shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.rename(new, final)
+        shutil.rmtree(trash, ignore_errors=True)
+    except OSError as error:
+        if error.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            raise OutputError(f"{shown}: files appeared in it while the {kind} was written; "
+                              "nothing was overwritten: write again") from error
+        raise _named(error, shown) from error
 
 
 @contextmanager
-def atomic_file(final: str | os.PathLike) -> Iterator[Path]:
+def atomic_file(final: str | os.PathLike, *, overwrite: bool = False, make_parents: bool = True,
+                durable: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``final`` (same suffix, so writers that pick a format by
-    extension still work); on a clean exit it replaces ``final`` in one rename.
+    extension still work); on a clean exit it becomes ``final`` in one step.
 
-    On any exception the temporary file is removed and ``final`` is untouched.
+    Parameters
+    ----------
+    final
+        The file to write.
+    overwrite
+        Replace an existing ``final``; without it an existing name raises :class:`OutputError`,
+        before anything is written.
+    make_parents
+        Create missing folders above ``final`` (``False``: a missing folder is an error, so that
+        a folder deleted meanwhile is not silently made again).
+    durable
+        Flush the file and its folder to the disk before returning (survives a power cut).
+
+    On any exception the temporary file is removed and ``final`` is untouched; an OSError about
+    the temporary is raised as :class:`OutputError` naming ``final``.
     """
     final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
+    check_output_file(final, overwrite)
     # A fresh name, not a mkstemp file: the writer creates it with the user's usual permissions.
     temporary = final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
     try:
-        yield temporary
-        os.replace(temporary, final)
-    except BaseException:
+        if make_parents:
+            try:
+                final.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise _named(error, final) from error
+        try:
+            yield temporary
+        except BaseException as error:
+            raise _renamed(error, temporary, final)
+        try:
+            if durable:
+                fsync_path(temporary)
+            _publish_file(temporary, final, overwrite)
+            if durable:
+                fsync_path(final.parent)
+        except OSError as error:
+            raise _named(error, final) from error
+    finally:
         temporary.unlink(missing_ok=True)
-        raise
+
+
+def check_output_file(final: str | os.PathLike, overwrite: bool = False) -> None:
+    """Raise :class:`OutputError` unless :func:`atomic_file` may write ``final`` (call it before
+    long work, so that a refusal comes first)."""
+    final = Path(final)
+    if final.is_dir():
+        raise OutputError(f"{final}: is a folder; give a file name")
+    if os.path.lexists(final) and not overwrite:
+        raise OutputError(f"{final}: already exists; refusing to overwrite it "
+                          "(choose another name, or allow overwriting: --force on the command line)")
+
+
+def _publish_file(temporary: Path, final: Path, overwrite: bool) -> None:
+    if overwrite:
+        os.replace(temporary, final)
+        return
+    try:
+        os.link(temporary, final)  # fails if the name exists: never replaces a file created meanwhile
+    except FileExistsError:
+        raise OutputError(f"{final}: appeared while it was written; refusing to overwrite it") from None
+    except OSError as error:
+        if error.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK, errno.EXDEV):
+            raise
+        check_output_file(final, overwrite)  # a file system without hard links: check, then rename
+        os.replace(temporary, final)
+
+
+def fsync_path(path: Path) -> None:
+    """Flush a file's data, or a folder's entries, to the disk."""
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def _named(error: OSError, shown: Path) -> OutputError:
+    """An OSError as one line naming the user's path (its file names may be hidden temporaries)."""
+    reason = error.strerror or str(error)
+    if error.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        reason += " (the folder is read-only for you)"
+    return OutputError(f"{shown}: cannot write here: {reason}")
+
+
+def _renamed(error: BaseException, temporary: Path, shown: Path) -> BaseException:
+    """``error`` raised inside a staging block, with the hidden temporary's name replaced by the
+    user's: OSError and library errors that name it become OutputError, ringlight's own errors
+    keep their type; anything else is returned unchanged."""
+    if isinstance(error, OSError) and _names(error, temporary):
+        named = _named(error, shown)
+    elif isinstance(error, (RinglightError, RuntimeError)) and str(temporary) in str(error):
+        message = str(error).replace(str(temporary), str(shown))
+        # The OpenEXR library reports a failed write (disk full) as RuntimeError.
+        named = OutputError(message) if isinstance(error, RuntimeError) else type(error)(message)
+    else:
+        return error
+    named.__cause__ = error
+    return named
+
+
+def _names(error: OSError, temporary: Path) -> bool:
+    return any(str(name).startswith(str(temporary)) for name in (error.filename, error.filename2) if name)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import reprlib
 import stat
 from pathlib import Path
@@ -21,7 +22,11 @@ MAX_INT_DIGITS = 30
 """Longest integer literal accepted; Python would otherwise spend quadratic time on huge ones."""
 MAX_NAME_BYTES = 255
 """Longest file-name component (bytes, UTF-8) on the file systems ringlight writes to."""
+MAX_PATH_BYTES = 1024
+"""Longest relative path (bytes, UTF-8) a document may name: with the dataset folder's own path it
+stays under the 4096 bytes Linux allows a whole path."""
 
+_LONG_DIGIT_RUN = re.compile(rf"[0-9]{{{MAX_INT_DIGITS + 1}}}")
 _SHORT = reprlib.Repr()
 _SHORT.maxstring = 60
 _SHORT.maxother = 60
@@ -61,9 +66,12 @@ def read_json(path: str | os.PathLike, error: type[Exception], what: str = "JSON
             if info.st_size > max_bytes:
                 raise error(f"{path}: the {what} is {info.st_size / 2**20:.0f} MiB, over the "
                             f"{max_bytes / 2**20:.0f} MiB a {what} may have")
-            data = handle.read(max_bytes + 1)
+            # Sized by the file, not the limit: read(n) allocates n bytes before reading.
+            data = handle.read(min(info.st_size, max_bytes) + 1)
     except FileNotFoundError:
         raise error(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise error(f"{path}: the {what} is not a regular file") from None
     except OSError as problem:
         raise error(f"{path}: the {what} cannot be read ({problem.strerror or problem})") from None
     if len(data) > max_bytes:
@@ -72,8 +80,11 @@ def read_json(path: str | os.PathLike, error: type[Exception], what: str = "JSON
         text = data.decode("utf-8")
     except UnicodeDecodeError as problem:
         raise error(f"{path}: the {what} is not UTF-8 text (byte {problem.start})") from None
+    # The bounded integer hook costs a Python call per integer; it is only needed when the text
+    # holds a run of digits long enough to be a refused literal (in a string or not).
+    parse_int = _bounded_int if _LONG_DIGIT_RUN.search(text) else None
     try:
-        return json.loads(text, parse_int=_bounded_int, parse_constant=_no_constant)
+        return json.loads(text, parse_int=parse_int, parse_constant=_no_constant)
     except json.JSONDecodeError as problem:
         raise error(f"{path}: invalid JSON at line {problem.lineno}: {problem.msg}") from None
     except RecursionError:
@@ -117,8 +128,15 @@ class Validator:
         return value
 
     def string(self, value: object, key: str) -> str:
+        """A string of valid Unicode (JSON's ``\\ud800`` escapes can make lone surrogates, which
+        no file name, terminal or file can hold)."""
         if not isinstance(value, str):
             raise self.fail(key, "a string", value)
+        if not value.isascii():
+            try:
+                value.encode("utf-8")
+            except UnicodeEncodeError:
+                raise self.fail(key, "a string of valid Unicode", value) from None
         return value
 
     def number(self, value: object, key: str) -> float:
@@ -145,8 +163,11 @@ class Validator:
 
     def relative_file(self, value: object, key: str) -> str:
         """A '/'-separated relative path that stays inside the document's folder, with a name
-        every file system can hold (no NUL, valid Unicode, components of at most 255 bytes)."""
-        name = self.string(value, key)
+        every file system can hold (no NUL, valid Unicode, components of at most
+        :data:`MAX_NAME_BYTES` and the whole of at most :data:`MAX_PATH_BYTES` bytes)."""
+        if not isinstance(value, str):
+            raise self.fail(key, "a string", value)
+        name = value
         parts = name.split("/")
         if not name or name.startswith("/") or ".." in parts or "\\" in name:
             raise self.fail(key, "a relative path inside the dataset folder (with '/')", value)
@@ -158,4 +179,6 @@ class Validator:
             raise self.fail(key, "a file name in valid Unicode", value) from None
         if max(map(len, encoded)) > MAX_NAME_BYTES:
             raise self.fail(key, f"a file name of at most {MAX_NAME_BYTES} bytes per folder level", value)
+        if sum(map(len, encoded)) + len(encoded) - 1 > MAX_PATH_BYTES:
+            raise self.fail(key, f"a path of at most {MAX_PATH_BYTES} bytes", value)
         return name

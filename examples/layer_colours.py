@@ -21,12 +21,14 @@ else:
     source = Path(tempfile.mkdtemp(prefix="ringlight-example-")) / "layers3"
     write_transport(simulate_transport(load_scene("layers3", size=(16, 16)), photons=400, seed=1), source)
 dataset = open_dataset(source)
+print(f"dataset {source}")
 height, width = dataset.grid_shape
 region = rectangle_region(dataset.grid_shape, 2, 2, height - 2, width - 2)  # y0, x0, y1, x1 (end exclusive)
 analysis = analyse_layers(dataset, region, "centre", radii=[1.0, 3.0, 5.0], method="paper")
 result = analysis.result
 for index, layer in enumerate(result.layers):
     line = f"layer {index + 1} r {layer.radius:g} xy {layer.xy[0]:.4f} {layer.xy[1]:.4f}"
-    if result.errors is not None and index < len(result.errors):
-        line += f" truth {analysis.truth_names[index]} error {result.errors[index]:.4f}"
+    if result.truth_xy is not None and index < len(result.truth_xy):  # presets carry their true layers
+        true_x, true_y = result.truth_xy[index]
+        line += f" truth {analysis.truth_names[index]} xy {true_x:.4f} {true_y:.4f} error {result.errors[index]:.4f}"
     print(line)

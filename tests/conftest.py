@@ -1,8 +1,8 @@
 """Test setup: offscreen Qt, private cache and settings folders, and a guard against leaks.
 
 The leak guard (napari's and silx's habit) fails a test that leaves behind a top-level widget,
-an active QTimer, a running QThreadPool job or a Python thread. Tests that never touch Qt do not
-import it.
+an active QTimer, a running QThreadPool job or a Python thread. Qt is inspected only once a
+test module has imported it, so tests that never touch Qt do not import it.
 """
 
 import gc
@@ -29,77 +29,119 @@ def private_cache(tmp_path_factory, monkeypatch):
 
 @pytest.fixture(autouse=True, scope="session")
 def private_settings(tmp_path_factory):
-    """QSettings of every scope and format live in a temporary folder, never the user's."""
+    """The folder that holds every QSettings the tests create without naming a file."""
     folder = tmp_path_factory.mktemp("qt-settings")
-    os.environ["XDG_CONFIG_HOME"] = str(folder)  # where Qt on Linux keeps native settings
-    yield folder
+    os.environ["XDG_CONFIG_HOME"] = str(folder)  # Qt on Linux, and subprocesses, read it
+    return folder
+
+
+@pytest.fixture(autouse=True)
+def settings_in_private_folder(private_settings):
+    """Redirect QSettings of both scopes to the private folder once Qt is loaded.
+
+    Setting the environment alone misses macOS and Windows, whose native settings are not
+    files, so the default format becomes INI there too.
+    """
+    if "PySide6.QtCore" in sys.modules:
+        from PySide6.QtCore import QSettings
+
+        QSettings.setDefaultFormat(QSettings.Format.IniFormat)
+        for scope in QSettings.Scope.UserScope, QSettings.Scope.SystemScope:
+            QSettings.setPath(QSettings.Format.IniFormat, scope, str(private_settings))
+
+
+def _threads() -> set:
+    """Python threads now, except the dummies Python makes for foreign (Qt pool) threads.
+
+    Those are covered by the pool check, and a dummy can be neither joined nor retired.
+    """
+    return {thread for thread in threading.enumerate() if not isinstance(thread, threading._DummyThread)}
 
 
 def _qt_state():
-    """Top-level widgets and active QTimers now, or None when Qt is not loaded."""
+    """Top-level widgets, active QTimers and busy QThreadPools by id, or None before Qt runs.
+
+    Timers are found both among the children of the application and of each window (also those
+    made in C++) and among all Python-made Qt objects (also timers without a parent).
+    """
     if "PySide6.QtWidgets" not in sys.modules:
         return None
-    from PySide6.QtCore import QCoreApplication, QEvent, QThreadPool, QTimer
+    from PySide6.QtCore import QThreadPool, QTimer
     from PySide6.QtWidgets import QApplication
+    from shiboken6 import Shiboken
 
     app = QApplication.instance()
     if app is None:
         return None
-    QThreadPool.globalInstance().waitForDone(int(GRACE_S * 1000))
-    for _ in range(3):
+    widgets = app.topLevelWidgets()
+    wrapped = Shiboken.getAllValidWrappers()
+    timers = [*app.findChildren(QTimer), *[t for w in widgets for t in w.findChildren(QTimer)],
+              *[t for t in wrapped if isinstance(t, QTimer)]]
+    pools = [QThreadPool.globalInstance(), *[p for p in wrapped if isinstance(p, QThreadPool)]]
+    return ({id(w): w for w in widgets}, {id(t): t for t in timers if t.isActive()},
+            {id(p): p for p in pools if p.activeThreadCount() > 0})
+
+
+def _settle_qt(deadline: float):
+    """Let pool jobs finish, deferred deletes happen and single-shot timers fire until ``deadline``.
+
+    Returns the state of :func:`_qt_state` then, or None while there is no QApplication.
+    """
+    from PySide6.QtCore import QCoreApplication, QEvent
+
+    while QCoreApplication.instance() is not None:
         QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
-        app.processEvents()
-    widgets = {id(w): w for w in app.topLevelWidgets() if not w.property("ringlight_leak_ok")}
-    timers = [t for t in app.findChildren(QTimer) if t.isActive()]
-    for widget in widgets.values():
-        timers += [t for t in widget.findChildren(QTimer) if t.isActive()]
-    return widgets, {id(t): t for t in timers}
+        QCoreApplication.processEvents()
+        state = _qt_state()
+        if not (state[1] or state[2]) or time.monotonic() > deadline:
+            return state
+        time.sleep(0.01)
+    return None
 
 
-def _running_pools():
-    """QThreadPools that still have running jobs (each pool's own count)."""
-    if "PySide6.QtCore" not in sys.modules:
-        return []
-    from PySide6.QtCore import QThreadPool
-
-    return [pool for pool in gc.get_objects() if isinstance(pool, QThreadPool) and _alive(pool)
-            and pool.activeThreadCount() > 0]
-
-
-def _alive(qobject) -> bool:
-    from shiboken6 import isValid
-
-    return isValid(qobject)
+def _new(after: dict, before: dict) -> list:
+    return [item for key, item in after.items() if key not in before]
 
 
 @pytest.fixture(autouse=True)
 def no_leaks(request):
     """Fail the test if it leaves widgets, timers, pool jobs or threads behind."""
-    threads_before = set(threading.enumerate())
-    pools_before = {id(pool) for pool in _running_pools()}
-    qt_before = _qt_state()
+    threads_before = _threads()
+    qt_before = _settle_qt(time.monotonic()) if "PySide6.QtWidgets" in sys.modules else None
     yield
-    if request.node.get_closest_marker("allow_leaks"):
-        return
-    problems = []
+    if request.node.get_closest_marker("allow_leaks") or getattr(request.node, "call_failed", False):
+        return  # a failed test's traceback keeps its objects alive: its failure says enough
+    # pytest drops the test's fixture values only after teardown; what they alone keep alive (the
+    # parentless menus of a closed window's plots) must go now to tell it from a leak.
+    getattr(request.node, "funcargs", {}).clear()
     deadline = time.monotonic() + GRACE_S
-    for thread in set(threading.enumerate()) - threads_before:
+    problems = []
+    for thread in _threads() - threads_before:
         thread.join(max(0.0, deadline - time.monotonic()))
         if thread.is_alive():
             problems.append(f"thread {thread.name!r}")
-    qt_after = _qt_state()
+    qt_after = _settle_qt(deadline) if "PySide6.QtWidgets" in sys.modules else None
+    if qt_after is not None and _new(qt_after[0], qt_before[0] if qt_before else {}):
+        qt_after = None  # hold no wrapper while the cycles that may own the widgets are collected
+        gc.collect()
+        qt_after = _settle_qt(deadline)
     if qt_after is not None:
-        widgets_before, timers_before = qt_before or ({}, {})
-        widgets, timers = qt_after
-        problems += [f"top-level widget {type(w).__name__} {w.objectName()!r}" for key, w in widgets.items()
-                     if key not in widgets_before and w.isVisible()]
-        problems += [f"active QTimer {t.objectName()!r} of {type(t.parent()).__name__}" for key, t in timers.items()
-                     if key not in timers_before]
-        for pool in _running_pools():
-            if id(pool) not in pools_before and not pool.waitForDone(int(max(0.0, deadline - time.monotonic()) * 1000)):
-                problems.append(f"QThreadPool with {pool.activeThreadCount()} running job(s)")
+        widgets_before, timers_before, pools_before = qt_before or ({}, {}, {})
+        widgets, timers, pools = qt_after
+        problems += [f"top-level widget {type(w).__name__} {w.objectName()!r}" for w in _new(widgets, widgets_before)]
+        problems += [f"active QTimer {t.objectName()!r} of {type(t.parent()).__name__ if t.parent() else 'no parent'}"
+                     for t in _new(timers, timers_before)]
+        problems += [f"QThreadPool with {p.activeThreadCount()} running job(s)" for p in _new(pools, pools_before)]
     if problems:
         pytest.fail("left alive after the test: " + "; ".join(problems), pytrace=False)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.when == "call":
+        item.call_failed = report.failed
+    return report
 
 
 def pytest_configure(config):

@@ -2,6 +2,7 @@
 and the CLI producing a dataset whose transients match the simulated scene's own."""
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -147,8 +148,11 @@ def test_a_full_disk_pauses_the_scan_before_writing(tmp_path, monkeypatch):
 
     real = shutil.disk_usage
     monkeypatch.setattr(scan_module.shutil, "disk_usage", lambda path: real(path)._replace(free=1000))
-    with pytest.raises(ScanPaused, match="MiB free"):
-        run_scan(tmp_path / "scan", SimulatedRig(analytic_windows()))
+    rig = SimulatedRig(analytic_windows())
+    frame_bytes = rig.seen_y.size * 12  # float32 RGB per camera pixel
+    assert frame_bytes == 15552
+    with pytest.raises(ScanPaused, match=r"only 1000 B free, a frame needs 15.2 KiB; free some space"):
+        run_scan(tmp_path / "scan", rig)
     assert not list((tmp_path / "scan/frames").iterdir())
 
 
@@ -267,3 +271,266 @@ def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path)
     assert subprocess.run([*base, "--out", str(tmp_path / "whole")], capture_output=True).returncode == 0
     assert frame_files(tmp_path / "killed") == frame_files(tmp_path / "whole")
     assert not list((tmp_path / "killed").rglob("*partial*"))
+
+
+def test_byte_counts_are_shown_in_units_that_keep_their_digits():
+    from ringlight.core.capture.scan import format_bytes
+
+    assert [format_bytes(n) for n in (0, 1000, 15552, 3 * 2**20 + 2**19, 5 * 2**30, 2**50)] == [
+        "0 B", "1000 B", "15.2 KiB", "3.5 MiB", "5.0 GiB", "1048576.0 GiB"]
+
+
+def test_a_resumed_scan_writes_a_byte_identical_dataset_with_the_camera_description(tmp_path):
+    from ringlight.core.capture.workflow import resume_scan
+
+    windows, plan, notes = analytic_windows(), scan_plan(), "camera: backend simulated, bits 12"
+    mapping = identity_mapping(SimulatedRig(windows), plan.roi)
+    whole = Scan(tmp_path / "whole", plan, mapping, notes)
+    whole.prepare(resume=False)
+    rig = SimulatedRig(windows)
+    whole.run(rig.camera, rig.projector)
+    part = Scan(tmp_path / "part", plan, mapping, notes)
+    part.prepare(resume=False)
+    stop_after = iter(range(100))
+    rig = SimulatedRig(windows)
+    with pytest.raises(Cancelled):
+        part.run(rig.camera, rig.projector, should_stop=lambda: next(stop_after) >= 7)
+    resumed = resume_scan(tmp_path / "part")  # as the CLI's --resume: everything from the folder
+    assert resumed.camera_notes == notes
+    resumed.prepare(resume=True)
+    rig = SimulatedRig(windows)
+    resumed.run(rig.camera, rig.projector)
+    assert (tmp_path / "part/dataset.json").read_bytes() == (tmp_path / "whole/dataset.json").read_bytes()
+    assert json.loads((tmp_path / "part/dataset.json").read_text())["notes"].endswith(notes)
+    assert frame_files(tmp_path / "part") == frame_files(tmp_path / "whole")
+
+
+def test_a_torn_journal_line_does_not_swallow_the_next_entry(tmp_path):
+    windows = analytic_windows()
+    stop_after = iter(range(100))
+    with pytest.raises(Cancelled):
+        run_scan(tmp_path / "scan", SimulatedRig(windows), should_stop=lambda: next(stop_after) >= 5)
+    journal = tmp_path / "scan/.scan/journal.jsonl"
+    with open(journal, "a") as handle:
+        handle.write('{"index": 5, "fi')  # a line torn by a power cut
+    rig = SimulatedRig(windows)
+    scan = Scan(tmp_path / "scan", scan_plan(), identity_mapping(rig, scan_plan().roi))
+    scan.prepare(resume=True)
+    stop_after = iter(range(100))
+    with pytest.raises(Cancelled):
+        scan.run(rig.camera, rig.projector, should_stop=lambda: next(stop_after) >= 1)
+    # The entry written after the repair (frame 5) stands on a line of its own and counts.
+    assert [json.loads(line)["index"] for line in journal.read_text().splitlines()] == [0, 1, 2, 3, 4, 5]
+    assert sorted(scan.finished_frames()) == [0, 1, 2, 3, 4, 5]
+
+
+@pytest.mark.parametrize("failure", ["oserror", "library"])
+def test_a_disk_that_fills_inside_a_frame_write_pauses_the_scan_with_one_line(tmp_path, monkeypatch, capsys, failure):
+    import errno
+
+    from ringlight.core.capture import scan as scan_module
+
+    real_write = scan_module.write_exr_rgb
+    writes = iter(range(100))
+
+    def filling_disk(path, image):
+        if next(writes) >= 4:  # dark frame and three frames fit
+            if failure == "oserror":
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+            # What the OpenEXR library raises (measured on a full 64 KiB tmpfs).
+            raise RuntimeError(f'Failed to write pixel data to image file "{path}". No space left on device.')
+        real_write(path, image)
+
+    monkeypatch.setattr(scan_module, "write_exr_rgb", filling_disk)
+    with pytest.raises(ScanPaused) as paused:
+        run_scan(tmp_path / "scan", SimulatedRig(analytic_windows()))
+    message = str(paused.value)
+    assert message.startswith("scan paused after 3 of 49 frames: ") and "\n" not in message
+    assert f"{tmp_path}/scan/frames/00003.exr" in message and "No space left on device" in message
+    assert message.endswith("; free some space (or fix the folder) and resume")
+    assert not [path for path in (tmp_path / "scan").rglob("*") if ".partial-" in path.name]
+    monkeypatch.setattr(scan_module, "write_exr_rgb", real_write)
+    resumed = run_scan(tmp_path / "scan", SimulatedRig(analytic_windows()), resume=True)
+    whole = run_scan(tmp_path / "whole", SimulatedRig(analytic_windows()))
+    assert frame_files(resumed) == frame_files(whole)
+
+
+def test_the_capture_command_prints_one_line_when_the_disk_fills(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from ringlight.core.capture import scan as scan_module
+
+    def full_disk(path, image):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(scan_module, "write_exr_rgb", full_disk)
+    status = main(["capture", "--camera", "simulated", "--projector", "simulated", "--option", "size=8x8",
+                   "--option", "photons=100", "--max-radius", "2", "--out", str(tmp_path / "scan")])
+    err = capsys.readouterr().err
+    assert status == 2 and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == (
+        f"ringlight: error: scan paused after 0 of 25 frames: {tmp_path}/scan/dark.exr: cannot write here: "
+        "No space left on device; free some space (or fix the folder) and resume")
+
+
+def test_a_folder_deleted_during_a_scan_is_not_made_again_and_a_fresh_run_completes(tmp_path):
+    import shutil
+
+    from ringlight.core.capture.workflow import resume_scan
+
+    out = tmp_path / "scan"
+    calls = iter(range(100))
+
+    def delete_the_folder():
+        if next(calls) == 3:
+            shutil.rmtree(out)
+        return False
+
+    with pytest.raises(ScanError, match="scan's folder was removed during the scan"):
+        run_scan(out, SimulatedRig(analytic_windows()), should_stop=delete_the_folder)
+    assert not out.exists()
+    with pytest.raises(ScanError, match="no unfinished scan to resume .*start the scan again without --resume"):
+        resume_scan(out)
+    fresh = run_scan(out, SimulatedRig(analytic_windows()))
+    whole = run_scan(tmp_path / "whole", SimulatedRig(analytic_windows()))
+    assert frame_files(fresh) == frame_files(whole)
+
+
+def test_a_fresh_run_clears_an_unpublished_preparation_but_never_a_users_file(tmp_path):
+    out = tmp_path / "scan"
+    (out / "frames").mkdir(parents=True)
+    (out / ".scan.partial-0123456789ab").mkdir()
+    (out / ".scan.partial-0123456789ab" / "plan.json").write_text("{}")
+    (out / "mapping.exr").write_bytes(b"half a mapping")
+    (out / ".mapping.partial-abcdef012345.exr").write_bytes(b"torn")
+    run_scan(out, SimulatedRig(analytic_windows()))
+    assert sorted(path.name for path in out.iterdir()) == [".scan", "dark.exr", "dataset.json", "frames", "mapping.exr"]
+    mine = tmp_path / "mine"
+    (mine / "frames").mkdir(parents=True)
+    (mine / "frames" / "thesis.tex").write_text("precious")
+    with pytest.raises(ScanError, match=r"mine: exists and is not empty \(it holds frames/thesis.tex\)"):
+        run_scan(mine, SimulatedRig(analytic_windows()))
+    assert (mine / "frames" / "thesis.tex").read_text() == "precious"
+
+
+KILLER = r"""
+# Runs a reference scan, then scans into OUT_k, each in a forked child killed with SIGKILL before
+# its k-th file-system step; at a frame write or journal append the step first leaves the file
+# torn. k runs over every step of the preparation and its publication, every step from the
+# saturation map on, and a random third (seeded by argv[3]) of the steps between. Forking from
+# this fresh process (nothing but imports run) keeps each kill cheap; fsync is a step but does
+# nothing, since a SIGKILL loses nothing the kernel holds.
+import json, os, random, signal, sys
+import numpy as np
+from ringlight.core.capture import scan as scan_module
+from ringlight.core.capture.scan import Scan, ScanPlan
+from ringlight.core.capture.simulated_rig import SimulatedRig
+from ringlight.core.colourspaces import is_known_colourspace
+
+folder = sys.argv[1]
+plan = ScanPlan(*json.loads(sys.argv[2]))
+windows, mapping = np.load(os.path.join(folder, "windows.npy")), np.load(os.path.join(folder, "mapping.npy"))
+is_known_colourspace("sRGB")  # loads colour-science once, before forking
+kill_at, count = 0, 0
+
+def step(torn=None):
+    global count
+    count += 1
+    if count == kill_at:
+        if torn is not None:
+            torn()
+        os.kill(os.getpid(), signal.SIGKILL)
+
+def counted(function):
+    def wrapper(*args, **kwargs):
+        step()
+        return function(*args, **kwargs)
+    return wrapper
+
+def torn_exr(write):
+    def wrapper(path, *args, **kwargs):
+        step(lambda: open(path, "wb").write(b"v/1 torn"))
+        write(path, *args, **kwargs)
+    return wrapper
+
+def torn_append(append):
+    def wrapper(scan, entry):
+        step(lambda: open(scan.journal_path, "a").write('{"index": %d, "fi' % entry["index"]))
+        append(scan, entry)
+    return wrapper
+
+def scan_into(out):
+    for name in ("mkdir", "rename", "replace", "link", "unlink", "rmdir"):
+        setattr(os, name, counted(getattr(os, name)))
+    os.fsync = counted(lambda descriptor: None)
+    scan_module.write_exr_rgb = torn_exr(scan_module.write_exr_rgb)
+    scan_module.write_exr_channels = torn_exr(scan_module.write_exr_channels)
+    Scan._append_journal = torn_append(Scan._append_journal)
+    rig = SimulatedRig(windows)
+    scan = Scan(out, plan, mapping, "camera: simulated test rig")
+    scan.prepare(resume=False)
+    prepared = count
+    scan.run(rig.camera, rig.projector)
+    with open(os.path.join(folder, "steps.json"), "w") as handle:
+        json.dump([prepared, count], handle)
+
+def child(out, at):
+    global kill_at
+    pid = os.fork()
+    if pid == 0:
+        kill_at = at
+        try:
+            scan_into(out)
+        finally:
+            os._exit(0)
+    return os.waitpid(pid, 0)[1]
+
+assert child(os.path.join(folder, "reference"), 0) == 0
+prepared, total = json.load(open(os.path.join(folder, "steps.json")))
+chance = random.Random(int(sys.argv[3]))
+points = [at for at in range(1, total + 1) if at <= prepared + 1 or at > total - 16 or chance.random() < 1 / 3]
+statuses = {at: child(os.path.join(folder, f"out_{at}"), at) for at in points}
+print(json.dumps({"prepared": prepared, "total": total, "points": points,
+                  "killed": [at for at, status in statuses.items() if os.WIFSIGNALED(status)]}))
+"""
+
+
+def test_a_capture_killed_at_any_step_resumes_or_restarts_to_the_same_dataset(tmp_path, monkeypatch):
+    import subprocess
+
+    from ringlight.core.capture.workflow import resume_scan
+
+    monkeypatch.setattr(os, "fsync", lambda descriptor: None)  # durability is not what is tested here
+    windows = analytic_windows()
+    plan = ScanPlan((2, 2, 8, 8), 1.0, (0.05,))  # 9 frames, every lit point saturated: masks written
+    mapping = identity_mapping(SimulatedRig(windows), plan.roi)
+    np.save(tmp_path / "windows.npy", windows)
+    np.save(tmp_path / "mapping.npy", mapping)
+    seed = int(os.environ.get("RINGLIGHT_KILL_SEED", "0"))
+    result = subprocess.run([sys.executable, "-c", KILLER, str(tmp_path), json.dumps(
+        [plan.roi, plan.max_radius, plan.exposures]), str(seed)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    # Every chosen step was a kill point: from creating the folder through publishing .scan, a
+    # random third of the frames, masks and journal entries, and the saturation map and the
+    # manifest's publication at the end.
+    assert report["prepared"] >= 10 and report["killed"] == report["points"]
+    assert set(range(1, report["prepared"] + 2)) <= set(report["points"])
+    reference = tmp_path / "reference"
+    expected = {path.relative_to(reference).as_posix(): path.read_bytes()
+                for path in sorted(reference.rglob("*")) if path.is_file()}
+    assert len([name for name in expected if name.startswith(".scan/saturated/")]) == 9
+    for at in report["killed"]:
+        out = tmp_path / f"out_{at}"
+        rig = SimulatedRig(windows)
+        if (out / ".scan/plan.json").is_file():
+            scan = resume_scan(out)  # as --resume does: plan, notes and mapping from the folder
+            scan.prepare(resume=True)
+        else:
+            with pytest.raises(ScanError, match="no unfinished scan to resume"):
+                resume_scan(out)
+            scan = Scan(out, plan, mapping, "camera: simulated test rig")
+            scan.prepare(resume=False)  # never "exists and is not empty" for ringlight's leftovers
+        scan.run(rig.camera, rig.projector)
+        got = {path.relative_to(out).as_posix(): path.read_bytes() for path in sorted(out.rglob("*")) if path.is_file()}
+        assert got == expected, f"killed before step {at}: {sorted(set(got) ^ set(expected))}"

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from reference import brute_ring_image, random_impulses, write_dataset
+from reference import brute_ring_image, random_impulses, write_dataset, write_rgb
 from ringlight.app.main import main
 from ringlight.core import read_exr_rgb, read_stack
 
@@ -59,6 +59,7 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
                "ground_truth": {"path_length_images": [{"file": "gt/0.exr", "min": 0, "max": 2}],
                                 "layers": [{"name": "top", "depth": [0, 1], "rgb": [0.5, 0.25, 0.125]}]}},
     )
+    write_rgb(tmp_path / "ds" / "gt" / "0.exr", np.zeros((11, 8, 3), np.float32))  # info checks every file
     assert main(["info", str(tmp_path / "ds")]) == 0
     out = capsys.readouterr().out
     missing = 88 - len(impulses)
@@ -85,3 +86,13 @@ def test_demo_command_makes_the_demo_dataset_once_and_describes_it(capsys, monke
 
     monkeypatch.setattr("ringlight.core.simulate.transport.simulate_transport", no_second_simulation)
     assert main(["demo"]) == 0
+
+
+def test_info_names_a_truncated_frame_and_exits_2(tmp_path, impulses, capsys):
+    write_dataset(tmp_path / "ds", 11, 8, impulses, max_radius=2.5, multiplex=True)
+    frame = tmp_path / "ds" / "frames" / "00001.exr"
+    frame.write_bytes(frame.read_bytes()[:200])  # cut inside the chunk table
+    assert main(["info", str(tmp_path / "ds")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == "ringlight: error: 1 file problem(s):"
+    assert len(err) == 2 and str(frame) in err[1]

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from ringlight.core import open_dataset, read_stack
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
+from ringlight.core.colourspaces import colour_module
 from ringlight.core.simulate.presets import ensure_demo_dataset
 
 from reference import brute_ring_image
@@ -29,7 +30,8 @@ def demo_cache(tmp_path_factory):
 
 
 def run_example(name: str, *args, cache: Path, cwd: Path) -> str:
-    environment = {**os.environ, "RINGLIGHT_CACHE_DIR": str(cache)}
+    # Default output folders come from tempfile: keep them inside the test's own folder.
+    environment = {**os.environ, "RINGLIGHT_CACHE_DIR": str(cache), "TMPDIR": str(cwd.parent)}
     result = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd, env=environment,
                             capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr
@@ -76,18 +78,29 @@ def test_simulate_example_writes_a_dataset_that_opens(tmp_path):
     out = run_example("simulate_scene.py", tmp_path / "sim", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     dataset = open_dataset(tmp_path / "sim")
     assert f"grid 16 x 16, {len(dataset.manifest.frames)} frames" in out
-    names = [layer.name for layer in dataset.manifest.ground_truth.layers]
-    assert [line.split(":")[0] for line in out.splitlines() if line.startswith("layer ")] == [f"layer {n}" for n in names]
+    assert f"max_radius {dataset.max_radius:g}" in out
+    printed = [line.split() for line in out.splitlines() if line.startswith("layer ")]
+    for row, layer in zip(printed, dataset.manifest.ground_truth.layers, strict=True):
+        assert row[1] == f"{layer.name}:" and row[3] == f"{layer.depth[0]:g}-{layer.depth[1]:g},"
+        np.testing.assert_allclose(np.array(row[5:8], float), layer.rgb, atol=6e-5)
 
 
-def test_layer_colour_example_prints_three_layers_with_their_errors(tmp_path):
+def test_layer_colour_example_prints_each_layer_beside_its_truth(tmp_path):
     (tmp_path / "cwd").mkdir()
     out = run_example("layer_colours.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
-    rows = [line.split() for line in out.splitlines()]
+    first, *lines = out.splitlines()
+    dataset = open_dataset(first.removeprefix("dataset "))
+    rows = [line.split() for line in lines]
     assert [row[3] for row in rows] == ["1", "3", "5"]
-    for row in rows:
-        x, y, error = float(row[5]), float(row[6]), float(row[-1])
-        assert 0 < x < 0.8 and 0 < y < 0.9 and 0 <= error < 0.3  # chromaticities, and errors as measured (<= 0.15)
+    # The truth is the xy of the manifest's layer RGB, converted here with colour-science directly.
+    colour = colour_module()
+    for row, layer in zip(rows, dataset.manifest.ground_truth.layers, strict=True):
+        xy, truth_xy, error = np.array(row[5:7], float), np.array(row[10:12], float), float(row[13])
+        assert row[8] == layer.name
+        expected = colour.XYZ_to_xy(colour.RGB_to_XYZ(np.array(layer.rgb), dataset.colorspace))
+        np.testing.assert_allclose(truth_xy, expected, atol=6e-5)
+        assert abs(error - np.hypot(*(xy - truth_xy))) < 2e-4
+        assert 0 < xy[0] < 0.8 and 0 < xy[1] < 0.9 and error < 0.3  # errors as measured: 0.087, 0.148, 0.119
 
 
 def test_simulated_scan_example_captures_a_dataset_that_opens(tmp_path):

@@ -55,6 +55,8 @@ def window(qtbot, tmp_path):
     qtbot.addWidget(window)
     window.resize(1200, 800)
     window.show()
+    qtbot.waitExposed(window)
+    window.activateWindow()  # shortcuts need the active window under a real X server
     yield window
     window.shutdown()
 

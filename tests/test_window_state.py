@@ -17,6 +17,8 @@ def window(qtbot, tmp_path):
     window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
     qtbot.addWidget(window)
     window.show()
+    qtbot.waitExposed(window)
+    window.activateWindow()  # shortcuts need the active window under a real X server
     yield window
     window.shutdown()
 

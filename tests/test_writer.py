@@ -38,22 +38,26 @@ def test_an_error_inside_the_with_block_leaves_no_dataset(tmp_path):
 
 
 def test_an_invalid_dataset_is_never_published(tmp_path):
-    with pytest.raises(DatasetError, match="outside the 4 x 4 grid"):
+    with pytest.raises(DatasetError, match="outside the 4 x 4 grid") as refused:
         with DatasetWriter(tmp_path / "ds", (4, 4)) as writer:
             writer.add_frame(np.zeros((4, 4, 3)), lit=[[9, 0]])
+    assert str(refused.value).startswith(f"{tmp_path / 'ds'}/dataset.json: ")  # never the hidden staging folder
     assert list(tmp_path.iterdir()) == []
 
 
 def test_existing_user_folder_is_refused_and_a_dataset_replaced_only_on_request(tmp_path):
+    from ringlight.core.atomic import OutputError
+
     (tmp_path / "photos").mkdir()
     (tmp_path / "photos" / "a.jpg").write_bytes(b"x")
-    with pytest.raises(DatasetError, match="refusing to overwrite"):
+    with pytest.raises(OutputError, match="photos: exists and is not a ringlight dataset folder "
+                                          r"\(it holds a.jpg\); refusing to overwrite it"):
         DatasetWriter(tmp_path / "photos", (2, 2), overwrite=True)
     for value in (1.0, 3.0):
         with DatasetWriter(tmp_path / "ds", (2, 2), overwrite=True) as writer:
             writer.add_frame(np.full((2, 2, 3), value), lit=[[0, 0]])
     assert read_exr_rgb(tmp_path / "ds/frames/000000.exr")[0, 0, 0] == 3.0
-    with pytest.raises(DatasetError, match="pass overwrite"):
+    with pytest.raises(OutputError, match="pass overwrite"):
         DatasetWriter(tmp_path / "ds", (2, 2))
     assert json.loads((tmp_path / "ds/dataset.json").read_text())["frames"][0]["lit"] == [[0, 0]]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.capture.scan import Scan, ScanError, estimate_disk
+from ringlight.core.capture.scan import Scan, ScanError, estimate_disk, format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     measure_correspondence,
@@ -70,9 +70,9 @@ def run_capture(args) -> int:
             print(f"plan: {plan.grid_shape[0]} x {plan.grid_shape[1]} grid, spacing {plan.spacing}, "
                   f"{len(plan.frames())} frames instead of {plan.grid_shape[0] * plan.grid_shape[1]}, exposures "
                   f"{', '.join(f'{e:.3g}' for e in plan.exposures)} s; about {plan.estimated_seconds():.0f} s, "
-                  f"{needed / 2**20:.1f} MiB ({free / 2**20:.0f} MiB free)")
+                  f"{format_bytes(needed)} ({format_bytes(free)} free)")
             if needed > free:
-                raise ScanError(f"{args.out}: the scan needs about {needed / 2**20:.0f} MiB, only {free / 2**20:.0f} MiB are free")
+                raise ScanError(f"{args.out}: the scan needs about {format_bytes(needed)}, only {format_bytes(free)} are free")
             scan = Scan(args.out, plan, planned.mapping, camera_notes(camera))
         with progress_bar("scanning") as progress:
             out = run_scan(scan, camera, projector, args.resume,

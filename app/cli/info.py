@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from ringlight.core import effective_max_radius, read_manifest, response_memory_bytes
+from ringlight.core.dataset.checks import check_files
+
+MAX_PROBLEMS_SHOWN = 20
+EXIT_FILE_PROBLEMS = 2
 
 
 def add_command(subparsers) -> None:
     info = subparsers.add_parser("info", help="describe an impulse dataset")
     info.add_argument("dataset", help="dataset folder or its dataset.json")
+    info.add_argument("--allow-outside", action="store_true",
+                      help="accept files that resolve (through symbolic links) outside the dataset folder")
     info.set_defaults(handler=run_info)
 
 
@@ -57,4 +65,13 @@ def run_info(args) -> int:
     if manifest.notes:
         lines.append(f"notes        {manifest.notes}")
     print("\n".join(lines))
+    problems = check_files(manifest, allow_outside=getattr(args, "allow_outside", False))
+    if problems:
+        shown = problems[:MAX_PROBLEMS_SHOWN]
+        more = f" (and {len(problems) - len(shown)} more)" if len(problems) > len(shown) else ""
+        print(f"ringlight: error: {len(problems)} file problem(s){more}:", file=sys.stderr)
+        for problem in shown:
+            print(f"  {problem}", file=sys.stderr)
+        return EXIT_FILE_PROBLEMS
+    print(f"files        all {len(manifest.referenced_files())} frame, dark and mapping headers checked")
     return 0

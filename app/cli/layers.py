@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ringlight.core import RinglightError, open_dataset
+from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.chroma import METHODS
 from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.layer_report import analyse_layers, analysis_json, analysis_stack_request
@@ -24,7 +25,8 @@ def add_command(subparsers) -> None:
     layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
-    layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT")
+    layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT (a new file)")
+    layers.add_argument("--force", action="store_true", help="replace an existing --json file")
     layers.add_argument("--allow-outside", action="store_true",
                        help="read frames that resolve (through symbolic links) outside the dataset folder")
     layers.set_defaults(handler=run_layers)
@@ -43,6 +45,8 @@ def parse_radii(text: str) -> list[float]:
 
 def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
+    if args.json:
+        check_output_file(args.json, args.force)  # refused before the dataset is opened
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(args.dataset, progress=progress, allow_outside=args.allow_outside)
     if args.roi:
@@ -68,6 +72,6 @@ def run_layers(args) -> int:
     for warning in result.warnings:
         print(f"warning: {warning}")
     if args.json:
-        write_text(args.json, analysis_json(analysis, str(dataset.path)))
+        write_text(args.json, analysis_json(analysis, str(dataset.path)), overwrite=args.force)
         print(f"wrote {args.json}")
     return 0

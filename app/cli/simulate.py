@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
+from ringlight.core.dataset.writer import check_dataset_target
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError
 from ringlight.core.simulate.transport import simulate_transport, write_transport
@@ -20,7 +20,8 @@ def add_command(subparsers) -> None:
     simulate.add_argument("--photons", type=int, default=None, help="photons per lit point and channel")
     simulate.add_argument("--size", default=None, metavar="HxW", help="grid size, e.g. 32x32 (shapes scale)")
     simulate.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's)")
-    simulate.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
+    simulate.add_argument("--overwrite", action="store_true",
+                          help="replace an earlier dataset at --out (only if the folder holds nothing else)")
     simulate.add_argument("--list", action="store_true", help="list the bundled presets and exit")
     simulate.set_defaults(handler=run_simulate)
 
@@ -47,8 +48,7 @@ def run_simulate(args) -> int:
     if args.seed is not None and args.seed < 0:
         raise SceneError(f"--seed must be >= 0, got {args.seed}")
     scene = load_scene(args.scene, size=parse_size(args.size) if args.size else None)
-    if Path(args.out).exists() and not args.overwrite:
-        raise SceneError(f"{args.out}: already exists; choose another --out or pass --overwrite")
+    check_dataset_target(args.out, overwrite=args.overwrite)  # refused before simulating
     with progress_bar(f"simulating {scene.name}") as progress:
         transport = simulate_transport(scene, photons=args.photons, seed=args.seed, progress=progress)
     with progress_bar("writing dataset") as progress:

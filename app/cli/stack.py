@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from ringlight.core import needed_radius, open_dataset, parse_radius_range, ring_stack, transient_stack, write_stack
 
+from ringlight.core.rings.stack_io import check_stack_target
+
 from .progress import progress_bar
 
 
@@ -39,6 +41,7 @@ def run_stack(args) -> int:
         default_step = 1.0
     step = args.dr if args.dr is not None else default_step
     reach = needed_radius(radii, args.thickness, step if args.kind == "transient" else 0.0, args.antialias)
+    check_stack_target(args.out)  # refused before anything is computed
     with progress_bar("reading frames") as progress:
         dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress,
                                allow_outside=args.allow_outside)

@@ -6,15 +6,21 @@ max_radius of a lit point to it): (spacing)^2 frames instead of one per pixel.
 
 A scan writes into its output folder as it goes::
 
-    OUT/.scan/plan.json       the plan, to check that a resume continues the same scan
+    OUT/.scan/plan.json       the plan and the camera's description: what a resume continues
     OUT/.scan/journal.jsonl   one line per finished frame, flushed and fsynced
     OUT/frames/NNNNN.exr      each merged HDR frame, written atomically as soon as it exists
     OUT/mapping.exr, OUT/dark.exr
     OUT/dataset.json          written last: the folder is a dataset only once the scan is complete
 
+Preparation is atomic: ``OUT/mapping.exr`` and ``OUT/frames/`` are made first, then ``.scan`` is
+built as a hidden ``OUT/.scan.partial-HEX`` and published with one rename. A folder without
+``.scan/plan.json`` therefore holds no scan; what an interrupted preparation left there
+(``mapping.exr``, an empty ``frames/``, hidden temporaries) is ringlight's, and a fresh run
+clears it and starts again. Nothing else in ``OUT`` is ever deleted.
+
 A scan stopped anywhere (cancel, crash, power cut, a camera that stops answering, a full disk)
-resumes from the journal; frames are deterministic functions of the rig, so the resumed dataset
-equals an uninterrupted one.
+resumes from the journal; frames are deterministic functions of the rig and the camera's
+description is kept in the plan, so the resumed dataset is byte for byte an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import json
 import math
 import os
 import queue
+import secrets
 import shutil
 import threading
 import time
@@ -33,17 +40,28 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..atomic import atomic_file
+from ..atomic import (
+    OutputError,
+    Owned,
+    atomic_file,
+    foreign_entry,
+    fsync_path,
+    is_temporary,
+)
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
 from ..errors import Cancelled, RinglightError
 from ..simulate.lattice import lattice_frames
+from ..validation import read_json
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
 
 SCAN_FOLDER = ".scan"
+PLAN_NAME = "plan.json"
 CAPTURE_TIMEOUT_S = 30.0
 BYTES_PER_PIXEL = 12  # float32 RGB
+_UNPUBLISHED = Owned(frozenset({"mapping.exr", "frames"}), (SCAN_FOLDER,))
+"""What an interrupted preparation may leave in an output folder without a published plan."""
 
 
 class ScanError(RinglightError):
@@ -103,14 +121,40 @@ class ScanPlan:
         """Disk for frames, dark and mapping (float32 EXR, before compression)."""
         return (len(self.frames()) + 3) * camera_shape[0] * camera_shape[1] * BYTES_PER_PIXEL
 
-    def to_json(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True)
+    def to_json(self, camera_notes: str = "") -> str:
+        """The plan as ``plan.json`` holds it, with the camera's description for the manifest."""
+        return json.dumps({**asdict(self), "camera_notes": camera_notes}, sort_keys=True)
 
     @classmethod
-    def from_json(cls, text: str) -> "ScanPlan":
-        document = json.loads(text)
-        return cls(tuple(document["roi"]), float(document["max_radius"]), tuple(document["exposures"]),
-                   float(document.get("noise_floor", 0.0)))
+    def from_document(cls, document: object) -> ScanPlan:
+        """The plan of a decoded ``plan.json``; ValueError when it is not one."""
+        try:
+            return cls(tuple(int(v) for v in document["roi"]), float(document["max_radius"]),
+                       tuple(float(e) for e in document["exposures"]), float(document.get("noise_floor", 0.0)))
+        except (KeyError, TypeError, ValueError, AttributeError) as problem:
+            raise ValueError(f"not a ringlight scan plan ({type(problem).__name__}: {problem})") from None
+
+
+def read_plan(out: Path) -> tuple[ScanPlan, str]:
+    """The plan and camera description of the unfinished scan in ``out``; ScanError naming
+    ``plan.json`` when it is unreadable."""
+    path = Path(out) / SCAN_FOLDER / PLAN_NAME
+    document = read_json(path, ScanError, "scan plan", max_bytes=2**20)
+    try:
+        plan = ScanPlan.from_document(document)
+    except ValueError as problem:
+        raise ScanError(f"{path}: {problem}") from None
+    notes = document.get("camera_notes", "")
+    return plan, notes if isinstance(notes, str) else ""
+
+
+def format_bytes(count: float) -> str:
+    """``count`` bytes in the largest binary unit that keeps it at least 1, e.g. ``"3.2 MiB"``."""
+    for unit in ("B", "KiB", "MiB"):
+        if abs(count) < 1024:
+            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
+        count /= 1024
+    return f"{count:.1f} GiB"
 
 
 def check_plan(plan: ScanPlan, projector_size: tuple[int, int]) -> None:
@@ -186,50 +230,104 @@ class Scan:
         self.frames = plan.frames()
 
     @property
+    def plan_path(self) -> Path:
+        return self.out / SCAN_FOLDER / PLAN_NAME
+
+    @property
     def journal_path(self) -> Path:
         return self.out / SCAN_FOLDER / "journal.jsonl"
 
     def prepare(self, resume: bool) -> None:
-        """Create the folder and plan, or check that a resumed scan continues the same plan."""
-        plan_path = self.out / SCAN_FOLDER / "plan.json"
+        """Publish a new scan (plan, mapping, folders), or check that a resumed scan continues
+        the same plan and take its camera description from the plan."""
         if (self.out / "dataset.json").exists() and not resume:
             raise ScanError(f"{self.out}: already holds a finished dataset; choose another folder")
-        if plan_path.exists():
+        if self.plan_path.exists():
             if not resume:
                 raise ScanError(f"{self.out}: holds an unfinished scan; resume it (--resume) or choose another folder")
-            if ScanPlan.from_json(plan_path.read_text(encoding="utf-8")) != self.plan:
-                raise ScanError(f"{plan_path}: the unfinished scan has another plan; resume with its settings")
-            for leftover in [*self.out.glob(".*.partial-*"), *(self.out / "frames").glob(".*.partial-*")]:
-                leftover.unlink()  # a write cut short by a crash; its frame is captured again
+            stored, self.camera_notes = read_plan(self.out)
+            if stored != self.plan:
+                raise ScanError(f"{self.plan_path}: the unfinished scan has another plan; resume with its settings")
+            self._clear_temporaries()
+            self._repair_journal()
             return
-        if self.out.exists() and any(self.out.iterdir()):
-            raise ScanError(f"{self.out}: exists and is not empty; refusing to write a scan into it")
-        (self.out / SCAN_FOLDER).mkdir(parents=True, exist_ok=True)
+        try:
+            self._clear_unpublished()
+            self._publish_scan()
+        except OSError as error:  # OUT is a file, or its folder read-only (OutputError says so itself)
+            raise ScanError(f"{self.out}: cannot prepare the scan: {error.strerror or error}") from error
+
+    def _clear_unpublished(self) -> None:
+        """Remove what an interrupted preparation left; refuse a folder holding anything else."""
+        if not self.out.is_dir():
+            if os.path.lexists(self.out):
+                raise ScanError(f"{self.out}: exists and is not a folder; refusing to write a scan into it")
+            return
+        foreign = foreign_entry(self.out, _UNPUBLISHED)
+        if foreign is not None:
+            raise ScanError(f"{self.out}: exists and is not empty (it holds {foreign}); "
+                            "refusing to write a scan into it: choose another folder")
+        for entry in list(self.out.iterdir()):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+
+    def _publish_scan(self) -> None:
+        self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "frames").mkdir(exist_ok=True)
-        with atomic_file(self.out / "mapping.exr") as temporary:
+        with atomic_file(self.out / "mapping.exr", overwrite=True, make_parents=False, durable=True) as temporary:
             write_exr_channels(temporary, {"y": self.mapping[..., 0], "x": self.mapping[..., 1]})
-        with atomic_file(plan_path) as temporary:
-            temporary.write_text(self.plan.to_json(), encoding="utf-8")
+        staging = self.out / f"{SCAN_FOLDER}.partial-{secrets.token_hex(6)}"
+        staging.mkdir()
+        with atomic_file(staging / PLAN_NAME, make_parents=False, durable=True) as temporary:
+            temporary.write_text(self.plan.to_json(self.camera_notes), encoding="utf-8")
+        os.rename(staging, self.out / SCAN_FOLDER)  # the scan exists from here on, whole
+        fsync_path(self.out)
+
+    def _clear_temporaries(self) -> None:
+        """Remove files of writes cut short by a crash (their frames are captured again)."""
+        for folder in (self.out, self.out / "frames", self.out / SCAN_FOLDER, self.out / SCAN_FOLDER / "saturated"):
+            if folder.is_dir():
+                for entry in folder.iterdir():
+                    if is_temporary(entry.name) and not entry.is_dir():
+                        entry.unlink()
+
+    def _repair_journal(self) -> None:
+        """Cut a line torn by a crash, so that the next entry starts on a line of its own."""
+        if not self.journal_path.is_file():
+            return
+        data = self.journal_path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            with open(self.journal_path, "r+b") as journal:
+                journal.truncate(data.rfind(b"\n") + 1)
+                journal.flush()
+                os.fsync(journal.fileno())
 
     def finished_frames(self) -> dict[int, dict]:
-        """Journal entries by frame index (a torn last line from a crash is ignored)."""
+        """Journal entries by frame index, for frames whose file exists (a torn or foreign line
+        is ignored: its frame is captured again)."""
         entries = {}
         if self.journal_path.exists():
-            for line in self.journal_path.read_text(encoding="utf-8").splitlines():
+            for line in self.journal_path.read_text(encoding="utf-8", errors="replace").splitlines():
                 try:
                     entry = json.loads(line)
-                except ValueError:
-                    continue
-                if (self.out / entry.get("file", "")).is_file():
-                    entries[int(entry["index"])] = entry
+                    index = entry["index"]
+                    valid = (type(index) is int and 0 <= index < len(self.frames)
+                             and entry.get("file") == _frame_name(index))
+                except (ValueError, TypeError, KeyError, AttributeError, RecursionError):
+                    continue  # a torn or hostile line: that frame is captured again
+                if valid and (self.out / entry["file"]).is_file():
+                    entries[index] = entry
         return entries
 
     def run(self, camera: Camera, projector: Projector, progress: Callable[[ScanProgress], None] | None = None,
             should_stop: Callable[[], bool] | None = None, timeout: float = CAPTURE_TIMEOUT_S) -> Path:
         """Capture the dark frame and every unfinished frame, then write the manifest.
 
-        Raises ScanPaused (camera failure, disk full) or Cancelled (``should_stop``), leaving a
-        resumable scan; returns the dataset folder when complete.
+        Raises ScanPaused (camera failure, disk full, a write refused) or Cancelled
+        (``should_stop``), leaving a resumable scan; ScanError when the scan's folder vanished;
+        returns the dataset folder when complete.
         """
         frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
         done = self.finished_frames()
@@ -238,8 +336,7 @@ class Scan:
             if not (self.out / "dark.exr").is_file():
                 self._check_disk(frame_bytes)
                 dark = capture_hdr(camera, projector, None, self.plan, timeout)
-                with atomic_file(self.out / "dark.exr") as temporary:
-                    write_exr_rgb(temporary, dark.radiance)
+                self._write_exr("dark.exr", dark.radiance)
             for index, lit in enumerate(self.frames):
                 if index in done:
                     continue
@@ -247,30 +344,49 @@ class Scan:
                     raise Cancelled(f"scan stopped after {len(done)} of {len(self.frames)} frames; resume to continue")
                 self._check_disk(frame_bytes)
                 merged = capture_hdr(camera, projector, self.plan.pattern(lit, projector.size), self.plan, timeout)
-                name = f"frames/{index:05d}.exr"
-                with atomic_file(self.out / name) as temporary:
-                    write_exr_rgb(temporary, merged.radiance)
+                self._write_exr(_frame_name(index), merged.radiance)
                 if merged.saturated_count:
                     self._write_saturation_mask(index, merged.saturated.any(axis=-1))
-                entry = {"index": index, "file": name, "saturated": merged.saturated_count}
+                entry = {"index": index, "file": _frame_name(index), "saturated": merged.saturated_count}
                 self._append_journal(entry)
                 done[index] = entry
                 saturated += merged.saturated_count
                 if progress is not None:
                     progress(ScanProgress(len(done), len(self.frames)))
+            return self._write_manifest(saturated)
         except HardwareError as error:
             raise ScanPaused(f"scan paused after {len(done)} of {len(self.frames)} frames: {error}; "
                              "fix the camera and resume") from None
+        except (OSError, OutputError) as error:
+            raise self._write_failed(error, len(done)) from error
         finally:
             projector.show_black()
-        return self._write_manifest(saturated)
+
+    def _write_failed(self, error: OSError | OutputError, done: int) -> RinglightError:
+        """One line for a write that failed: a full disk or a read-only folder pauses the scan;
+        a scan folder deleted meanwhile cannot be resumed."""
+        if not self.plan_path.is_file():
+            return ScanError(f"{self.out}: the scan's folder was removed during the scan (no {SCAN_FOLDER}/"
+                             f"{PLAN_NAME}); start the scan again")
+        if isinstance(error, OSError):
+            reason = f"{error.filename or self.out}: {error.strerror or error}"
+        else:
+            reason = str(error).splitlines()[0]
+        return ScanPaused(f"scan paused after {done} of {len(self.frames)} frames: {reason}; "
+                          "free some space (or fix the folder) and resume")
+
+    def _write_exr(self, name: str, image: np.ndarray) -> None:
+        # Never recreate a folder deleted meanwhile (make_parents=False): the write fails instead.
+        with atomic_file(self.out / name, overwrite=True, make_parents=False, durable=True) as temporary:
+            write_exr_rgb(temporary, image)
 
     def _write_saturation_mask(self, index: int, mask: np.ndarray) -> None:
         folder = self.out / SCAN_FOLDER / "saturated"
         folder.mkdir(exist_ok=True)
-        with atomic_file(folder / f"{index:05d}.png") as temporary:
+        path = folder / f"{index:05d}.png"
+        with atomic_file(path, overwrite=True, make_parents=False) as temporary:
             if not cv2.imwrite(str(temporary), mask.astype(np.uint8) * 255):
-                raise ScanError(f"{folder}: could not write a saturation mask")
+                raise OutputError(f"{path}: could not write a saturation mask")
 
     def saturation_map(self) -> np.ndarray:
         """(rows, cols) float32: frames in which each camera pixel saturated in every bracket."""
@@ -288,14 +404,13 @@ class Scan:
     def _check_disk(self, needed: int) -> None:
         free = shutil.disk_usage(self.out).free
         if free < 2 * needed:
-            raise ScanPaused(f"{self.out}: only {free / 2**20:.1f} MiB free, a frame needs {needed / 2**20:.1f} MiB; "
+            raise ScanPaused(f"{self.out}: only {format_bytes(free)} free, a frame needs {format_bytes(needed)}; "
                              "free some space and resume")
 
     def _write_manifest(self, saturated: int) -> Path:
         height, width = self.plan.grid_shape
         saturation = self.saturation_map()
-        with atomic_file(self.out / SCAN_FOLDER / "saturation.exr") as temporary:
-            write_exr_rgb(temporary, np.repeat(saturation[:, :, None], 3, axis=2))
+        self._write_exr(f"{SCAN_FOLDER}/saturation.exr", np.repeat(saturation[:, :, None], 3, axis=2))
         notes = (f"captured by ringlight: roi {list(self.plan.roi)}, exposures "
                  f"{', '.join(f'{e:g}' for e in self.plan.exposures)} s merged to counts/s; "
                  f"{saturated} pixel-frames saturated in every bracket (per camera pixel: "
@@ -304,13 +419,17 @@ class Scan:
             "format": "ringlight-impulse", "version": 1, "grid": {"height": height, "width": width},
             "colorspace": "sRGB", "frame_space": "camera", "mapping": "mapping.exr",
             "max_radius": self.plan.max_radius, "dark": "dark.exr", "notes": notes,
-            "frames": [{"file": f"frames/{index:05d}.exr", "lit": lit.tolist(), "exposure": 1.0}
+            "frames": [{"file": _frame_name(index), "lit": lit.tolist(), "exposure": 1.0}
                        for index, lit in enumerate(self.frames)],
         }
         parse_manifest(manifest, self.out)  # never publish a manifest the reader would refuse
-        with atomic_file(self.out / "dataset.json") as temporary:
+        with atomic_file(self.out / "dataset.json", overwrite=True, make_parents=False, durable=True) as temporary:
             temporary.write_text(json.dumps(manifest), encoding="utf-8")
         return self.out
+
+
+def _frame_name(index: int) -> str:
+    return f"frames/{index:05d}.exr"
 
 
 def estimate_disk(plan: ScanPlan, camera_shape: tuple[int, int], folder: Path) -> tuple[int, int]:

@@ -18,6 +18,7 @@ from .correspondence import Correspondence, capture_gray_code, decode_gray_code
 from .exposure_probe import ExposurePlan, probe_exposures
 from .hardware import Camera, Projector
 from .scan import (
+    PLAN_NAME,
     SCAN_FOLDER,
     Scan,
     ScanError,
@@ -26,6 +27,7 @@ from .scan import (
     as_rgb,
     capture_with_timeout,
     check_plan,
+    read_plan,
 )
 
 WHITE_FILL = 0.6
@@ -75,13 +77,13 @@ def plan_scan(camera: Camera, projector: Projector, correspondence: Corresponden
 
 
 def resume_scan(out) -> Scan:
-    """The unfinished scan in ``out``, from its stored plan and mapping."""
-    plan_path = Path(out) / SCAN_FOLDER / "plan.json"
-    if not plan_path.is_file():
-        raise ScanError(f"{out}: no unfinished scan to resume (no {SCAN_FOLDER}/plan.json)")
-    plan = ScanPlan.from_json(plan_path.read_text(encoding="utf-8"))
+    """The unfinished scan in ``out``, from its stored plan, camera description and mapping."""
+    if not (Path(out) / SCAN_FOLDER / PLAN_NAME).is_file():
+        raise ScanError(f"{out}: no unfinished scan to resume (no {SCAN_FOLDER}/{PLAN_NAME}); "
+                        "start the scan again without --resume")
+    plan, notes = read_plan(Path(out))
     mapping = read_exr_channels(Path(out) / "mapping.exr", ("y", "x"))
-    return Scan(out, plan, mapping)
+    return Scan(out, plan, mapping, notes)
 
 
 def camera_notes(camera: Camera) -> str:

@@ -1,7 +1,9 @@
 """Writing what the explorer shows: PNG images, MP4 movies with the radius burnt in, CSV text.
 
 Every writer is atomic (a temporary file beside the target, renamed into place) and raises
-:class:`ExportError` naming the file when the encoder refuses.
+:class:`ExportError` naming the file when the encoder refuses. An existing file is replaced only
+with ``overwrite=True`` (the window passes it once its save dialog has asked the user; the rule
+of :mod:`ringlight.core.atomic`).
 """
 
 from __future__ import annotations
@@ -13,32 +15,31 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..atomic import atomic_file
-from ..errors import RinglightError
+from ..atomic import OutputError, atomic_file
 
 MOVIE_MIN_WIDTH = 512
 """Movies of small grids are enlarged (nearest neighbour, integer factor) to at least this width
 so that the burnt-in radius is legible and pixels stay sharp."""
 
 
-class ExportError(RinglightError):
+class ExportError(OutputError):
     """An export could not be written."""
 
 
-def write_png(path: str | os.PathLike, pixels: np.ndarray) -> Path:
+def write_png(path: str | os.PathLike, pixels: np.ndarray, *, overwrite: bool = False) -> Path:
     """Write (H, W, 3) uint8 RGB ``pixels`` as a lossless PNG, atomically."""
     path = Path(path)
     pixels = _checked_rgb(pixels, path)
-    with atomic_file(path) as temporary:
+    with atomic_file(path, overwrite=overwrite) as temporary:
         if not cv2.imwrite(str(temporary), cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR)):
             raise ExportError(f"{path}: OpenCV could not write the PNG")
     return path
 
 
-def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write ``text`` (UTF-8) atomically."""
+def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
+    """Write ``text`` (UTF-8: CSV, JSON) atomically."""
     path = Path(path)
-    with atomic_file(path) as temporary:
+    with atomic_file(path, overwrite=overwrite) as temporary:
         temporary.write_text(text, encoding="utf-8")
     return path
 
@@ -54,6 +55,8 @@ def write_movie(
     labels: Sequence[str],
     fps: float,
     progress: Callable[[float], None] | None = None,
+    *,
+    overwrite: bool = False,
 ) -> Path:
     """Write an MP4 (MPEG-4 part 2, OpenCV VideoWriter) of ``len(labels)`` frames, atomically.
 
@@ -66,11 +69,11 @@ def write_movie(
         raise ExportError(f"{path}: a movie needs at least one frame")
     if not fps > 0:
         raise ExportError(f"{path}: frame rate must be > 0, got {fps}")
-    first = _checked_rgb(frame_at(0), path)
-    scale = movie_scale(first.shape[1])
-    height = first.shape[0] * scale + (first.shape[0] * scale) % 2
-    width = first.shape[1] * scale + (first.shape[1] * scale) % 2
-    with atomic_file(path) as temporary:
+    with atomic_file(path, overwrite=overwrite) as temporary:
+        first = _checked_rgb(frame_at(0), path)
+        scale = movie_scale(first.shape[1])
+        height = first.shape[0] * scale + (first.shape[0] * scale) % 2
+        width = first.shape[1] * scale + (first.shape[1] * scale) % 2
         writer = cv2.VideoWriter(str(temporary), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
         if not writer.isOpened():
             raise ExportError(f"{path}: OpenCV has no MP4 encoder here")

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import exr_size, read_exr_channels, read_exr_rgb
+from .exr import check_exr, read_exr_channels, read_exr_rgb
 from .manifest import FrameEntry, Manifest
+
+MIN_COVERAGE = 0.01
+"""Smallest fraction of a large grid a camera mapping must be able to see (camera pixels over
+grid points), checked from the mapping's header before anything of the grid's size is built."""
+MIN_COVERAGE_GRID = 2**20
+"""Grids up to this many points are exempt from :data:`MIN_COVERAGE` (their memory is small)."""
 
 
 class CameraMapping:
@@ -50,7 +54,8 @@ class FrameReader:
 
     radiance = frame / exposure - dark: the dark frame is in exposure-1 units (FORMAT.md).
     Frames of ``frame_space`` "camera" are averaged onto the grid through the mapping. Files
-    resolving outside the dataset folder are refused unless ``allow_outside``.
+    resolving outside the dataset folder are refused unless ``allow_outside``. Every file's header
+    is checked against the size it must have before its pixels are decoded.
     """
 
     def __init__(self, manifest: Manifest, allow_outside: bool = False):
@@ -58,20 +63,32 @@ class FrameReader:
         self.allow_outside = allow_outside
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
+        self.frame_shape, self.size_of = self.grid_shape, "the grid"
         if manifest.frame_space == "camera":
             mapping_path = manifest.file_path(manifest.mapping, allow_outside)
-            yx = read_exr_channels(mapping_path, ("y", "x"))
+            header = check_exr(mapping_path, ("y", "x"), what="mapping")
+            self.frame_shape, self.size_of = (header.height, header.width), "the mapping"
+            grid_points = manifest.height * manifest.width
+            if grid_points > MIN_COVERAGE_GRID and header.height * header.width < MIN_COVERAGE * grid_points:
+                # Every grid point costs response memory, seen or not: a camera of a few pixels
+                # under a huge grid would build gigabytes of zeros.
+                raise DatasetError(
+                    f"{mapping_path}: a camera of {header.height} x {header.width} pixels cannot see "
+                    f"{MIN_COVERAGE:.0%} of the {manifest.height} x {manifest.width} grid; "
+                    "the grid should be the projector region the camera sees")
+            # The mapping's size is only known from its own header: the first frame's header must
+            # agree before the mapping is decoded, so a small file cannot claim a huge camera.
+            check_exr(manifest.file_path(manifest.frames[0].file, allow_outside), ("R", "G", "B"),
+                      self.frame_shape, "frame", self.size_of)
+            yx = read_exr_channels(mapping_path, ("y", "x"), self.frame_shape, "mapping")
             self.mapping = CameraMapping(yx[..., 0], yx[..., 1], self.grid_shape)
             if not self.mapping.observed.any():
                 raise DatasetError(f"{mapping_path}: no camera pixel maps into the "
                                    f"{manifest.height} x {manifest.width} grid (all NaN or outside)")
-            self.frame_shape = self.mapping.camera_shape
-        else:
-            self.frame_shape = self.grid_shape
         self.dark: np.ndarray | None = None
         if manifest.dark is not None:
             dark_path = manifest.file_path(manifest.dark, allow_outside)
-            dark = self._read_sized(dark_path, "dark frame")
+            dark = read_exr_rgb(dark_path, self.frame_shape, "dark frame", self.size_of)
             bad = ~np.isfinite(dark)
             if bad.any():
                 raise DatasetError(f"{dark_path}: {int(bad.sum())} NaN or Inf values in the dark frame")
@@ -84,31 +101,27 @@ class FrameReader:
             return np.ones(self.grid_shape, bool)
         return self.mapping.observed
 
-    def _read_sized(self, path: Path, what: str) -> np.ndarray:
-        height, width = exr_size(path)  # the header, before anything is decoded
-        if (height, width) != tuple(self.frame_shape):
-            expected = "the mapping" if self.mapping is not None else "the grid"
-            raise DatasetError(
-                f"{path}: {what} is {height} x {width}, expected "
-                f"{self.frame_shape[0]} x {self.frame_shape[1]} (the size of {expected})"
-            )
-        return read_exr_rgb(path, (height, width))
-
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
 
     def read(self, frame: FrameEntry) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance and how many of
-        its pixel values were NaN or Inf (the caller decides how to report them)."""
-        image = self._read_sized(self.manifest.file_path(frame.file, self.allow_outside), "frame")
+        its pixel values were NaN or Inf (the caller decides how to report them).
+
+        Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
+        finite value out of float32's range (to Inf, or a non-zero value to 0).
+        """
+        path = self.manifest.file_path(frame.file, self.allow_outside)
+        image = read_exr_rgb(path, self.frame_shape, "frame", self.size_of)
         bad = int(np.count_nonzero(~np.isfinite(image)))
         grid = self._to_grid(image)
-        with np.errstate(over="ignore", under="ignore"):
-            radiance = grid / np.float32(frame.exposure)
+        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+            scaled = grid / np.float32(frame.exposure)
+            radiance = scaled if self.dark is None else scaled - self.dark
         finite = np.isfinite(grid)
-        if (~np.isfinite(radiance) & finite).any() or ((radiance == 0) & (grid != 0) & finite).any():
-            raise DatasetError(f"{self.manifest.folder / frame.file}: dividing by the exposure {frame.exposure:g} "
+        if (~np.isfinite(scaled) & finite).any() or ((scaled == 0) & (grid != 0) & finite).any():
+            raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
                                "takes values out of float32's range")
-        if self.dark is not None:
-            radiance -= self.dark
+        if (~np.isfinite(radiance) & finite).any():
+            raise DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
         return radiance.astype(np.float32, copy=False), bad

@@ -14,8 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import exr_size, read_exr_rgb
+from .exr import read_exr_rgb
 from .manifest import Manifest
+
+MAX_GROUND_TRUTH_BYTES = 4 * 2**30
+"""Largest stack of path-length images read (checked by arithmetic before allocating)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,16 +56,15 @@ def read_path_length_images(
     entries = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
     if not entries:
         return None
+    needed = len(entries) * manifest.height * manifest.width * 3 * 4  # Python ints: no overflow
+    if needed > MAX_GROUND_TRUTH_BYTES:
+        raise DatasetError(f"{manifest.path}: {len(entries)} path-length images of {manifest.height} x "
+                           f"{manifest.width} need {needed / 2**30:.1f} GiB, over the "
+                           f"{MAX_GROUND_TRUTH_BYTES / 2**30:.0f} GiB ringlight reads")
     images = np.empty((len(entries), manifest.height, manifest.width, 3), np.float32)
     for index, entry in enumerate(entries):
         path = manifest.file_path(entry.file, allow_outside)
-        height, width = exr_size(path)  # the header, before anything is decoded
-        if (height, width) != (manifest.height, manifest.width):
-            raise DatasetError(
-                f"{path}: ground-truth image is {width}x{height}, "
-                f"the grid is {manifest.width}x{manifest.height}"
-            )
-        images[index] = read_exr_rgb(path, (height, width))
+        images[index] = read_exr_rgb(path, (manifest.height, manifest.width), "ground-truth image", "the grid")
         if progress is not None:
             progress((index + 1) / len(entries))
     bounds = np.array([(entry.min, entry.max) for entry in entries], np.float64)

@@ -219,7 +219,11 @@ def open_dataset(
     offsets = disc_offsets(max_radius)
     location = cache.cache_location(manifest.folder) if use_cache else None
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
-    arrays = cache.load_cache(location, key) if use_cache else None
+    height, width = manifest.height, manifest.width
+    expected = {"responses": ((height, width, len(offsets), 3), np.dtype(np.float32)),
+                "lit_counts": ((height, width), np.dtype(np.int32)),
+                "observed": ((height, width), np.dtype(bool))}
+    arrays = cache.load_cache(location, key, expected) if use_cache else None
     if arrays is None:
         arrays = _assemble_responses(manifest, offsets, progress, allow_outside)
         if use_cache:
@@ -238,21 +242,28 @@ def _assemble_responses(
     """Read every frame and scatter each lit point's light into the offset layout."""
     height, width = manifest.height, manifest.width
     reader = FrameReader(manifest, allow_outside)
+    # The first frame is read before the response array exists: a manifest whose frames are
+    # missing or of the wrong size fails before anything of the grid's size is allocated.
+    first = reader.read(manifest.frames[0])
     lit_counts = manifest.lit_counts()
-    inverse_counts = np.where(lit_counts > 0, 1.0 / np.maximum(lit_counts, 1), 0.0).astype(np.float32)
+    inverse_counts = np.zeros(lit_counts.shape, np.float32)
+    np.divide(1, lit_counts, out=inverse_counts, where=lit_counts > 0)
     responses = np.zeros((height, width, len(offsets), 3), np.float32)
-    offset_index = np.arange(len(offsets))
+    # Only offsets shorter than the grid can join two grid points: a max_radius far beyond the
+    # grid (1024 on a 4 x 3 grid, 3.3 million offsets) must not cost that much per frame.
+    offset_index = np.flatnonzero((np.abs(offsets[:, 0]) < height) & (np.abs(offsets[:, 1]) < width))
+    reachable = offsets[offset_index]
     bad_values, bad_frames, first_bad = 0, 0, None
     for done, frame in enumerate(manifest.frames):
-        radiance, bad = reader.read(frame)
+        radiance, bad = first if done == 0 else reader.read(frame)
         if bad:
             bad_values += bad
             bad_frames += 1
             first_bad = first_bad or manifest.folder / frame.file
         # Every lit point q owns the points p = q - d within max_radius (multiplexed points are
         # more than 2 * max_radius apart, so no p is claimed twice in one frame).
-        py = frame.lit[:, 0, None] - offsets[None, :, 0]
-        px = frame.lit[:, 1, None] - offsets[None, :, 1]
+        py = frame.lit[:, 0, None] - reachable[None, :, 0]
+        px = frame.lit[:, 1, None] - reachable[None, :, 1]
         inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
         point, k = np.nonzero(inside)
         py, px = py[point, k], px[point, k]

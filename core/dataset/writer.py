@@ -6,6 +6,8 @@
 
 Everything is written into a hidden staging folder beside the target and renamed into place
 when the ``with`` block ends cleanly; an exception, Ctrl-C or a kill leaves no dataset behind.
+An earlier dataset is replaced only on request and only when the folder holds nothing but what
+ringlight wrote there (the rule of :mod:`ringlight.core.atomic`).
 """
 
 from __future__ import annotations
@@ -16,18 +18,45 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_folder
+from ..atomic import Owned, check_output_folder, output_folder
 from ..errors import DatasetError
+from ..validation import read_json
+from .cache import CACHE_FOLDER_NAME
 from .exr import write_exr_channels, write_exr_rgb
 from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, parse_manifest
+
+RINGLIGHT_SUBFOLDERS = (CACHE_FOLDER_NAME, ".scan")
+"""Folders ringlight keeps inside a dataset: the cache and a capture's scan record."""
 
 
 def is_dataset_folder(path: Path) -> bool:
     """True when ``path`` holds a manifest of the ringlight impulse format."""
+    return dataset_files(Path(path)) is not None
+
+
+def dataset_files(folder: Path) -> Owned | None:
+    """What a dataset in ``folder`` consists of: its manifest, every file the manifest names
+    (frames, dark, mapping, ground-truth images) and ringlight's subfolders; None when
+    ``folder`` holds no ringlight impulse manifest."""
     try:
-        return json.loads((path / MANIFEST_NAME).read_text(encoding="utf-8")).get("format") == FORMAT_NAME
-    except (OSError, ValueError, AttributeError):
-        return False
+        manifest = read_json(Path(folder) / MANIFEST_NAME, DatasetError, "dataset manifest")
+    except DatasetError:
+        return None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
+        return None
+    names = [manifest.get("dark"), manifest.get("mapping")]
+    truth = manifest.get("ground_truth")
+    for entries in (manifest.get("frames"), truth.get("path_length_images") if isinstance(truth, dict) else None):
+        if isinstance(entries, list):
+            names += [entry.get("file") for entry in entries if isinstance(entry, dict)]
+    return Owned(frozenset([MANIFEST_NAME, *(name for name in names if isinstance(name, str))]),
+                 RINGLIGHT_SUBFOLDERS)
+
+
+def check_dataset_target(path, overwrite: bool = False) -> None:
+    """Raise :class:`~ringlight.core.atomic.OutputError` unless a :class:`DatasetWriter` may
+    write ``path`` (call it before long work, so that a refusal comes first)."""
+    check_output_folder(path, dataset_files, "dataset", replace=overwrite)
 
 
 class DatasetWriter:
@@ -36,8 +65,9 @@ class DatasetWriter:
     Parameters
     ----------
     path
-        Final dataset folder. If it exists it must be a ringlight dataset and ``overwrite`` true,
-        or an empty folder; anything else raises :class:`DatasetError`.
+        Final dataset folder: absent, an empty folder, or (with ``overwrite``) a ringlight
+        dataset holding nothing but its own files; anything else raises
+        :class:`~ringlight.core.atomic.OutputError` before anything is written.
     grid_shape
         ``(H, W)`` of the grid.
     max_radius, pitch_mm, colorspace, notes
@@ -62,15 +92,8 @@ class DatasetWriter:
         overwrite: bool = False,
     ):
         self.path = Path(path)
-        if self.path.exists() and not (
-            (self.path.is_dir() and not any(self.path.iterdir()))
-            or (overwrite and is_dataset_folder(self.path))
-        ):
-            raise DatasetError(
-                f"{self.path}: already exists and is not an empty folder"
-                + ("" if overwrite else " (pass overwrite to replace a dataset)")
-                + "; refusing to overwrite it"
-            )
+        self.overwrite = overwrite
+        check_dataset_target(self.path, overwrite)
         self.manifest: dict = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
@@ -91,7 +114,8 @@ class DatasetWriter:
 
     def __enter__(self) -> "DatasetWriter":
         self._exit_stack = ExitStack()
-        self.staging = self._exit_stack.enter_context(atomic_folder(self.path))
+        self.staging = self._exit_stack.enter_context(
+            output_folder(self.path, dataset_files, "dataset", replace=self.overwrite))
         (self.staging / "frames").mkdir()
         return self
 

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_folder
+from ..atomic import Owned, check_output_folder, output_folder
 from ..dataset.exr import read_exr_rgb, write_exr_rgb
-from ..errors import DatasetError, StackError
+from ..errors import DatasetError
+from ..validation import read_json
 from .stacks import Stack
 
 STACK_FORMAT = "ringlight-stack"
@@ -20,23 +21,38 @@ STACK_MANIFEST = "stack.json"
 
 def is_stack_folder(path: Path) -> bool:
     """True when ``path/stack.json`` declares the ringlight stack format."""
+    return stack_files(Path(path)) is not None
+
+
+def stack_files(folder: Path) -> Owned | None:
+    """What an earlier stack export wrote in ``folder``: ``stack.json`` and the images it names;
+    None when ``folder`` holds no ringlight stack manifest."""
     try:
-        return json.loads((Path(path) / STACK_MANIFEST).read_text(encoding="utf-8")).get("format") == STACK_FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
+        manifest = read_json(Path(folder) / STACK_MANIFEST, DatasetError, "stack manifest", max_bytes=2**24)
+    except DatasetError:
+        return None
+    if not isinstance(manifest, dict) or manifest.get("format") != STACK_FORMAT:
+        return None
+    images = manifest.get("images")
+    names = [name for name in images if isinstance(name, str)] if isinstance(images, list) else []
+    return Owned(frozenset([STACK_MANIFEST, *names]))
+
+
+def check_stack_target(folder) -> None:
+    """Raise :class:`~ringlight.core.atomic.OutputError` unless :func:`write_stack` may write
+    ``folder`` (call it before computing a stack, so that a refusal comes first)."""
+    check_output_folder(folder, stack_files, "stack")
 
 
 def write_stack(stack: Stack, folder, progress: Callable[[float], None] | None = None) -> Path:
     """Write ``stack`` as ``folder/stack.json`` plus one float EXR per radius, atomically.
 
-    ``folder`` may be absent, an empty folder or an earlier stack export (replaced); anything
-    else raises :class:`StackError` so that user data is never overwritten.
+    ``folder`` may be absent, an empty folder or an earlier stack export holding only the files
+    its ``stack.json`` names (replaced whole); anything else raises
+    :class:`~ringlight.core.atomic.OutputError` and nothing is touched (see
+    :mod:`ringlight.core.atomic`).
     """
     folder = Path(folder)
-    if folder.exists() and not (
-        (folder.is_dir() and not any(folder.iterdir())) or is_stack_folder(folder)
-    ):
-        raise StackError(f"{folder}: exists and is not a ringlight stack folder; refusing to overwrite it")
     prefix = "ring" if stack.kind == "ring" else "transient"
     names = [f"{prefix}_{index:03d}.exr" for index in range(len(stack.radii))]
     manifest = {
@@ -45,7 +61,7 @@ def write_stack(stack: Stack, folder, progress: Callable[[float], None] | None =
         "step": stack.step, "colorspace": stack.colorspace,
         "images": names,
     }
-    with atomic_folder(folder) as staging:
+    with output_folder(folder, stack_files, "stack") as staging:
         for index, name in enumerate(names):
             write_exr_rgb(staging / name, stack.images[index])
             if progress is not None:
@@ -60,6 +76,10 @@ def read_stack(folder) -> tuple[dict, np.ndarray]:
     path = folder / STACK_MANIFEST
     if not is_stack_folder(folder):
         raise DatasetError(f"{path}: not a ringlight stack manifest")
-    manifest = json.loads(path.read_text(encoding="utf-8"))
-    images = np.stack([read_exr_rgb(folder / name) for name in manifest["images"]])
+    manifest = read_json(path, DatasetError, "stack manifest")
+    names = manifest.get("images") if isinstance(manifest, dict) else None
+    if not isinstance(names, list) or not names or not all(
+            isinstance(name, str) and name and "/" not in name and name not in (".", "..") for name in names):
+        raise DatasetError(f"{path}: 'images' must be a non-empty list of file names in the stack folder")
+    images = np.stack([read_exr_rgb(folder / name) for name in names])
     return manifest, images

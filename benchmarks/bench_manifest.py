@@ -1,0 +1,76 @@
+"""Benchmark of manifest parsing and validation (not a test: prints figures from one run).
+
+Writes a one-point-per-frame manifest of ``--frames`` frames (default 100,000, on a 250 x 400
+grid) and a multiplexed one of the same number of lit points (groups on a lattice, max_radius 2),
+then times ``read_manifest`` (reading, bounded JSON decoding, validation; best of 3) and
+measures its peak Python memory (tracemalloc, separate run). Issue 11 measured 51 s for 100,000
+frames before this work; the target is at least 10 times faster, so at most 5.1 s. Printed: the
+time, the target and their ratio (over 1 means faster than the target).
+
+    python benchmarks/bench_manifest.py [--frames 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+from ringlight.core.dataset.manifest import read_manifest
+
+BEFORE_S = 51.0
+"""Seconds the issue measured for 100,000 frames before the fix."""
+TARGET_S = BEFORE_S / 10
+
+
+def write_manifest(folder: Path, frames: int, multiplexed: bool) -> int:
+    """Write the manifest; returns its size in bytes."""
+    width = 400
+    height = -(-frames // width)
+    if multiplexed:  # 5-step lattice: points 5 apart, more than 2 * max_radius = 4
+        groups = [[[y, x] for y in range(phase_y, height, 5) for x in range(phase_x, width, 5)]
+                  for phase_y in range(5) for phase_x in range(5)]
+    else:
+        groups = [[[i // width, i % width]] for i in range(frames)]
+    document = {"format": "ringlight-impulse", "version": 1, "grid": {"height": height, "width": width},
+                "frames": [{"file": f"frames/{i:06d}.exr", "lit": lit, "exposure": 1.0}
+                           for i, lit in enumerate(groups)]}
+    if multiplexed:
+        document["max_radius"] = 2
+    text = json.dumps(document)
+    (folder / "dataset.json").write_text(text)
+    return len(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=100_000)
+    args = parser.parse_args()
+    for multiplexed in (False, True):
+        with tempfile.TemporaryDirectory() as folder:
+            folder = Path(folder)
+            size = write_manifest(folder, args.frames, multiplexed)
+            times = []
+            for _ in range(3):
+                started = time.perf_counter()
+                manifest = read_manifest(folder)
+                times.append(time.perf_counter() - started)
+            tracemalloc.start()
+            read_manifest(folder)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+        kind = "multiplexed" if multiplexed else "one point per frame"
+        points = sum(len(frame.lit) for frame in manifest.frames)
+        print(f"{kind}: {len(manifest.frames)} frames, {points} lit points, {size / 2**20:.1f} MiB of JSON")
+        print(f"  read_manifest    {min(times):.3f} s (best of 3)")
+        print(f"  peak memory      {peak / 2**20:.0f} MiB (tracemalloc)")
+        if not multiplexed:
+            print(f"  target           {TARGET_S:.1f} s (10x faster than the {BEFORE_S:.0f} s before); "
+                  f"ratio target / time = {TARGET_S / min(times):.1f}")
+
+
+if __name__ == "__main__":
+    main()
