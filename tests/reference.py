@@ -113,3 +113,11 @@ def supersampled_annulus_weight(radius, thickness, samples=64):
         return float(((distance >= inner) & (distance < outer)).mean())
 
     return weight
+
+
+def edit_manifest(folder: Path, change) -> None:
+    """Apply ``change(manifest_dict)`` to ``folder/dataset.json`` in place (tests break one thing)."""
+    path = folder / "dataset.json"
+    manifest = json.loads(path.read_text())
+    change(manifest)
+    path.write_text(json.dumps(manifest))

@@ -1,12 +1,11 @@
 """Every bad input of the core issue gives one line naming the file and the problem, exit 2."""
 
-import json
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from reference import random_impulses, write_dataset, write_exr, write_rgb
+from reference import edit_manifest, random_impulses, write_dataset, write_exr, write_rgb
 from ringlight.app.main import main
 
 
@@ -16,13 +15,6 @@ def dataset(tmp_path):
     impulses = random_impulses(np.random.default_rng(0), 6, 5, support=10)
     write_dataset(tmp_path / "ds", 6, 5, impulses)
     return tmp_path / "ds"
-
-
-def edit_manifest(folder, change):
-    path = folder / "dataset.json"
-    manifest = json.loads(path.read_text())
-    change(manifest)
-    path.write_text(json.dumps(manifest))
 
 
 def run_cli(capsys, *args):

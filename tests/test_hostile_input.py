@@ -12,7 +12,7 @@ import numpy as np
 import OpenEXR
 import pytest
 import ringlight.core.dataset.frames as frames_module
-from reference import random_impulses, write_dataset, write_exr, write_rgb
+from reference import edit_manifest, random_impulses, write_dataset, write_exr, write_rgb
 from ringlight.core import DatasetError, open_dataset
 from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
 from ringlight.core.dataset.checks import check_files
@@ -27,13 +27,6 @@ def dataset(tmp_path):
     """A valid 6 x 5 one-point-per-frame dataset (30 frames); tests break one thing each."""
     write_dataset(tmp_path / "ds", 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
     return tmp_path / "ds"
-
-
-def edit_manifest(folder, change):
-    path = folder / "dataset.json"
-    manifest = json.loads(path.read_text())
-    change(manifest)
-    path.write_text(json.dumps(manifest))
 
 
 def replace_in_manifest(folder, old, new):
