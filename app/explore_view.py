@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 from ringlight.core import ring_geometry
-from ringlight.core.colour.display import DisplaySettings, display_levels, negative_fraction, render
-from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.colour.display import (
+    DisplaySettings,
+    display_levels,
+    negative_fraction,
+    render,
+)
 from ringlight.core.colour.regions import region_statistics
+from ringlight.core.dataset.ground_truth import normalised_cross_correlation
 from ringlight.core.rings.profiles import pixel_profile
 
 

@@ -14,7 +14,12 @@ from ringlight.core import ImpulseDataset, RinglightError, Stack
 from ringlight.core.atomic import atomic_file
 from ringlight.core.colour.chroma import propose_radii, recover_layers, trajectory
 from ringlight.core.colour.image_export import ExportError, write_text
-from ringlight.core.colour.layer_report import LayerAnalysis, analysis_csv, analysis_json, truth_layers
+from ringlight.core.colour.layer_report import (
+    LayerAnalysis,
+    analysis_csv,
+    analysis_json,
+    truth_layers,
+)
 from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.jobs import JobSlot

@@ -15,9 +15,18 @@ from pathlib import Path
 
 import numpy as np
 from ringlight.core import ImpulseDataset, RinglightError, open_dataset, read_manifest
-from ringlight.core.dataset.ground_truth import PathLengthImages, read_path_length_images, stack_correlations
+from ringlight.core.dataset.ground_truth import (
+    PathLengthImages,
+    read_path_length_images,
+    stack_correlations,
+)
 from ringlight.core.rings.profiles import ProfileRings, profile_rings
-from ringlight.core.rings.stack_request import StackPair, StackRequest, compute_stacks, default_request
+from ringlight.core.rings.stack_request import (
+    StackPair,
+    StackRequest,
+    compute_stacks,
+    default_request,
+)
 from ringlight.core.simulate.presets import ensure_demo_dataset
 
 Progress = Callable[[float], None]

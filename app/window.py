@@ -27,6 +27,7 @@ from ringlight.core import RinglightError
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
+from ringlight.core.simulate.transport import simulated_before_camera_measure
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import VIEWS, DisplayControls
 from ringlight.widgets.image_panel import ImagePanel
@@ -54,6 +55,13 @@ Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018.
 
 README.md: "Explorer window" (this window), "Capture", "Command line", "Safety".
 License: BSD-3-Clause."""
+EXITANCE_NOTICE = """{path} was simulated by an earlier ringlight, whose frames hold exitance: all light
+leaving each pixel in any direction, plus the specular reflection at the lit pixel. A camera sees the
+radiance toward it, which has another radial shape (about 1.6x at the lit point, 0.6-0.85x one to
+four steps away). Its profiles, transients and ground truth are not comparable with a capture.
+
+Re-simulate it with this ringlight for camera-like data, for example:
+    ringlight simulate PRESET_OR_SCENE.json --out NEW_FOLDER"""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
@@ -275,6 +283,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, QMainWindow):
         self._remember_recent(dataset.path)
         self.settings.setValue("last_folder", str(dataset.path.parent))
         self._update_title()
+        if simulated_before_camera_measure(dataset.manifest):
+            self._information("Simulated before camera radiance", EXITANCE_NOTICE.format(path=dataset.path))
         self.dataset_loaded.emit()
 
     def _update_title(self) -> None:

@@ -7,11 +7,16 @@ import numpy as np
 import pytest
 from ringlight.app.main import main
 from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
+from ringlight.core.simulate.camera import optics, specular_reflectance
 from ringlight.core.simulate.lattice import lattice_frames
-from ringlight.core.simulate.photon import reflectance_run, specular_reflectance, trace_exits
+from ringlight.core.simulate.photon import reflectance_run, trace_events
 from ringlight.core.simulate.presets import load_scene, preset_names
 from ringlight.core.simulate.scene import SceneError, parse_scene
-from ringlight.core.simulate.transport import simulate_transport, write_transport
+from ringlight.core.simulate.transport import (
+    simulate_transport,
+    simulated_measure,
+    write_transport,
+)
 
 ONE_VOXEL = np.zeros((1, 1, 1), np.uint8)
 
@@ -68,13 +73,13 @@ def farrell_dipole(rho, mua, mus_reduced, n=1.0):
 def test_far_field_radial_profile_follows_the_diffusion_dipole_in_shape():
     mua, mus = 0.01, 1.0
     volume = np.zeros((1, 1, 1), np.uint8)
-    records = trace_exits(volume, np.array([mua + mus]), np.array([mus / (mua + mus)]), np.array([0.0]),
-                          mua + mus, 1.0, np.inf, 0.0, 0.0, 300_000, 3, 0)
-    exited = records[:, 0] > 0
-    rho = np.hypot(records[exited, 3] - records[exited, 1], records[exited, 4] - records[exited, 2])
+    photons = 300_000
+    exits = trace_events(volume, np.array([mua + mus]), np.array([mus / (mua + mus)]), np.array([0.0]),
+                         mua + mus, optics(1.0, np.inf), False, 0.0, 0.0, photons, 3, 0, photons)
+    rho = np.hypot(exits[:, 3] - exits[:, 1], exits[:, 4] - exits[:, 2])
     edges = np.linspace(4, 16, 9)
-    weights, _ = np.histogram(rho, edges, weights=records[exited, 6])
-    density = weights / (math.pi * np.diff(edges**2)) / len(records)
+    weights, _ = np.histogram(rho, edges, weights=exits[:, 6])
+    density = weights / (math.pi * np.diff(edges**2)) / photons
     centres = 0.5 * (edges[1:] + edges[:-1])
     ratio = density / farrell_dipole(centres, mua, mus)
     # Shape: the ratio is flat within 12 % over 4-16 mean free paths, while the profile itself
@@ -92,18 +97,21 @@ def homogeneous_scene(size=11, photons=400, max_radius=3.0, mua=0.2, mus=1.0, n=
     })
 
 
-def test_path_length_is_never_shorter_than_the_surface_distance():
-    """The paper's Eq. 3 lower bound, checked photon by photon in a layered medium with n = 1.4."""
+@pytest.mark.parametrize("camera, view", [(False, (0, 0)), (True, (0, 0)), (True, (50, 120))])
+def test_path_length_is_never_shorter_than_the_surface_distance(camera, view):
+    """The paper's Eq. 3 lower bound, checked event by event in a layered medium with n = 1.4,
+    for the exits and for the next-event paths toward a straight-down and an oblique camera."""
     scene = load_scene("layers3", size=(9, 9))
     channel = 1
     mu_t = np.array([m.mus[channel] + m.mua[channel] for m in scene.materials])
     albedo = np.array([m.mus[channel] for m in scene.materials]) / mu_t
-    records = trace_exits(scene.volume, mu_t, albedo, np.zeros(3), mu_t.max(), 1.4, scene.depth,
-                          4.0, 4.0, 20_000, 1, 0)
-    exited = records[:, 0] > 0
-    distance = np.hypot(records[exited, 3] - records[exited, 1], records[exited, 4] - records[exited, 2])
-    assert exited.sum() > 5_000
-    assert np.all(records[exited, 5] >= distance - 1e-9)
+    events = trace_events(scene.volume, mu_t, albedo, np.zeros(3), mu_t.max(),
+                          optics(1.4, scene.depth, camera=view), camera, 4.0, 4.0, 5_000, 1, 0, 2_000_000)
+    distance = np.hypot(events[:, 3] - events[:, 1], events[:, 4] - events[:, 2])
+    assert len(events) > 1_000
+    assert np.all(events[:, 5] >= distance - 1e-9)
+    if view[0]:  # the oblique path to the camera leaves away from where it scattered
+        assert distance.max() > 3
 
 
 def test_impulse_reflectance_equals_the_sum_of_its_path_length_images():
@@ -113,9 +121,9 @@ def test_impulse_reflectance_equals_the_sum_of_its_path_length_images():
     truth_total = transport_one.path_length_images.sum(axis=(0, 1, 2))
     # Every exit lands inside both the window and the bins here (checked on the photons themselves).
     # The same photons, replayed one by one: point [20, 20]'s random stream is its grid index.
-    records = trace_exits(scene.volume, np.array([1.3]), np.array([1 / 1.3]), np.zeros(1), 1.3, 1.0,
-                          scene.depth, 20.0, 20.0, 3000, 5, 20 * 41 + 20)
-    done = records[records[:, 0] > 0]
+    done = trace_events(scene.volume, np.array([1.3]), np.array([1 / 1.3]), np.zeros(1), 1.3,
+                        optics(1.0, scene.depth, uniform_mu_t=1.3), True, 20.0, 20.0, 3000, 5, 20 * 41 + 20,
+                        1_000_000)
     assert np.abs(np.floor(done[:, 3:5] + 0.5) - 20).max() <= 20 and done[:, 5].max() < 400
     np.testing.assert_allclose(impulse_total, truth_total, rtol=1e-5)
     np.testing.assert_allclose(impulse_total[0], done[:, 6].sum() / 3000, rtol=1e-5)
@@ -145,14 +153,13 @@ def test_written_dataset_holds_the_simulated_transport(tmp_path):
     assert all(len(frame.lit) == 4 for frame in manifest.frames)
     assert len(manifest.ground_truth.path_length_images) == 200
     dataset = open_dataset(tmp_path / "ds")
-    # E_0 at every point is its own exit pixel's light, specular included.
+    # E_0 at every point is its own pixel's light.
     e0 = ring_stack(dataset, [0.0]).images[0]
     centre = transport.windows[:, :, 3, 3]
     np.testing.assert_allclose(e0, centre, rtol=1e-6)
-    assert e0.min() > specular_reflectance(1.4)
-    # The specular reflection is colourless and sits in the first path-length bin.
-    first_bin = transport.path_length_images[0]
-    assert first_bin.min() >= specular_reflectance(1.4)
+    # The manifest says what the frames hold, and states the specular reflection left out of them.
+    assert simulated_measure(manifest) == "camera"
+    assert "specular reflection 0.0277778 of the beam, not in the frames" in manifest.notes
 
 
 def test_layered_scene_records_each_layer_with_a_reference_colour(tmp_path):
@@ -186,6 +193,10 @@ def test_an_interrupted_write_leaves_no_dataset(tmp_path):
     (lambda s: s.update(grid={"height": 4096, "width": 4096}), "fit in memory"),
     (lambda s: s.update(layers=[{"material": "m", "top": 3, "bottom": 1}]), "needs 0 <= top < bottom"),
     (lambda s: s.update(n=0.5), "refractive index"),
+    (lambda s: s.update(measure="radiance"), "'measure' must be 'camera' or 'exitance', got 'radiance'"),
+    (lambda s: s.update(camera={"direction": [95, 0]}), "'camera.direction' must be [zenith, azimuth]"),
+    (lambda s: s.update(projector={"direction": [10]}), "'projector.direction' must be a list of 2 numbers"),
+    (lambda s: s.update(camera={"zenith": 10}), "unknown key(s) 'zenith' in camera"),
 ])
 def test_bad_scenes_are_refused_with_a_clear_message(change, needle):
     scene = {"format": "ringlight-scene", "version": 1, "grid": {"height": 8, "width": 8}, "depth": 8,

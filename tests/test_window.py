@@ -370,7 +370,10 @@ def test_screenshot_option_renders_the_window_offscreen_and_exits(dataset, tmp_p
     image = cv2.imread(str(out))
     assert image is not None and image.shape[0] > 400 and image.shape[1] > 800
     assert image.std() > 10  # a drawn window, not a blank canvas
-    assert main([str(dataset), "--screenshot", str(out), "--pick", "99,4"]) == 2
+    capsys.readouterr()
+    assert main([str(dataset), "--screenshot", str(out)]) == 2  # an existing file is never replaced
+    assert "exists" in capsys.readouterr().err
+    assert main([str(dataset), "--screenshot", str(out), "--overwrite", "--pick", "99,4"]) == 2
     assert "--pick 99,4 is outside the 14x12 grid" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([str(dataset), "--pick", "3,4"])  # --pick without --screenshot

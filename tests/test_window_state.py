@@ -157,3 +157,19 @@ def test_dragging_the_levels_histogram_sets_manual_levels(qtbot, window, tmp_pat
     np.testing.assert_allclose(settings.manual_levels, (low, high), rtol=1e-5)
     expected = render(image, settings.manual_levels, settings, window.loaded.dataset.colorspace)
     np.testing.assert_array_equal(window.image_panel.pixels(), expected)
+
+
+@pytest.mark.parametrize("measure_line, notice", [("", True), ("\nmeasure: camera", False)])
+def test_a_dataset_simulated_as_exitance_is_flagged_when_opened(qtbot, window, tmp_path, measure_line, notice):
+    from PySide6.QtWidgets import QMessageBox
+
+    folder = make_dataset(tmp_path / "legacy", 9, 3, seed=10)
+    manifest = json.loads((folder / "dataset.json").read_text())
+    manifest["notes"] = "simulated by ringlight from preset red-bead" + measure_line
+    manifest["ground_truth"] = {"layers": [{"name": "top", "depth": [0, 1], "rgb": [0.5, 0.5, 0.5]}]}
+    (folder / "dataset.json").write_text(json.dumps(manifest))
+    open_and_wait(qtbot, window, folder)
+    titles = [box.windowTitle() for box in window.findChildren(QMessageBox) if box.isVisible()]
+    assert ("Simulated before camera radiance" in titles) == notice
+    for box in window.findChildren(QMessageBox):
+        box.close()

@@ -7,6 +7,10 @@ import sys
 import numpy as np
 from ringlight.core import effective_max_radius, read_manifest, response_memory_bytes
 from ringlight.core.dataset.checks import check_files
+from ringlight.core.simulate.transport import (
+    simulated_before_camera_measure,
+    simulated_measure,
+)
 
 MAX_PROBLEMS_SHOWN = 20
 EXIT_FILE_PROBLEMS = 2
@@ -62,8 +66,13 @@ def run_info(args) -> int:
         for layer in truth.layers:
             rgb = ", ".join(f"{v:.3f}" for v in layer.rgb)
             lines.append(f"  layer      {layer.name}: depth {layer.depth[0]:g}-{layer.depth[1]:g}, rgb ({rgb})")
+    measure = simulated_measure(manifest)
+    if simulated_before_camera_measure(manifest):
+        lines.append("measure      exitance: simulated before ringlight scored camera radiance; re-simulate it")
+    elif measure is not None:
+        lines.append(f"measure      {measure} (simulated)")
     if manifest.notes:
-        lines.append(f"notes        {manifest.notes}")
+        lines.append("notes        " + "\n             ".join(manifest.notes.splitlines()))
     print("\n".join(lines))
     problems = check_files(manifest, allow_outside=getattr(args, "allow_outside", False))
     if problems:

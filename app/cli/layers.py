@@ -6,7 +6,11 @@ from ringlight.core import RinglightError, open_dataset
 from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.chroma import METHODS
 from ringlight.core.colour.image_export import write_text
-from ringlight.core.colour.layer_report import analyse_layers, analysis_json, analysis_stack_request
+from ringlight.core.colour.layer_report import (
+    analyse_layers,
+    analysis_json,
+    analysis_stack_request,
+)
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 
 from .progress import progress_bar

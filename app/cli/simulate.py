@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 from ringlight.core.dataset.writer import check_dataset_target
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError

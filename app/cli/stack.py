@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-from ringlight.core import needed_radius, open_dataset, parse_radius_range, ring_stack, transient_stack, write_stack
-
+from ringlight.core import (
+    needed_radius,
+    open_dataset,
+    parse_radius_range,
+    ring_stack,
+    transient_stack,
+    write_stack,
+)
 from ringlight.core.rings.stack_io import check_stack_target
 
 from .progress import progress_bar

@@ -2,10 +2,11 @@
 
 Units: lengths in grid steps, coefficients per grid step. Depth ``z`` grows downward from the
 surface ``z = 0``; lateral position ``(y, x)`` in grid coordinates (pixel centres on integers).
-One photon (scalar weight, one colour channel) enters straight down at a given point:
+One photon (scalar weight, one colour channel) enters at a given point; the scene's geometry
+comes in an ``optics`` array (:func:`ringlight.core.simulate.camera.optics`):
 
-- Fresnel at entry: the specular part ((n - 1) / (n + 1))^2 is the caller's to record; the
-  photon continues with weight 1 - that.
+- Entry: the beam refracts in along the projector's direction; the photon starts with the
+  Fresnel transmission at that angle as its weight (the specular part is not simulated).
 - Free paths by delta (Woodcock) tracking against a majorant of mu_t, so heterogeneous voxels
   need no ray marching; a tentative collision is real with probability mu_t(voxel) / majorant.
 - At a real collision the weight is multiplied by the albedo (implicit capture) and the photon
@@ -13,8 +14,20 @@ One photon (scalar weight, one colour channel) enters straight down at a given p
 - At the surface, unpolarised Fresnel reflection with total internal reflection, sampled
   (reflect with probability R, else exit with the full weight); through ``z = depth`` it is lost.
 
-Random numbers: xoroshiro128+ seeded by splitmix64 from ``(seed, stream)``, one stream per
-lit point and channel, so results do not depend on the number of threads.
+What is scored (each score is a value at a surface position with a path length inside):
+
+- ``camera`` measure: at every real scattering, after the albedo, the next-event estimate of
+  the light leaving toward the camera (:func:`ringlight.core.simulate.camera.camera_estimate`),
+  at the pixel where the path to the camera meets the surface, with path length the length so
+  far plus that path's. The walk itself goes on unchanged, so its analogue exits are not scored.
+- ``exitance`` measure: the weight of each photon that leaves, where it leaves, with its length.
+
+Either way the walk and its random numbers are the same, so further estimators (splitting,
+more next-event targets) attach at the scattering vertex without touching the walk.
+
+Random numbers (:mod:`ringlight.core.simulate.streams`): one stream per lit point and channel
+for the walk and another for the estimator, so results do not depend on the number of threads
+and the walk does not depend on the measure.
 """
 
 from __future__ import annotations
@@ -24,80 +37,78 @@ import math
 import numba
 import numpy as np
 
+from .camera import (
+    BEAM_X,
+    BEAM_Y,
+    BEAM_Z,
+    DEPTH,
+    ENTRY_WEIGHT,
+    INDEX,
+    OPTICS_SIZE,
+    camera_estimate,
+    exit_fresnel,
+    view_constants,
+)
+from .streams import ESTIMATOR_STREAM, seed_state, uniform
+
 ROULETTE_WEIGHT = 1e-4
 ROULETTE_SURVIVAL = 0.1
+RECORD_COLUMNS = 7
+"""Columns of an event record: photon, entry y, entry x, surface y, surface x, path length, value."""
 
 
 @numba.njit(cache=True, inline="always")
-def _rotl(x, k):
-    return (x << np.uint64(k)) | (x >> np.uint64(64 - k))
+def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x,
+           surface_y, surface_x, length, value):
+    """Add ``value`` to the lit point's window (offsets from ``(centre_y, centre_x)``), to the
+    path-length image of its bin, and as a row of ``records`` while there is room; returns the
+    number of events so far (it may exceed the rows: the caller sees the overflow)."""
+    py = int(math.floor(surface_y + 0.5))
+    px = int(math.floor(surface_x + 0.5))
+    radius = window.shape[0] // 2
+    dy = py - centre_y
+    dx = px - centre_x
+    if abs(dy) <= radius and abs(dx) <= radius:
+        window[dy + radius, dx + radius] += value
+    b = int(length / bin_step)
+    if b < truth.shape[0] and 0 <= py < truth.shape[1] and 0 <= px < truth.shape[2]:
+        truth[b, py, px] += value
+    if count < records.shape[0]:
+        records[count, 0] = photon
+        records[count, 1] = entry_y
+        records[count, 2] = entry_x
+        records[count, 3] = surface_y
+        records[count, 4] = surface_x
+        records[count, 5] = length
+        records[count, 6] = value
+    return count + 1
 
 
 @numba.njit(cache=True)
-def _splitmix(value):
-    value = value + np.uint64(0x9E3779B97F4A7C15)
-    z = value
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return value, z ^ (z >> np.uint64(31))
+def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, optics, columns,
+                 camera, window, centre_y, centre_x, truth, bin_step, records, count, photon):
+    """Trace one photon entering at ``(entry_y, entry_x)`` and score it (see the module notes);
+    ``state`` drives the walk, ``estimator_state`` the estimator.
 
-
-@numba.njit(cache=True)
-def seed_state(seed, stream):
-    """A fresh xoroshiro128+ state (2 uint64) for ``(seed, stream)``."""
-    state = np.empty(2, np.uint64)
-    value = np.uint64(seed) * np.uint64(0x100000001B3) ^ np.uint64(stream)
-    value, state[0] = _splitmix(value)
-    value, state[1] = _splitmix(value)
-    if state[0] == 0 and state[1] == 0:
-        state[0] = np.uint64(1)
-    return state
-
-
-@numba.njit(cache=True, inline="always")
-def uniform(state):
-    """Next float in [0, 1) from a xoroshiro128+ state (advanced in place)."""
-    s0 = state[0]
-    s1 = state[1]
-    result = s0 + s1
-    s1 ^= s0
-    state[0] = _rotl(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
-    state[1] = _rotl(s1, 37)
-    return (result >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
-@numba.njit(cache=True, inline="always")
-def exit_fresnel(n, cos_inside):
-    """Unpolarised reflectance for light leaving a medium of index n into air (1.0 at TIR)."""
-    if n == 1.0:
-        return 0.0
-    sin_inside = math.sqrt(max(0.0, 1.0 - cos_inside * cos_inside))
-    sin_out = n * sin_inside
-    if sin_out >= 1.0:
-        return 1.0
-    cos_out = math.sqrt(1.0 - sin_out * sin_out)
-    rs = (n * cos_inside - cos_out) / (n * cos_inside + cos_out)
-    rp = (cos_inside - n * cos_out) / (cos_inside + n * cos_out)
-    return 0.5 * (rs * rs + rp * rp)
-
-
-def specular_reflectance(n: float) -> float:
-    """Fresnel reflectance at normal incidence from air, ((n - 1) / (n + 1))^2."""
-    return ((n - 1.0) / (n + 1.0)) ** 2
-
-
-@numba.njit(cache=True)
-def trace_photon(state, y, x, volume, mu_t, albedo, g, majorant, n, depth):
-    """Trace one photon entering at ``(y, x)``. Returns ``(exited, exit_y, exit_x, length,
-    weight)``: whether it left through the surface, where, its path length inside, and its
-    weight (relative to the weight after the entry's specular loss)."""
+    ``columns`` is :func:`ringlight.core.simulate.camera.column_optical_depths` (or empty).
+    ``window`` ((2R+1, 2R+1), offsets from the lit point ``(centre_y, centre_x)``), ``truth``
+    ((bins, H, W), bins of ``bin_step``) and ``records`` ((k, RECORD_COLUMNS), from row
+    ``count``; zero rows to record nothing) receive the scores; ``camera`` picks the measure.
+    Returns ``(count, total)``: the events scored so far and the sum of this photon's values.
+    """
     layers, height, width = volume.shape
+    n = optics[INDEX]
+    depth = optics[DEPTH]
+    y = entry_y
+    x = entry_x
     z = 0.0
-    uy = 0.0
-    ux = 0.0
-    uz = 1.0
-    weight = 1.0
+    uy = optics[BEAM_Y]
+    ux = optics[BEAM_X]
+    uz = optics[BEAM_Z]
+    weight = optics[ENTRY_WEIGHT]
+    view = view_constants(optics)
     length = 0.0
+    total = 0.0
     while True:
         step = -math.log(1.0 - uniform(state)) / majorant
         if uz < 0.0 and z + step * uz <= 0.0:
@@ -109,9 +120,13 @@ def trace_photon(state, y, x, volume, mu_t, albedo, g, majorant, n, depth):
             if uniform(state) < exit_fresnel(n, -uz):
                 uz = -uz
                 continue
-            return True, y, x, length, weight
+            if not camera:
+                count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
+                               entry_y, entry_x, y, x, length, weight)
+                total += weight
+            return count, total
         if uz > 0.0 and z + step * uz >= depth:
-            return False, y, x, length, weight
+            return count, total
         y += step * uy
         x += step * ux
         z += step * uz
@@ -124,6 +139,13 @@ def trace_photon(state, y, x, volume, mu_t, albedo, g, majorant, n, depth):
             continue  # null collision: the majorant's fictitious particles
         weight *= albedo[material]
         anisotropy = g[material]
+        if camera:
+            value, surface_y, surface_x, distance = camera_estimate(
+                estimator_state, volume, mu_t, columns, view, weight, anisotropy, z, y, x, uy, ux, uz)
+            if value > 0.0:
+                count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
+                               entry_y, entry_x, surface_y, surface_x, length + distance, value)
+                total += value
         if anisotropy == 0.0:
             cos_theta = 2.0 * uniform(state) - 1.0
         else:
@@ -149,79 +171,95 @@ def trace_photon(state, y, x, volume, mu_t, albedo, g, majorant, n, depth):
             if uniform(state) < ROULETTE_SURVIVAL:
                 weight /= ROULETTE_SURVIVAL
             else:
-                return False, y, x, length, 0.0
+                return count, total
 
 
 @numba.njit(cache=True, nogil=True)
-def reflectance_run(volume, mu_t, albedo, g, majorant, n, depth, photons, seed, stream):
-    """Trace ``photons`` entering at the origin; returns ``(sum of exit weights, sum of their
-    squares)`` per photon (a photon that is lost counts 0), for mean and standard error."""
+def total_run(volume, mu_t, albedo, g, majorant, optics, camera, photons, seed, stream):
+    """Trace ``photons`` entering uniformly over the pixel at the origin; returns ``(sum, sum of
+    squares)`` over photons of each photon's total score (everything it scores, wherever; 0 for
+    a photon that scores nothing), for the mean and its standard error: the exitance, or the
+    reflectance factor toward the camera summed over the surface."""
+    window = np.zeros((1, 1))
+    truth = np.zeros((0, 1, 1))
+    records = np.zeros((0, RECORD_COLUMNS))
+    columns = np.zeros((0, 0, 0))
     state = seed_state(seed, stream)
+    estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
     total = 0.0
     total_sq = 0.0
     for _ in range(photons):
-        exited, _, _, _, weight = trace_photon(state, uniform(state) - 0.5, uniform(state) - 0.5,
-                                               volume, mu_t, albedo, g, majorant, n, depth)
-        if exited:
-            total += weight
-            total_sq += weight * weight
+        _, value = trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, mu_t, albedo, g,
+                                majorant, optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0)
+        total += value
+        total_sq += value * value
     return total, total_sq
 
 
 @numba.njit(cache=True, nogil=True)
-def trace_exits(volume, mu_t, albedo, g, majorant, n, depth, y, x, photons, seed, stream):
-    """Exit records of ``photons`` entering pixel ``(y, x)``: (photons, 5) float64 rows of
-    ``[exited, entry_y, entry_x, exit_y, exit_x, length, weight]`` (for tests and inspection)."""
+def reflectance_run(volume, mu_t, albedo, g, majorant, n, depth, photons, seed, stream):
+    """:func:`total_run` of the exitance for a beam straight down, with weights relative to the
+    light that got in (the entry's Fresnel loss is the caller's)."""
+    return total_run(volume, mu_t, albedo, g, majorant, _normal_incidence(n, depth), False, photons, seed,
+                     stream)
+
+
+@numba.njit(cache=True)
+def _normal_incidence(n, depth):
+    """The optics of a beam straight down whose photons start with weight 1."""
+    geometry = np.zeros(OPTICS_SIZE)
+    geometry[INDEX] = n
+    geometry[DEPTH] = depth
+    geometry[BEAM_Z] = 1.0
+    geometry[ENTRY_WEIGHT] = 1.0
+    return geometry
+
+
+@numba.njit(cache=True, nogil=True)
+def trace_events(volume, mu_t, albedo, g, majorant, optics, camera, y, x, photons, seed, stream, capacity):
+    """Every score of ``photons`` entering pixel ``(y, x)`` (uniformly over it), as
+    (events, RECORD_COLUMNS) float64 rows ``[photon, entry_y, entry_x, surface_y, surface_x,
+    length, value]`` (for tests and inspection). Raises if more than ``capacity`` events."""
     state = seed_state(seed, stream)
-    records = np.zeros((photons, 7))
+    estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
+    records = np.zeros((capacity, RECORD_COLUMNS))
+    window = np.zeros((1, 1))
+    truth = np.zeros((0, 1, 1))
+    columns = np.zeros((0, 0, 0))
+    count = 0
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
         entry_x = x + uniform(state) - 0.5
-        exited, exit_y, exit_x, length, weight = trace_photon(
-            state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, n, depth)
-        records[i, 0] = 1.0 if exited else 0.0
-        records[i, 1] = entry_y
-        records[i, 2] = entry_x
-        records[i, 3] = exit_y
-        records[i, 4] = exit_x
-        records[i, 5] = length
-        records[i, 6] = weight
-    return records
+        count, _ = trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, optics,
+                                columns, camera, window, 0, 0, truth, 1.0, records, count, i)
+    if count > capacity:
+        raise ValueError("trace_events: more events than capacity")
+    return records[:count]
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def simulate_points(volume, mu_t, albedo, g, majorant, n, depth, lit, photons, seed, streams,
-                    window_radius, bin_step, windows, truth):
-    """Trace ``photons`` from each lit point ``lit[i] = [y, x]`` with random stream ``streams[i]``.
+def simulate_points(volume, mu_t, albedo, g, majorant, optics, columns, camera, lit, photons, seed, streams,
+                    bin_step, windows, truth):
+    """Trace ``photons`` from each lit point ``lit[i] = [y, x]`` with random stream ``streams[i]``
+    (``optics``, ``columns``, ``camera`` as in :func:`trace_photon`).
 
-    ``windows`` (len(lit), 2R+1, 2R+1) float64 receives exit weights around each lit point
-    (offset ``[dy + R, dx + R]``, R = window_radius); ``truth`` (blocks, bins, H, W) float64
-    receives every exit inside the grid by path-length bin ``floor(length / bin_step)``, lit
-    point ``i`` into block ``i * blocks // len(lit)``, so that summing blocks in order gives the
-    same result whatever the number of threads. Weights are raw (not divided by photons).
+    ``windows`` (len(lit), 2R+1, 2R+1) float64 receives the scores around each lit point
+    (offset ``[dy + R, dx + R]``); ``truth`` (blocks, bins, H, W) float64 receives every score
+    inside the grid by path-length bin ``floor(length / bin_step)``, lit point ``i`` into block
+    ``i * blocks // len(lit)``, so that summing blocks in order gives the same result whatever
+    the number of threads. Values are raw (not divided by photons).
     """
     count = lit.shape[0]
     blocks = truth.shape[0]
-    bins = truth.shape[1]
-    height = truth.shape[2]
-    width = truth.shape[3]
     for block in numba.prange(blocks):
+        records = np.zeros((0, RECORD_COLUMNS))
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             state = seed_state(seed, streams[i])
+            estimator_state = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
             ly = lit[i, 0]
             lx = lit[i, 1]
             for _ in range(photons):
-                exited, exit_y, exit_x, length, weight = trace_photon(
-                    state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5,
-                    volume, mu_t, albedo, g, majorant, n, depth)
-                if not exited:
-                    continue
-                py = int(math.floor(exit_y + 0.5))
-                px = int(math.floor(exit_x + 0.5))
-                dy = py - ly
-                dx = px - lx
-                if abs(dy) <= window_radius and abs(dx) <= window_radius:
-                    windows[i, dy + window_radius, dx + window_radius] += weight
-                b = int(length / bin_step)
-                if b < bins and 0 <= py < height and 0 <= px < width:
-                    truth[block, b, py, px] += weight
+                trace_photon(state, estimator_state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5, volume, mu_t,
+                             albedo, g, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
+                             bin_step, records, 0, 0)
+

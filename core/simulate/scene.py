@@ -4,11 +4,13 @@ A scene is a voxel volume below a flat surface: ``depth`` grid steps deep, one v
 step laterally and in depth, each voxel holding one material. The volume extends sideways
 beyond the grid by repeating its edge voxels (a sample is larger than the scanned region).
 Coefficients are per grid step, or per mm when ``grid.pitch_mm`` is given (converted here).
+The optional ``camera``, ``projector`` (``{"direction": [zenith, azimuth]}`` in degrees, a
+direction of travel: zenith from straight down, azimuth from +x toward +y) and ``measure``
+(``"camera"`` or ``"exitance"``) say what a frame holds (FORMAT.md).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,11 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RinglightError
-from ..validation import Validator
+from ..validation import Validator, read_json
 
 SCENE_FORMAT = "ringlight-scene"
 SCENE_VERSION = 1
 MAX_VOXELS = 64 * 2**20
+MEASURES = ("camera", "exitance")
+MAX_ZENITH = 89.0
+"""Degrees: a camera or projector farther from straight down is refused (grazing light)."""
 
 
 class SceneError(RinglightError):
@@ -48,6 +53,12 @@ class Scene:
         ``[z, z + 1)`` below the surface and is centred laterally on grid point ``[y, x]``.
     materials
         The materials, indexed by ``volume``; coefficients per grid step.
+    camera, projector
+        ``[zenith, azimuth]`` in degrees of the camera's viewing direction and of the beam's
+        direction of incidence (0 = straight down; azimuth from +x toward +y).
+    measure
+        ``"camera"`` (the reflectance factor toward the camera) or ``"exitance"`` (all light
+        leaving a pixel, for comparisons with MCML-style tables); FORMAT.md.
     """
 
     name: str
@@ -64,6 +75,9 @@ class Scene:
     bin_step: float
     bin_count: int
     seed: int
+    camera: tuple[float, float] = (0.0, 0.0)
+    projector: tuple[float, float] = (0.0, 0.0)
+    measure: str = "camera"
 
     @property
     def grey(self) -> bool:
@@ -78,14 +92,7 @@ def read_scene(path: str | Path, size: tuple[int, int] | None = None) -> Scene:
     """Read and validate a scene JSON file (``size`` as in :func:`parse_scene`); raises
     :class:`SceneError` naming the file."""
     path = Path(path)
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SceneError(f"{path}: scene file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise SceneError(f"{path}: cannot be read ({error})") from None
-    except json.JSONDecodeError as error:
-        raise SceneError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
+    document = read_json(path, SceneError, "scene file")
     return parse_scene(document, where=str(path), name=path.stem, size=size)
 
 
@@ -99,7 +106,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     fail = Validator(where, SceneError)
     doc = fail.mapping(document, "scene", {
         "format", "version", "grid", "depth", "n", "materials", "background", "layers", "shapes",
-        "photons_per_point", "max_radius", "path_length_bins", "seed", "notes",
+        "photons_per_point", "max_radius", "path_length_bins", "seed", "notes", "camera", "projector", "measure",
     }, {"format", "version", "grid", "depth", "materials", "background"})
     if doc["format"] != SCENE_FORMAT:
         raise SceneError(f"{where}: 'format' is {doc['format']!r}, expected {SCENE_FORMAT!r}")
@@ -201,11 +208,17 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     seed = doc.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SceneError(f"{where}: 'seed' must be a non-negative integer, got {seed!r}")
+    camera = _direction(fail, doc.get("camera", {"direction": [0, 0]}), "camera")
+    projector = _direction(fail, doc.get("projector", {"direction": [0, 0]}), "projector")
+    measure = fail.string(doc.get("measure", "camera"), "measure")
+    if measure not in MEASURES:
+        raise fail.fail("measure", " or ".join(map(repr, MEASURES)), measure)
     return Scene(
         name=name, height=height, width=width, pitch_mm=pitch_mm, depth=depth, n=n,
         materials=tuple(materials), volume=volume, layers=tuple(layers), photons_per_point=photons,
         max_radius=max_radius, bin_step=fail.positive_number(bins["step"], "path_length_bins.step"),
         bin_count=fail.positive_int(bins["count"], "path_length_bins.count"), seed=seed,
+        camera=camera, projector=projector, measure=measure,
     )
 
 
@@ -230,3 +243,13 @@ def _rgb(check: Validator, value: object, key: str) -> tuple[float, float, float
     if min(values) < 0:
         raise SceneError(f"{check.where}: '{key}' has a negative coefficient {list(values)}")
     return values
+
+
+def _direction(check: Validator, value: object, key: str) -> tuple[float, float]:
+    """``{"direction": [zenith, azimuth]}`` in degrees, zenith in [0, MAX_ZENITH]."""
+    item = check.mapping(value, key, {"direction"}, {"direction"})
+    zenith, azimuth = check.numbers(item["direction"], f"{key}.direction", 2)
+    if not 0.0 <= zenith <= MAX_ZENITH:
+        raise check.fail(f"{key}.direction", f"[zenith, azimuth] in degrees with zenith in [0, {MAX_ZENITH:g}]",
+                         item["direction"])
+    return zenith, azimuth

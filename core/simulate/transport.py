@@ -4,13 +4,16 @@ Every grid point is lit with ``photons_per_point`` photons per colour channel (o
 scenes). Impulse frames keep each lit point's light within ``max_radius`` (the part a parallel
 capture attributes to it: frames are crosstalk-free) and are multiplexed on a lattice of spacing
 ``floor(2 * max_radius) + 1`` when that needs fewer frames than one point per frame. Values are
-reflectance per photon (radiance up to the source's power). The specular reflection at entry,
-((n - 1) / (n + 1))^2, is recorded at the lit pixel with path length 0.
+the scene's measure (FORMAT.md "What a simulated frame holds"): by default the reflectance
+factor toward the camera, else the exitance, per unit beam power. The specular reflection at
+the surface is in neither the frames nor the path-length images; the manifest's notes state it,
+and the measure, as a line ``measure: camera`` (or ``exitance``): see :func:`simulated_measure`.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,13 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset.impulse_dataset import ProgressCallback, disc_offsets
+from ..dataset.manifest import Manifest
 from ..dataset.writer import DatasetWriter
 from . import photon
+from .adding_doubling import thick_slab_reflectance
+from .camera import column_optical_depths, optics, specular_reflectance
 from .lattice import lattice_frames
 from .scene import Material, Scene
 
 TRUTH_BLOCKS = 16
 POINTS_PER_CALL = 64
+SIMULATED_PREFIX = "simulated by ringlight"
+MEASURE_NOTE = re.compile(r"^measure: (camera|exitance)$", re.MULTILINE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,11 +43,14 @@ class Transport:
     Attributes
     ----------
     windows
-        (H, W, 2R+1, 2R+1, 3) float32: reflectance per photon around each lit point ``[y, x]``,
-        at offset ``[dy + R, dx + R]`` of the exit pixel (R = ceil(max_radius)).
+        (H, W, 2R+1, 2R+1, 3) float32: the measure (reflectance factor or exitance per unit
+        beam power) around each lit point ``[y, x]``, at offset ``[dy + R, dx + R]`` of the
+        pixel where light leaves (R = ceil(max_radius)).
     path_length_images
-        (bins, H, W, 3) float32: reflectance under uniform illumination of the whole grid, by
-        path-length bin ``[b * step, (b + 1) * step)``.
+        (bins, H, W, 3) float32: the same under uniform illumination of the whole grid (every
+        grid point's beam), by path-length bin ``[b * step, (b + 1) * step)``.
+    measure
+        ``"camera"`` or ``"exitance"``, the scene's.
     """
 
     scene: Scene
@@ -49,6 +60,7 @@ class Transport:
     windows: np.ndarray
     path_length_images: np.ndarray
     seconds: float
+    measure: str = "camera"
 
 
 def _channel_tables(materials: tuple[Material, ...], channel: int):
@@ -83,16 +95,21 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     truth = np.zeros((scene.bin_count, height, width, 3), np.float64)
     calls = [(c, start) for c in channels for start in range(0, len(lit), POINTS_PER_CALL)]
     used = np.unique(scene.volume)
+    camera = scene.measure == "camera"
     started = time.perf_counter()
     for done, (channel, start) in enumerate(calls):
         mu_t, albedo, g = _channel_tables(scene.materials, channel)
         majorant = float(mu_t[used].max())
+        uniform_mu_t = majorant if mu_t[used].min() == majorant else -1.0
+        geometry = optics(scene.n, scene.depth, scene.projector, scene.camera, uniform_mu_t)
+        columns = (column_optical_depths(scene.volume, mu_t, scene.camera) if camera and uniform_mu_t < 0
+                   else np.zeros((0, 0, 0)))
         chunk = lit[start:start + POINTS_PER_CALL]
         chunk_windows = np.zeros((len(chunk), size, size))
         chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
         photon.simulate_points(
-            scene.volume, mu_t, albedo, g, majorant, scene.n, scene.depth, chunk, photons, seed,
-            streams[start:start + POINTS_PER_CALL] + channel * height * width, radius,
+            scene.volume, mu_t, albedo, g, majorant, geometry, columns, camera, chunk, photons, seed,
+            streams[start:start + POINTS_PER_CALL] + channel * height * width,
             scene.bin_step, chunk_windows, chunk_truth,
         )
         windows[streams[start:start + len(chunk)], :, :, channel] = chunk_windows
@@ -102,29 +119,21 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     if scene.grey:
         windows[..., 1:] = windows[..., :1]
         truth[..., 1:] = truth[..., :1]
-    specular = photon.specular_reflectance(scene.n)
-    windows *= (1.0 - specular) / photons
-    truth *= (1.0 - specular) / photons
-    windows[streams, radius, radius, :] += specular
-    truth[0][lit[:, 0], lit[:, 1]] += specular
+    windows /= photons
+    truth /= photons
     return Transport(
         scene=scene, photons=photons, seed=seed, window_radius=radius,
         windows=windows.reshape(height, width, size, size, 3).astype(np.float32),
         path_length_images=truth.astype(np.float32), seconds=time.perf_counter() - started,
+        measure=scene.measure,
     )
 
 
-def slab_reflectance(material: Material, n: float, photons: int = 20000, seed: int = 0) -> np.ndarray:
+def slab_reflectance(material: Material, n: float) -> np.ndarray:
     """Diffuse reflectance (R, G, B) of a semi-infinite slab of ``material`` under index ``n``
-    at normal incidence, specular excluded: a layer's reference colour (FORMAT.md)."""
-    volume = np.zeros((1, 1, 1), np.uint8)
-    rgb = np.empty(3)
-    for channel in range(3):
-        mu_t, albedo, g = _channel_tables((material,), channel)
-        total, _ = photon.reflectance_run(volume, mu_t, albedo, g, float(mu_t[0]), n, np.inf,
-                                          photons, seed, channel)
-        rgb[channel] = total / photons * (1.0 - photon.specular_reflectance(n))
-    return rgb
+    at normal incidence, per unit incident power, specular excluded: a layer's reference colour
+    (FORMAT.md), exact by adding-doubling (:mod:`.adding_doubling`), not a Monte Carlo estimate."""
+    return thick_slab_reflectance(material.mus, material.mua, material.g, n)
 
 
 def write_transport(transport: Transport, out, *, overwrite: bool = False,
@@ -135,8 +144,13 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
     radius = transport.window_radius
     offsets = disc_offsets(scene.max_radius)
     frames = lattice_frames(height, width, scene.max_radius)
-    notes = (f"simulated by ringlight from scene '{scene.name}': {transport.photons} photons per point "
-             f"per channel, seed {transport.seed}, n {scene.n:g}")
+    notes = (f"{SIMULATED_PREFIX} from scene '{scene.name}': {transport.photons} photons per point "
+             f"per channel, seed {transport.seed}, n {scene.n:g}\n"
+             f"measure: {transport.measure}\n"
+             f"camera direction {list(scene.camera)}, projector direction {list(scene.projector)} "
+             f"([zenith, azimuth] degrees)\n"
+             f"specular reflection {specular_reflectance(scene.n, scene.projector[0]):.6g} of the beam, "
+             f"not in the frames or path-length images")
     with DatasetWriter(out, (height, width), max_radius=scene.max_radius, pitch_mm=scene.pitch_mm,
                        notes=notes, overwrite=overwrite) as writer:
         for index, lit in enumerate(frames):
@@ -154,9 +168,29 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
         if scene.layers:
             writer.set_layers([
                 {"name": name, "depth": [top, bottom],
-                 "rgb": slab_reflectance(scene.material(name), scene.n, seed=transport.seed).tolist()}
+                 "rgb": slab_reflectance(scene.material(name), scene.n).tolist()}
                 for name, top, bottom in scene.layers
             ])
     if progress is not None:
         progress(1.0)
     return Path(out)
+
+
+def simulated_measure(manifest: Manifest) -> str | None:
+    """What a dataset's frames hold if ringlight simulated it: ``"camera"`` (the reflectance
+    factor toward the camera), ``"exitance"`` (datasets simulated before the camera measure
+    carry no ``measure:`` line and hold exitance, with the specular reflection added at the lit
+    pixel), or None when ringlight did not simulate it (a capture, another tool)."""
+    notes = manifest.notes or ""
+    if manifest.ground_truth is None or not notes.startswith(SIMULATED_PREFIX):
+        return None
+    marker = MEASURE_NOTE.search(notes)
+    return marker.group(1) if marker else "exitance"
+
+
+def simulated_before_camera_measure(manifest: Manifest) -> bool:
+    """True for a dataset ringlight simulated before frames held camera radiance: it has no
+    ``measure:`` line and holds exitance plus the specular reflection at the lit pixel (one
+    simulated with ``measure: exitance`` on purpose says so and is not flagged)."""
+    notes = manifest.notes or ""
+    return simulated_measure(manifest) == "exitance" and MEASURE_NOTE.search(notes) is None

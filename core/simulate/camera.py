@@ -1,0 +1,250 @@
+"""What the camera sees of a scattering event: next-event estimation through a flat surface.
+
+Units: lengths in grid steps, coefficients per grid step; depth ``z`` grows downward from the
+surface ``z = 0``; directions are ``(y, x, z)`` unit vectors. A scene direction
+``[zenith, azimuth]`` in degrees is a direction of travel, zenith from straight down and azimuth
+from +x toward +y: the projector's beam travels along it, the camera looks along it (so the
+light it records travels the opposite way).
+
+The quantity (FORMAT.md, "What a simulated frame holds") is the reflectance factor toward the
+camera, ``pi L_o(p, w_o) A / P``: ``L_o`` the radiance leaving grid pixel ``p`` toward the camera
+in air (direction ``w_o``, zenith ``th_o`` from the upward normal), averaged over the pixel of
+area ``A = 1``, per unit beam power ``P``.
+
+Derivation of the estimator. A photon of weight ``w`` (a fraction of the beam's power) scatters at
+``x``, depth ``z``, arriving along ``u``. Inside, the light that leaves toward the camera travels
+along ``w_i``, the camera direction refracted in: same azimuth, ``sin th_i = sin th_o / n``.
+Scattered power goes into the solid angle ``dw_i`` around ``w_i`` with probability
+``p_HG(u . w_i) dw_i`` (per steradian), and reaches the surface at the single point
+``x + s w_i``, ``s = z / cos th_i``, with probability ``T(s) = exp(-tau(s))``, ``tau`` the optical
+depth along that segment. Power crossing the surface element ``dA`` within ``dw_i`` is
+``L_i cos th_i dA dw_i``, so this event adds to the pixel that point falls in
+
+    integral over the pixel of L_i dA = w p_HG(u . w_i) T(s) / cos th_i.
+
+Crossing the surface keeps ``L / n^2`` up to Fresnel transmission ``T_F(th_i)`` (etendue:
+``n^2 cos th_i dw_i = cos th_o dw_o``), so ``L_o = T_F L_i / n^2`` and the event's contribution
+to the reflectance factor is
+
+    pi w p_HG(u . w_i) exp(-tau(s)) T_F(th_i) / (n^2 cos th_i).
+
+Checks. (1) Integrated over camera directions, ``(value / pi) cos th_o dw_o`` becomes
+``w p_HG T(s) T_F dw_i`` by the etendue relation: the probability that the scattered photon
+leaves through the surface in ``dw_i`` on its next flight, so summed over the upper hemisphere
+and over all scattering events, it is the exitance (every photon leaves, if at all, on the flight
+after its last scattering, since the surface only sends it back down). (2) A surface that sends
+out ``L_o`` equal in every direction, as a Lambertian one, has exitance ``pi L_o``: the
+reflectance factor and the exitance agree, and a white one reads 1 at the lit pixel.
+
+The optical depth is exact: a voxel traversal (Amanatides and Woo) sums ``mu_t`` times the length
+of each voxel the segment crosses; a homogeneous volume skips it, and so does a camera straight
+down, with a table of each voxel's optical depth to the surface. Estimates from deep in the
+medium are tiny but as costly as the others, so past an optical depth of
+:data:`ROULETTE_DEPTH` (the estimate is then below 0.25 % of its unattenuated value) the
+traversal stops and plays Russian roulette: it goes on to the surface with probability
+:data:`ROULETTE_SURVIVAL`, its value divided by that (unbiased). Beyond
+:data:`OPTICAL_DEPTH_CUTOFF` the contribution (below 1e-17 of ``w``) is dropped. The roulette
+draws from its own random stream, so the walk is the same whatever the measure.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .streams import uniform
+
+OPTICAL_DEPTH_CUTOFF = 40.0
+ROULETTE_DEPTH = 6.0
+ROULETTE_SURVIVAL = 0.1
+MAX_COLUMN_VOXELS = 8 * 2**20
+
+# Layout of the ``optics`` array the photon kernels take (see :func:`optics`).
+INDEX, DEPTH, BEAM_Y, BEAM_X, BEAM_Z, ENTRY_WEIGHT, VIEW_Y, VIEW_X, VIEW_Z, VIEW_FACTOR, UNIFORM_MU_T = range(11)
+OPTICS_SIZE = 11
+
+
+@numba.njit(cache=True, inline="always")
+def exit_fresnel(n, cos_inside):
+    """Unpolarised Fresnel reflectance between a medium of index n and air, for the angle
+    ``arccos(cos_inside)`` inside (1.0 at total internal reflection). The same either way
+    across the surface: light from air at the matching outside angle reflects as much."""
+    if n == 1.0:
+        return 0.0
+    sin_inside = math.sqrt(max(0.0, 1.0 - cos_inside * cos_inside))
+    sin_out = n * sin_inside
+    if sin_out >= 1.0:
+        return 1.0
+    cos_out = math.sqrt(1.0 - sin_out * sin_out)
+    rs = (n * cos_inside - cos_out) / (n * cos_inside + cos_out)
+    rp = (cos_inside - n * cos_out) / (cos_inside + n * cos_out)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def specular_reflectance(n: float, zenith_deg: float = 0.0) -> float:
+    """Fresnel reflectance of the surface for a beam from air at ``zenith_deg``;
+    ((n - 1) / (n + 1))^2 at normal incidence."""
+    return float(exit_fresnel(n, refracted_cosine(n, zenith_deg)))
+
+
+def refracted_cosine(n: float, zenith_deg: float) -> float:
+    """cos of the angle inside (Snell, sin th_i = sin th_o / n) for ``zenith_deg`` outside."""
+    sin_inside = math.sin(math.radians(zenith_deg)) / n
+    return math.sqrt(1.0 - sin_inside * sin_inside)
+
+
+def _inside_direction(n: float, zenith_deg: float, azimuth_deg: float) -> np.ndarray:
+    """(3,) ``(y, x, z)``: the direction ``[zenith, azimuth]`` of travel from air, refracted in."""
+    sin_inside = math.sin(math.radians(zenith_deg)) / n
+    azimuth = math.radians(azimuth_deg)
+    return np.array([sin_inside * math.sin(azimuth), sin_inside * math.cos(azimuth),
+                     math.sqrt(1.0 - sin_inside * sin_inside)])
+
+
+def optics(n: float, depth: float, projector=(0.0, 0.0), camera=(0.0, 0.0),
+           uniform_mu_t: float = -1.0) -> np.ndarray:
+    """The (OPTICS_SIZE,) float64 array of a scene's geometry that the photon kernels take.
+
+    Parameters
+    ----------
+    n
+        Refractive index of the medium (air outside).
+    depth
+        Grid steps below the surface where light is lost.
+    projector, camera
+        ``[zenith, azimuth]`` in degrees, zenith in [0, 90).
+    uniform_mu_t
+        ``mu_t`` per grid step when it is the same in every voxel (the traversal is then
+        skipped), else negative.
+    """
+    values = np.zeros(OPTICS_SIZE)
+    values[INDEX], values[DEPTH], values[UNIFORM_MU_T] = n, depth, uniform_mu_t
+    beam = _inside_direction(n, *projector)
+    values[BEAM_Y:BEAM_Z + 1] = beam
+    values[ENTRY_WEIGHT] = 1.0 - exit_fresnel(n, beam[2])
+    # The light toward the camera travels against the camera's viewing direction.
+    view = -_inside_direction(n, *camera)
+    values[VIEW_Y:VIEW_Z + 1] = view
+    cos_inside = -view[2]
+    values[VIEW_FACTOR] = math.pi * (1.0 - exit_fresnel(n, cos_inside)) / (n * n * cos_inside)
+    return values
+
+
+@numba.njit(cache=True, inline="always")
+def henyey_greenstein(cos_angle, g):
+    """Henyey-Greenstein phase function per steradian."""
+    if g == 0.0:
+        return 0.25 / math.pi
+    denominator = 1.0 + g * g - 2.0 * g * cos_angle
+    return (1.0 - g * g) / (4.0 * math.pi * denominator * math.sqrt(denominator))
+
+
+def column_optical_depths(volume: np.ndarray, mu_t: np.ndarray, camera=(0.0, 0.0)) -> np.ndarray:
+    """(D, H, W) float64 optical depth from the top of voxel ``[z, y, x]`` straight up to the
+    surface, for a camera straight down in a heterogeneous volume of at most
+    :data:`MAX_COLUMN_VOXELS` voxels (the estimate then needs no traversal); else an empty
+    (0, 0, 0) array."""
+    if camera[0] != 0.0 or volume.size > MAX_COLUMN_VOXELS:
+        return np.zeros((0, 0, 0))
+    above = np.cumsum(mu_t[volume], axis=0)
+    return np.concatenate([np.zeros((1,) + volume.shape[1:]), above[:-1]])
+
+
+@numba.njit(cache=True, inline="always")
+def _column_optical_depth(volume, mu_t, columns, z, y, x):
+    """Optical depth straight up from ``(z, y, x)``: the voxels above, then this one's part."""
+    layers, height, width = volume.shape
+    iz = min(int(z), layers - 1)
+    iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
+    ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
+    return columns[iz, iy, ix] + mu_t[volume[iz, iy, ix]] * (z - iz)
+
+
+@numba.njit(cache=True)
+def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit):
+    """Optical depth from ``(z, y, x)`` along ``(vy, vx, vz)`` (``vz < 0``) up to ``z = 0``,
+    exact for the voxel volume (which repeats its edge voxels sideways); stops early, returning
+    a value above ``limit``, once past it."""
+    length = z / -vz
+    layers, height, width = volume.shape
+    iz = min(int(z), layers - 1)
+    iy = int(math.floor(y + 0.5))
+    ix = int(math.floor(x + 0.5))
+    # Distances along the ray to the next voxel face on each axis, and between faces.
+    next_z = (z - iz) / -vz
+    step_z = 1.0 / -vz
+    if vy > 0.0:
+        next_y, step_y, move_y = (iy + 0.5 - y) / vy, 1.0 / vy, 1
+    elif vy < 0.0:
+        next_y, step_y, move_y = (y - iy + 0.5) / -vy, -1.0 / vy, -1
+    else:
+        next_y, step_y, move_y = math.inf, math.inf, 0
+    if vx > 0.0:
+        next_x, step_x, move_x = (ix + 0.5 - x) / vx, 1.0 / vx, 1
+    elif vx < 0.0:
+        next_x, step_x, move_x = (x - ix + 0.5) / -vx, -1.0 / vx, -1
+    else:
+        next_x, step_x, move_x = math.inf, math.inf, 0
+    travelled = 0.0
+    tau = 0.0
+    while True:
+        face = min(next_z, next_y, next_x, length)
+        material = volume[iz, min(max(iy, 0), height - 1), min(max(ix, 0), width - 1)]
+        tau += mu_t[material] * (face - travelled)
+        if face >= length or tau > limit:
+            return tau
+        travelled = face
+        if face == next_z:
+            iz -= 1
+            next_z += step_z
+            if iz < 0:  # rounding: the surface is reached
+                return tau
+        elif face == next_y:
+            iy += move_y
+            next_y += step_y
+        else:
+            ix += move_x
+            next_x += step_x
+
+
+@numba.njit(cache=True)
+def camera_estimate(state, volume, mu_t, columns, view, weight, g, z, y, x, uy, ux, uz):
+    """Next-event estimate toward the camera from a scattering at ``(z, y, x)`` of a photon of
+    weight ``weight`` (after the albedo) arriving along ``(uy, ux, uz)``; ``view`` is
+    :func:`view_constants` of the optics, ``columns`` :func:`column_optical_depths` (or an
+    empty array), ``state`` the estimator's own random stream (for the roulette).
+
+    Returns ``(value, exit_y, exit_x, distance)``: the contribution to the reflectance factor
+    of the pixel around ``(exit_y, exit_x)`` where the path to the camera leaves the surface,
+    and that path's length inside, ``z / cos th_i`` (value 0 when none).
+    """
+    vy, vx, vz, factor, uniform_mu_t = view
+    distance = z / -vz
+    scale = 1.0
+    # A homogeneous volume needs no traversal (nor the call, whose array arguments cost about
+    # as much as the rest of the estimate).
+    if uniform_mu_t >= 0.0:
+        tau = uniform_mu_t * distance
+    elif columns.shape[0] > 0:
+        tau = _column_optical_depth(volume, mu_t, columns, z, y, x)
+    else:
+        tau = optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, ROULETTE_DEPTH)
+    if tau > ROULETTE_DEPTH:
+        if uniform(state) >= ROULETTE_SURVIVAL:
+            return 0.0, y, x, distance
+        scale = 1.0 / ROULETTE_SURVIVAL
+        if uniform_mu_t < 0.0 and columns.shape[0] == 0:
+            tau = optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, OPTICAL_DEPTH_CUTOFF)
+        if tau > OPTICAL_DEPTH_CUTOFF:
+            return 0.0, y, x, distance
+    phase = henyey_greenstein(uy * vy + ux * vx + uz * vz, g)
+    value = scale * factor * weight * phase * math.exp(-tau)
+    return value, y + distance * vy, x + distance * vx, distance
+
+
+@numba.njit(cache=True, inline="always")
+def view_constants(optics):
+    """``(vy, vx, vz, view factor, uniform mu_t)`` from an optics array, as scalars."""
+    return optics[VIEW_Y], optics[VIEW_X], optics[VIEW_Z], optics[VIEW_FACTOR], optics[UNIFORM_MU_T]
