@@ -121,3 +121,20 @@ def edit_manifest(folder: Path, change) -> None:
     manifest = json.loads(path.read_text())
     change(manifest)
     path.write_text(json.dumps(manifest))
+
+
+def assert_same_for_any_thread_count(simulate):
+    """``simulate()`` (a Transport) gives bit-identical frames and truth on 1 and on all threads;
+    returns the Transport."""
+    import numba
+
+    results = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        try:
+            results.append(simulate())
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert np.array_equal(results[0].windows, results[1].windows)
+    assert np.array_equal(results[0].path_length_images, results[1].path_length_images)
+    return results[0]

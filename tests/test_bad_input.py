@@ -5,7 +5,13 @@ import sys
 
 import numpy as np
 import pytest
-from reference import edit_manifest, random_impulses, write_dataset, write_exr, write_rgb
+from reference import (
+    edit_manifest,
+    random_impulses,
+    write_dataset,
+    write_exr,
+    write_rgb,
+)
 from ringlight.app.main import main
 
 

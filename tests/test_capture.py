@@ -15,7 +15,11 @@ from ringlight.core import Cancelled, RinglightError, open_dataset, transient_st
 from ringlight.core.capture.hardware import HardwareError, discover_plugins
 from ringlight.core.capture.hdr import bracket_exposures, merge_brackets
 from ringlight.core.capture.scan import Scan, ScanError, ScanPaused, ScanPlan
-from ringlight.core.capture.simulated_rig import CameraSampling, SimulatedRig, preset_rig
+from ringlight.core.capture.simulated_rig import (
+    CameraSampling,
+    SimulatedRig,
+    preset_rig,
+)
 from ringlight.core.capture.workflow import measure_correspondence
 
 SIZE, RADIUS = 16, 5

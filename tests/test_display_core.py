@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 from reference import brute_ring_image, random_impulses, write_dataset
-from ringlight.core import Cancelled, StackError, open_dataset, ring_stack, transient_stack
+from ringlight.core import (
+    Cancelled,
+    StackError,
+    open_dataset,
+    ring_stack,
+    transient_stack,
+)
 from ringlight.core.colour.display import (
     UNDEFINED_RGB,
     DisplaySettings,
@@ -14,11 +20,24 @@ from ringlight.core.colour.display import (
     negative_fraction,
     render,
 )
-from ringlight.core.colour.image_export import ExportError, movie_scale, write_movie, write_png
+from ringlight.core.colour.image_export import (
+    ExportError,
+    movie_scale,
+    write_movie,
+    write_png,
+)
 from ringlight.core.colourspaces import colour_module
-from ringlight.core.dataset.ground_truth import PathLengthImages, normalised_cross_correlation
+from ringlight.core.dataset.ground_truth import (
+    PathLengthImages,
+    normalised_cross_correlation,
+)
 from ringlight.core.rings.profiles import pixel_profile, profile_rings
-from ringlight.core.rings.stack_request import StackRequest, compute_stacks, default_request, largest_stop
+from ringlight.core.rings.stack_request import (
+    StackRequest,
+    compute_stacks,
+    default_request,
+    largest_stop,
+)
 
 
 @pytest.fixture(scope="module")

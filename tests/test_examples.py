@@ -13,12 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from reference import brute_ring_image
 from ringlight.core import open_dataset, read_stack
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
 from ringlight.core.colourspaces import colour_module
 from ringlight.core.simulate.presets import ensure_demo_dataset
-
-from reference import brute_ring_image
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

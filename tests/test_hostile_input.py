@@ -12,7 +12,13 @@ import numpy as np
 import OpenEXR
 import pytest
 import ringlight.core.dataset.frames as frames_module
-from reference import edit_manifest, random_impulses, write_dataset, write_exr, write_rgb
+from reference import (
+    edit_manifest,
+    random_impulses,
+    write_dataset,
+    write_exr,
+    write_rgb,
+)
 from ringlight.core import DatasetError, open_dataset
 from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
 from ringlight.core.dataset.checks import check_files

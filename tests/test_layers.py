@@ -17,7 +17,12 @@ from ringlight.core.colour.chroma import (
     srgb_swatch,
     trajectory,
 )
-from ringlight.core.colour.regions import RegionError, full_region, polygon_region, rectangle_region
+from ringlight.core.colour.regions import (
+    RegionError,
+    full_region,
+    polygon_region,
+    rectangle_region,
+)
 
 # Published primaries and white points: IEC 61966-2-1 (sRGB, D65) and SMPTE ST 2065-1 / ACEScg (AP1).
 SRGB = {"red": (0.64, 0.33), "green": (0.30, 0.60), "blue": (0.15, 0.06), "white": (0.3127, 0.3290)}

@@ -2,9 +2,9 @@
 
 import math
 
-import numba
 import numpy as np
 import pytest
+from reference import assert_same_for_any_thread_count
 from ringlight.app.main import main
 from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
 from ringlight.core.simulate.camera import optics, specular_reflectance
@@ -131,17 +131,9 @@ def test_impulse_reflectance_equals_the_sum_of_its_path_length_images():
 
 def test_simulation_is_deterministic_whatever_the_thread_count():
     scene = load_scene("red-bead", size=(10, 10))
-    results = []
-    for threads in (1, numba.config.NUMBA_NUM_THREADS):
-        numba.set_num_threads(threads)
-        try:
-            results.append(simulate_transport(scene, photons=60))
-        finally:
-            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-    assert np.array_equal(results[0].windows, results[1].windows)
-    assert np.array_equal(results[0].path_length_images, results[1].path_length_images)
+    first = assert_same_for_any_thread_count(lambda: simulate_transport(scene, photons=60))
     other_seed = simulate_transport(scene, photons=60, seed=99)
-    assert not np.array_equal(other_seed.windows, results[0].windows)
+    assert not np.array_equal(other_seed.windows, first.windows)
 
 
 def test_written_dataset_holds_the_simulated_transport(tmp_path):

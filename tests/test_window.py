@@ -13,7 +13,13 @@ import numpy as np
 import pytest
 from PySide6.QtCore import QMimeData, QPoint, QPointF, QSettings, Qt, QUrl
 from PySide6.QtGui import QDropEvent
-from reference import brute_ring_image, random_impulses, supersampled_annulus_weight, write_dataset, write_rgb
+from reference import (
+    brute_ring_image,
+    random_impulses,
+    supersampled_annulus_weight,
+    write_dataset,
+    write_rgb,
+)
 from ringlight.app.window import MainWindow
 from ringlight.core import read_stack
 from ringlight.core.colour.display import UNDEFINED_RGB

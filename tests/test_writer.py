@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 from reference import brute_ring_image, random_impulses
-from ringlight.core import DatasetError, DatasetWriter, open_dataset, read_exr_rgb, read_manifest, ring_stack
+from ringlight.core import (
+    DatasetError,
+    DatasetWriter,
+    open_dataset,
+    read_exr_rgb,
+    read_manifest,
+    ring_stack,
+)
 
 
 def test_written_dataset_reads_back_with_every_key(tmp_path):
