@@ -7,7 +7,8 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QThreadPool, Signal
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.capture.scan import Scan, ScanError, estimate_disk, format_bytes
+from ringlight.core.capture.scan import Scan
+from ringlight.core.capture.scan_plan import ScanError, estimate_disk, format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     measure_correspondence,

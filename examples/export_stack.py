@@ -9,7 +9,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ringlight.core import open_dataset, radius_range, read_stack, transient_stack, write_stack
+from ringlight.core import (
+    open_dataset,
+    radius_range,
+    read_stack,
+    transient_stack,
+    write_stack,
+)
 from ringlight.core.simulate.presets import ensure_demo_dataset
 
 source = Path(sys.argv[1]) if len(sys.argv) > 1 else ensure_demo_dataset()

@@ -9,8 +9,12 @@ Register it in your package's pyproject.toml and ringlight lists it in the wizar
 """
 
 import numpy as np
-
-from ringlight.core.capture.hardware import Camera, HardwareError, HardwarePlugin, Projector
+from ringlight.core.capture.hardware import (
+    Camera,
+    HardwareError,
+    HardwarePlugin,
+    Projector,
+)
 
 
 class MyCamera:

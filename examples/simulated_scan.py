@@ -12,7 +12,12 @@ from pathlib import Path
 from ringlight.core import open_dataset
 from ringlight.core.capture.hardware import discover_plugins, make_device
 from ringlight.core.capture.scan import Scan
-from ringlight.core.capture.workflow import camera_notes, measure_correspondence, plan_scan, run_scan
+from ringlight.core.capture.workflow import (
+    camera_notes,
+    measure_correspondence,
+    plan_scan,
+    run_scan,
+)
 
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="ringlight-example-")) / "scan"
 discovery = discover_plugins()  # built-in and installed hardware plugins

@@ -14,7 +14,8 @@ from ringlight.app.main import main
 from ringlight.core import Cancelled, RinglightError, open_dataset, transient_stack
 from ringlight.core.capture.hardware import HardwareError, discover_plugins
 from ringlight.core.capture.hdr import bracket_exposures, merge_brackets
-from ringlight.core.capture.scan import Scan, ScanError, ScanPaused, ScanPlan
+from ringlight.core.capture.scan import Scan
+from ringlight.core.capture.scan_plan import ScanError, ScanPaused, ScanPlan
 from ringlight.core.capture.simulated_rig import (
     CameraSampling,
     SimulatedRig,
@@ -278,7 +279,7 @@ def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path)
 
 
 def test_byte_counts_are_shown_in_units_that_keep_their_digits():
-    from ringlight.core.capture.scan import format_bytes
+    from ringlight.core.capture.scan_plan import format_bytes
 
     assert [format_bytes(n) for n in (0, 1000, 15552, 3 * 2**20 + 2**19, 5 * 2**30, 2**50)] == [
         "0 B", "1000 B", "15.2 KiB", "3.5 MiB", "5.0 GiB", "1048576.0 GiB"]
@@ -427,7 +428,8 @@ KILLER = r"""
 import json, os, random, signal, sys
 import numpy as np
 from ringlight.core.capture import scan as scan_module
-from ringlight.core.capture.scan import Scan, ScanPlan
+from ringlight.core.capture.scan import Scan
+from ringlight.core.capture.scan_plan import ScanPlan
 from ringlight.core.capture.simulated_rig import SimulatedRig
 from ringlight.core.colourspaces import is_known_colourspace
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import sys
 
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
-from ringlight.core.capture.scan import Scan, ScanError, estimate_disk, format_bytes
+from ringlight.core.capture.scan import Scan
+from ringlight.core.capture.scan_plan import ScanError, estimate_disk, format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     measure_correspondence,

@@ -16,7 +16,8 @@ import numpy as np
 
 from .hardware import Camera, Projector
 from .hdr import bracket_exposures
-from .scan import ScanPlan, as_rgb, capture_with_timeout
+from .scan import as_rgb, capture_with_timeout
+from .scan_plan import ScanPlan
 
 TARGET_FILL = 0.8
 FAINT_PERCENTILE = 5.0

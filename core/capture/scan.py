@@ -26,7 +26,6 @@ description is kept in the plan, so the resumed dataset is byte for byte an unin
 from __future__ import annotations
 
 import json
-import math
 import os
 import queue
 import secrets
@@ -34,7 +33,7 @@ import shutil
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -51,120 +50,22 @@ from ..atomic import (
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
 from ..errors import Cancelled, RinglightError
-from ..simulate.lattice import lattice_frames
-from ..validation import read_json
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
+from .scan_plan import (
+    BYTES_PER_PIXEL,
+    PLAN_NAME,
+    SCAN_FOLDER,
+    ScanError,
+    ScanPaused,
+    ScanPlan,
+    format_bytes,
+    read_plan,
+)
 
-SCAN_FOLDER = ".scan"
-PLAN_NAME = "plan.json"
 CAPTURE_TIMEOUT_S = 30.0
-BYTES_PER_PIXEL = 12  # float32 RGB
 _UNPUBLISHED = Owned(frozenset({"mapping.exr", "frames"}), (SCAN_FOLDER,))
 """What an interrupted preparation may leave in an output folder without a published plan."""
-
-
-class ScanError(RinglightError):
-    """A scan cannot start or continue (bad plan, mismatched resume, disk full)."""
-
-
-class ScanPaused(RinglightError):
-    """The scan stopped before its end; it resumes from its journal (the message says why)."""
-
-
-@dataclass(frozen=True)
-class ScanPlan:
-    """What to capture.
-
-    Attributes
-    ----------
-    roi
-        (y0, x0, y1, x1) projector pixels of the grid, end exclusive.
-    max_radius
-        Grid steps.
-    exposures
-        Bracket exposures in seconds.
-    noise_floor
-        Raw counts above black below which a sample is not used in the HDR merge.
-    """
-
-    roi: tuple[int, int, int, int]
-    max_radius: float
-    exposures: tuple[float, ...]
-    noise_floor: float = 0.0
-
-    @property
-    def grid_shape(self) -> tuple[int, int]:
-        y0, x0, y1, x1 = self.roi
-        return (y1 - y0, x1 - x0)
-
-    @property
-    def spacing(self) -> int:
-        return int(math.floor(2 * self.max_radius)) + 1
-
-    def frames(self) -> list[np.ndarray]:
-        """Lit grid points per frame, (n, 2) [y, x] each (see :func:`lattice_frames`)."""
-        return lattice_frames(*self.grid_shape, self.max_radius)
-
-    def pattern(self, lit: np.ndarray, projector_size: tuple[int, int]) -> np.ndarray:
-        """(H, W) float32 projector pattern lighting grid points ``lit``."""
-        pattern = np.zeros(projector_size, np.float32)
-        pattern[lit[:, 0] + self.roi[0], lit[:, 1] + self.roi[1]] = 1.0
-        return pattern
-
-    def estimated_seconds(self, seconds_per_capture_overhead: float = 0.05, settle: float = 0.0) -> float:
-        """Frames x (settle + sum of exposures + per-capture overhead x brackets)."""
-        per_frame = settle + sum(self.exposures) + seconds_per_capture_overhead * len(self.exposures)
-        return len(self.frames()) * per_frame
-
-    def estimated_bytes(self, camera_shape: tuple[int, int]) -> int:
-        """Disk for frames, dark and mapping (float32 EXR, before compression)."""
-        return (len(self.frames()) + 3) * camera_shape[0] * camera_shape[1] * BYTES_PER_PIXEL
-
-    def to_json(self, camera_notes: str = "") -> str:
-        """The plan as ``plan.json`` holds it, with the camera's description for the manifest."""
-        return json.dumps({**asdict(self), "camera_notes": camera_notes}, sort_keys=True)
-
-    @classmethod
-    def from_document(cls, document: object) -> ScanPlan:
-        """The plan of a decoded ``plan.json``; ValueError when it is not one."""
-        try:
-            return cls(tuple(int(v) for v in document["roi"]), float(document["max_radius"]),
-                       tuple(float(e) for e in document["exposures"]), float(document.get("noise_floor", 0.0)))
-        except (KeyError, TypeError, ValueError, AttributeError) as problem:
-            raise ValueError(f"not a ringlight scan plan ({type(problem).__name__}: {problem})") from None
-
-
-def read_plan(out: Path) -> tuple[ScanPlan, str]:
-    """The plan and camera description of the unfinished scan in ``out``; ScanError naming
-    ``plan.json`` when it is unreadable."""
-    path = Path(out) / SCAN_FOLDER / PLAN_NAME
-    document = read_json(path, ScanError, "scan plan", max_bytes=2**20)
-    try:
-        plan = ScanPlan.from_document(document)
-    except ValueError as problem:
-        raise ScanError(f"{path}: {problem}") from None
-    notes = document.get("camera_notes", "")
-    return plan, notes if isinstance(notes, str) else ""
-
-
-def format_bytes(count: float) -> str:
-    """``count`` bytes in the largest binary unit that keeps it at least 1, e.g. ``"3.2 MiB"``."""
-    for unit in ("B", "KiB", "MiB"):
-        if abs(count) < 1024:
-            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
-        count /= 1024
-    return f"{count:.1f} GiB"
-
-
-def check_plan(plan: ScanPlan, projector_size: tuple[int, int]) -> None:
-    y0, x0, y1, x1 = plan.roi
-    if not (0 <= y0 < y1 <= projector_size[0] and 0 <= x0 < x1 <= projector_size[1]):
-        raise ScanError(f"region {plan.roi} must lie inside the {projector_size[0]} x {projector_size[1]} projector")
-    if not plan.max_radius > 0:
-        raise ScanError(f"max_radius must be > 0, got {plan.max_radius}")
-    if not plan.exposures or min(plan.exposures) <= 0:
-        raise ScanError(f"exposures must be > 0 s, got {plan.exposures}")
 
 
 def capture_with_timeout(camera: Camera, exposure: float, timeout: float = CAPTURE_TIMEOUT_S) -> np.ndarray:
@@ -430,10 +331,3 @@ class Scan:
 
 def _frame_name(index: int) -> str:
     return f"frames/{index:05d}.exr"
-
-
-def estimate_disk(plan: ScanPlan, camera_shape: tuple[int, int], folder: Path) -> tuple[int, int]:
-    """(bytes the scan needs, bytes free where it will be written)."""
-    folder = Path(folder)
-    probe = folder if folder.exists() else next((p for p in folder.parents if p.exists()), Path("."))
-    return plan.estimated_bytes(camera_shape), shutil.disk_usage(probe).free

@@ -17,15 +17,12 @@ from ..dataset.exr import read_exr_channels
 from .correspondence import Correspondence, capture_gray_code, decode_gray_code
 from .exposure_probe import ExposurePlan, probe_exposures
 from .hardware import Camera, Projector
-from .scan import (
+from .scan import Scan, ScanProgress, as_rgb, capture_with_timeout
+from .scan_plan import (
     PLAN_NAME,
     SCAN_FOLDER,
-    Scan,
     ScanError,
     ScanPlan,
-    ScanProgress,
-    as_rgb,
-    capture_with_timeout,
     check_plan,
     read_plan,
 )
