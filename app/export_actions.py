@@ -37,6 +37,11 @@ class ExportActions:
         if self.stacks is not None and (path := self._save_path("Export view as PNG", "view.png", "PNG (*.png)")):
             self.export_png(path)
 
+    def choose_shown_export(self) -> None:
+        if self.stacks is not None and (path := self._save_path(
+                "Export view as shown (PNG)", "view-shown.png", "PNG (*.png)")):
+            self.export_shown(path)
+
     def choose_movie_export(self) -> None:
         if self.stacks is not None and (path := self._save_path("Export scrub as MP4", "scrub.mp4", "MP4 (*.mp4)")):
             self.export_movie(path)
@@ -57,6 +62,11 @@ class ExportActions:
 
     def export_png(self, path: Path) -> None:
         self.export_jobs.start(f"Writing {path.name}", exports.png_work(self.image_panel.pixels(), path))
+
+    def export_shown(self, path: Path) -> None:
+        """Write the image panel as it is drawn (display scale, with its overlays) as PNG."""
+        image = self.image_panel.grab().toImage()  # grabbed here; QImage may be saved off the GUI thread
+        self.export_jobs.start(f"Writing {path.name}", exports.qimage_work(image, path))
 
     def export_movie(self, path: Path) -> None:
         self.export_jobs.start(

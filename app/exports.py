@@ -7,8 +7,14 @@ from pathlib import Path
 
 import numpy as np
 from ringlight.core import Stack, write_stack
+from ringlight.core.atomic import atomic_file
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
-from ringlight.core.colour.image_export import write_movie, write_png, write_text
+from ringlight.core.colour.image_export import (
+    ExportError,
+    write_movie,
+    write_png,
+    write_text,
+)
 from ringlight.core.rings.profiles import PixelProfile, profile_csv
 
 
@@ -30,6 +36,18 @@ def png_work(pixels: np.ndarray, path: Path):
 
     def work(progress):
         write_png(path, pixels, overwrite=True)  # the save dialog asked the user
+        progress(1.0)
+        return path
+    return work
+
+
+def qimage_work(image, path: Path):
+    """Write a QImage (a grabbed panel) as PNG, atomically."""
+
+    def work(progress):
+        with atomic_file(path, overwrite=True) as temporary:  # the save dialog asked the user
+            if not image.save(str(temporary), "PNG"):
+                raise ExportError(f"{path}: could not write the PNG")
         progress(1.0)
         return path
     return work

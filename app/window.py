@@ -172,7 +172,10 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.export_actions = [
             self._action(file_menu, "Export stack as &EXR…", self.choose_stack_export, "Ctrl+E",
                          "The shown stack in the stack format of FORMAT.md"),
-            self._action(file_menu, "Export view as &PNG…", self.choose_png_export, "Ctrl+Shift+P"),
+            self._action(file_menu, "Export view as &PNG…", self.choose_png_export, "Ctrl+Shift+P",
+                         "The image's data pixels, one per grid point, lossless"),
+            self._action(file_menu, "Export view as shown, with &overlays (PNG)…", self.choose_shown_export,
+                         "Ctrl+Shift+O", "The image panel at display scale: ring, region, scale bar, title"),
             self._action(file_menu, "Export scrub as &movie (MP4)…", self.choose_movie_export, "Ctrl+Shift+M"),
             self._action(file_menu, "Export profiles as &CSV…", self.choose_csv_export, "Ctrl+Shift+C"),
         ]

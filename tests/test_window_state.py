@@ -173,3 +173,26 @@ def test_a_dataset_simulated_as_exitance_is_flagged_when_opened(qtbot, window, t
     assert ("Simulated before camera radiance" in titles) == notice
     for box in window.findChildren(QMessageBox):
         box.close()
+
+
+def test_view_as_shown_export_has_the_panel_size_and_the_ring_overlay(qtbot, window, tmp_path):
+    import cv2
+    from ringlight.widgets.image_panel import MEMBER_RGB
+
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=11))
+    window.pick(6, 6)
+    out = tmp_path / "shown.png"
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=TIMEOUT_MS):
+        window.export_shown(out)
+    pixels = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    ratio = window.image_panel.devicePixelRatioF()
+    assert pixels.shape[:2] == (round(window.image_panel.height() * ratio), round(window.image_panel.width() * ratio))
+    window.image_panel.clear_ring()
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=TIMEOUT_MS):
+        window.export_shown(tmp_path / "bare.png")
+    bare = cv2.cvtColor(cv2.imread(str(tmp_path / "bare.png")), cv2.COLOR_BGR2RGB)
+
+    def ring_coloured(image):
+        return int((np.abs(image.astype(int) - np.array(MEMBER_RGB)).sum(-1) < 30).sum())
+    # The ring's circle, drawn in MEMBER_RGB, is in the export and not in one without the ring.
+    assert ring_coloured(pixels) > ring_coloured(bare) + 50
