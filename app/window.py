@@ -47,7 +47,6 @@ from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
 from .window_settings import WindowSettings
 
-DEMO = "(demo)"
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 import tracemalloc
+from contextlib import contextmanager
 
 import numpy as np
 import OpenEXR
@@ -26,6 +27,18 @@ from ringlight.core.dataset.exr import read_exr_rgb
 from ringlight.core.dataset.manifest import read_manifest
 
 MiB = 2**20
+
+
+@contextmanager
+def traced_peak():
+    """Trace Python's allocations in the block; the yielded list receives the peak in bytes."""
+    peak = []
+    tracemalloc.start()
+    try:
+        yield peak
+        peak.append(tracemalloc.get_traced_memory()[1])
+    finally:
+        tracemalloc.stop()
 
 
 @pytest.fixture
@@ -163,44 +176,32 @@ def test_the_grid_diagonal_fallback_is_refused_by_arithmetic(dataset):
     """An 8192 x 8192 grid without max_radius: responses up to the diagonal would need 10**8 GiB;
     refused in milliseconds, with nothing of the grid's size allocated."""
     edit_manifest(dataset, lambda m: m.update(grid={"height": 8192, "width": 8192}))
-    tracemalloc.start()
     started = time.perf_counter()
-    try:
+    with traced_peak() as peak:
         refused(dataset, "responses up to radius 11583.8 need", "GiB (limit 8.0 GiB)")
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
     assert time.perf_counter() - started < 2.0
-    assert peak < 16 * MiB
+    assert peak[0] < 16 * MiB
 
 
 def test_frames_of_the_wrong_size_fail_before_the_response_array_exists(dataset):
     """A 4096 x 4096 grid at max_radius 2 would build a 2.5 GiB response array (under the 8 GiB
     limit): the first frame's header is checked first, so almost nothing is allocated."""
     edit_manifest(dataset, lambda m: m.update(grid={"height": 4096, "width": 4096}, max_radius=2))
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         refused(dataset, "frames/00000.exr: frame is 6 x 5, expected 4096 x 4096 (the size of the grid)",
                 use_cache=False)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 16 * MiB
+    assert peak[0] < 16 * MiB
 
 
 def test_lit_counts_allocates_only_its_int32_result(dataset):
     """(H, W) int32 is 64 MiB for a 4096 x 4096 grid; the old bincount made 128 MiB of int64 first."""
     edit_manifest(dataset, lambda m: m.update(grid={"height": 4096, "width": 4096}))
     manifest = read_manifest(dataset)
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         counts = manifest.lit_counts()
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
     assert counts.dtype == np.int32 and counts.shape == (4096, 4096)
     assert counts.sum() == 30 and counts[:6, :5].all()  # each of the 6 x 5 points lit once
-    assert peak < 64 * MiB + 8 * MiB
+    assert peak[0] < 64 * MiB + 8 * MiB
 
 
 # Manifest: file names ---------------------------------------------------------------------------
@@ -261,13 +262,9 @@ def set_data_window(path, height, width):
 
 def test_a_frame_header_claiming_a_huge_image_is_refused_before_decoding(dataset):
     set_data_window(dataset / "frames/00004.exr", 8000, 8000)
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         refused(dataset, "frames/00004.exr: frame is 8000 x 8000, expected 6 x 5")
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 16 * MiB
+    assert peak[0] < 16 * MiB
 
 
 def test_a_header_over_the_pixel_limit_is_refused(dataset):
@@ -282,14 +279,10 @@ def test_a_mapping_header_claiming_a_huge_camera_is_refused_before_decoding(data
     write_exr(dataset / "mapping.exr", {"y": y, "x": x})
     set_data_window(dataset / "mapping.exr", 8000, 8000)
     edit_manifest(dataset, lambda m: m.update(frame_space="camera", mapping="mapping.exr"))
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         refused(dataset, "mapping.exr: truncated or corrupt OpenEXR file (the file ends at byte",
                 "inside its table of 500 chunk offsets")
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 16 * MiB
+    assert peak[0] < 16 * MiB
 
 
 def test_a_tiny_camera_under_a_huge_grid_is_refused_before_allocation(dataset):
@@ -299,14 +292,10 @@ def test_a_tiny_camera_under_a_huge_grid_is_refused_before_allocation(dataset):
     write_exr(dataset / "mapping.exr", {"y": y, "x": x})
     edit_manifest(dataset, lambda m: m.update(frame_space="camera", mapping="mapping.exr", max_radius=1.5,
                                               grid={"height": 8192, "width": 4096}))
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         refused(dataset, "mapping.exr: a camera of 6 x 5 pixels cannot see 1% of the 8192 x 4096 grid",
                 use_cache=False)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 16 * MiB
+    assert peak[0] < 16 * MiB
 
 
 @pytest.mark.parametrize("fill", [np.nan, 1e30, -7.0])

@@ -128,12 +128,6 @@ def read_exr_header(path: str | os.PathLike) -> ExrHeader:
     return ExrHeader(height, width, names, subsampled)
 
 
-def exr_size(path: str | os.PathLike) -> tuple[int, int]:
-    """Return ``(height, width)`` of an EXR file from its header alone (see :func:`read_exr_header`)."""
-    header = read_exr_header(path)
-    return header.height, header.width
-
-
 def check_exr(path: str | os.PathLike, names: tuple[str, ...],
               expected_shape: tuple[int, int] | None = None, what: str = "image",
               size_of: str | None = None) -> ExrHeader:
