@@ -126,7 +126,7 @@ class ExploreView:
         self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
         self.image_panel.set_title(self._image_title())
         self.display_controls.show_levels(self._levels, negative_fraction(image))
-        self.levels_histogram.set_image(image * np.float32(2.0 ** settings.exposure_stops), self._levels)
+        self.levels_histogram.set_image(image, self._levels, 2.0 ** settings.exposure_stops)
         self._refresh_truth(settings, colorspace)
         self.show_region_statistics()
         self.image_shown.emit()

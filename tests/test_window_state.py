@@ -141,8 +141,7 @@ def test_region_statistics_of_the_shown_image(qtbot, window, tmp_path):
 
 
 def test_dragging_the_levels_histogram_sets_manual_levels(qtbot, window, tmp_path):
-    from ringlight.core.colour.display import render
-    from ringlight.widgets.levels_histogram import value_histogram
+    from ringlight.core.colour.display import render, value_histogram
 
     open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=9))
     image = window.current_image()

@@ -10,25 +10,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QSize, Signal
 from PySide6.QtWidgets import QWidget
-
-BINS = 128
-
-
-def value_histogram(image: np.ndarray, bins: int = BINS) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram of the finite channel values of an (H, W, 3) image.
-
-    Returns ``(edges (bins + 1,), counts (bins,))`` over [min, max] of those values (a unit
-    range around a constant image; empty arrays when no value is finite).
-    """
-    values = np.asarray(image, np.float64).ravel()
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return np.zeros(0), np.zeros(0)
-    low, high = float(values.min()), float(values.max())
-    if high <= low:
-        low, high = low - 0.5, high + 0.5
-    counts, edges = np.histogram(values, bins=bins, range=(low, high))
-    return edges, counts
+from ringlight.core.colour.display import value_histogram
 
 
 class LevelsHistogram(pg.PlotWidget):
@@ -55,9 +37,11 @@ class LevelsHistogram(pg.PlotWidget):
     def sizeHint(self) -> QSize:
         return QSize(220, 100)  # the dock's width comes from the controls above, not from this plot
 
-    def set_image(self, image: np.ndarray | None, levels: tuple[float, float]) -> None:
-        """Show the histogram of ``image`` and ``levels`` (linear values) as the region."""
+    def set_image(self, image: np.ndarray | None, levels: tuple[float, float], scale: float = 1.0) -> None:
+        """Show the histogram of ``image`` times ``scale`` (the exposure, applied to the bin edges
+        rather than to a copy of the image) and ``levels`` (linear values) as the region."""
         edges, counts = value_histogram(image) if image is not None else (np.zeros(0), np.zeros(0))
+        edges = edges * scale
         if len(counts):
             # log(1 + count): the few bright values of a transient would otherwise be invisible.
             self.curve.setData(edges, np.log1p(counts))

@@ -175,3 +175,23 @@ def _to_srgb_matrix(colorspace: str) -> np.ndarray:
 def _luminance_weights(colorspace: str) -> np.ndarray:
     """(3,) float32: relative luminance Y of linear ``colorspace`` RGB (row Y of RGB->XYZ)."""
     return colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1].astype(np.float32)
+
+
+HISTOGRAM_BINS = 128
+
+
+def value_histogram(image: np.ndarray, bins: int = HISTOGRAM_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """Histogram of the finite channel values of an (H, W, 3) image.
+
+    Returns ``(edges (bins + 1,), counts (bins,))`` over [min, max] of those values (a unit
+    range around a constant image; empty arrays when no value is finite).
+    """
+    values = np.asarray(image, np.float32).ravel()  # no copy of a float32 image
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return np.zeros(0), np.zeros(0)
+    low, high = float(values.min()), float(values.max())
+    if high <= low:
+        low, high = low - 0.5, high + 0.5
+    counts, edges = np.histogram(values, bins=bins, range=(low, high))
+    return edges.astype(np.float64), counts  # float64: plot ranges in float32 overflow in pyqtgraph
