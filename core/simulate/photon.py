@@ -49,12 +49,14 @@ from .camera import (
     exit_fresnel,
     view_constants,
 )
-from .streams import ESTIMATOR_STREAM, seed_state, uniform
+from .streams import ESTIMATOR_STREAM, fresh_state, seed_state, uniform
 
 ROULETTE_WEIGHT = 1e-4
 ROULETTE_SURVIVAL = 0.1
 RECORD_COLUMNS = 7
 """Columns of an event record: photon, entry y, entry x, surface y, surface x, path length, value."""
+NO_MAP = np.zeros((0, 0), np.bool_)
+"""An empty ``mixed`` map: no column is tracked."""
 
 
 @numba.njit(cache=True, inline="always")
@@ -84,6 +86,10 @@ def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, 
     return count + 1
 
 
+WALKER_SIZE = 8
+"""A walker's state: y, x, z, uy, ux, uz, weight, path length."""
+
+
 @numba.njit(cache=True)
 def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, optics, columns,
                  camera, window, centre_y, centre_x, truth, bin_step, records, count, photon):
@@ -96,41 +102,92 @@ def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo,
     ``count``; zero rows to record nothing) receive the scores; ``camera`` picks the measure.
     Returns ``(count, total)``: the events scored so far and the sum of this photon's values.
     """
+    walker = entering_walker(entry_y, entry_x, optics)
+    count, total, _ = walk(state, estimator_state, walker, False, volume, mu_t, albedo, g, majorant, optics, columns,
+                           camera, window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y,
+                           entry_x, 1.0, NO_MAP, walker, state, estimator_state)
+    return count, total
+
+
+@numba.njit(cache=True, inline="always")
+def entering_walker(entry_y, entry_x, optics):
+    """(WALKER_SIZE,) the walker of a photon that has just refracted in at ``(entry_y, entry_x)``."""
+    walker = np.empty(WALKER_SIZE)
+    walker[0] = entry_y
+    walker[1] = entry_x
+    walker[2] = 0.0
+    walker[3] = optics[BEAM_Y]
+    walker[4] = optics[BEAM_X]
+    walker[5] = optics[BEAM_Z]
+    walker[6] = optics[ENTRY_WEIGHT]
+    walker[7] = 0.0
+    return walker
+
+
+@numba.njit(cache=True)
+def walk(state, estimator_state, walker, pending, volume, mu_t, albedo, g, majorant, optics, columns, camera,
+         window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
+         saved_walker, saved_state, saved_estimator_state):
+    """Walk from ``walker`` (:data:`WALKER_SIZE`) until the light leaves, is lost or absorbed,
+    scoring as :func:`trace_photon` does, times ``sign``; ``pending``: the walker stands at a
+    tentative collision not yet decided (else it is about to fly).
+
+    ``mixed`` ((H, W) bool, or the empty :data:`NO_MAP`) marks the columns where the volume
+    differs from a reference (:mod:`ringlight.core.simulate.reference`). Given one, nothing is
+    scored before the walk's first tentative collision in a marked column; there the walker
+    and both random states are saved (into ``saved_walker``, ``saved_state``,
+    ``saved_estimator_state``) and scoring starts. Before that point the same random numbers
+    walk the same way, with the same scores, in the reference volume.
+    Returns ``(count, total, touched)``: events scored, the sum of the values scored, and
+    whether the walk reached a marked column.
+    """
     layers, height, width = volume.shape
     n = optics[INDEX]
     depth = optics[DEPTH]
-    y = entry_y
-    x = entry_x
-    z = 0.0
-    uy = optics[BEAM_Y]
-    ux = optics[BEAM_X]
-    uz = optics[BEAM_Z]
-    weight = optics[ENTRY_WEIGHT]
+    y, x, z, uy, ux, uz, weight, length = walker
     view = view_constants(optics)
-    length = 0.0
     total = 0.0
+    touched = mixed.shape[0] == 0
+    reached = False
     while True:
-        step = -math.log(1.0 - uniform(state)) / majorant
-        if uz < 0.0 and z + step * uz <= 0.0:
-            travel = -z / uz
-            y += travel * uy
-            x += travel * ux
-            length += travel
-            z = 0.0
-            if uniform(state) < exit_fresnel(n, -uz):
-                uz = -uz
-                continue
-            if not camera:
-                count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                               entry_y, entry_x, y, x, length, weight)
-                total += weight
-            return count, total
-        if uz > 0.0 and z + step * uz >= depth:
-            return count, total
-        y += step * uy
-        x += step * ux
-        z += step * uz
-        length += step
+        if pending:
+            pending = False
+        else:
+            step = -math.log(1.0 - uniform(state)) / majorant
+            if uz < 0.0 and z + step * uz <= 0.0:
+                travel = -z / uz
+                y += travel * uy
+                x += travel * ux
+                length += travel
+                z = 0.0
+                if uniform(state) < exit_fresnel(n, -uz):
+                    uz = -uz
+                    continue
+                if not camera and touched:
+                    count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
+                                   entry_y, entry_x, y, x, length, sign * weight)
+                    total += weight
+                return count, total, reached
+            if uz > 0.0 and z + step * uz >= depth:
+                return count, total, reached
+            y += step * uy
+            x += step * ux
+            z += step * uz
+            length += step
+            if not touched and mixed[min(max(int(math.floor(y + 0.5)), 0), mixed.shape[0] - 1),
+                                     min(max(int(math.floor(x + 0.5)), 0), mixed.shape[1] - 1)]:
+                touched = True
+                reached = True
+                saved_walker[0] = y
+                saved_walker[1] = x
+                saved_walker[2] = z
+                saved_walker[3] = uy
+                saved_walker[4] = ux
+                saved_walker[5] = uz
+                saved_walker[6] = weight
+                saved_walker[7] = length
+                saved_state[:] = state
+                saved_estimator_state[:] = estimator_state
         iz = min(int(z), layers - 1)
         iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
         ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
@@ -142,9 +199,9 @@ def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo,
         if camera:
             value, surface_y, surface_x, distance = camera_estimate(
                 estimator_state, volume, mu_t, columns, view, weight, anisotropy, z, y, x, uy, ux, uz)
-            if value > 0.0:
+            if value > 0.0 and touched:
                 count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                               entry_y, entry_x, surface_y, surface_x, length + distance, value)
+                               entry_y, entry_x, surface_y, surface_x, length + distance, sign * value)
                 total += value
         if anisotropy == 0.0:
             cos_theta = 2.0 * uniform(state) - 1.0
@@ -171,7 +228,7 @@ def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo,
             if uniform(state) < ROULETTE_SURVIVAL:
                 weight /= ROULETTE_SURVIVAL
             else:
-                return count, total
+                return count, total, reached
 
 
 @numba.njit(cache=True, nogil=True)
@@ -263,3 +320,45 @@ def simulate_points(volume, mu_t, albedo, g, majorant, optics, columns, camera, 
                              albedo, g, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
                              bin_step, records, 0, 0)
 
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def simulate_differences(volume, reference, mixed, mu_t, albedo, g, majorant, optics, reference_optics, columns,
+                         reference_columns, camera, lit, photons, seed, streams, bin_step, windows, truth):
+    """The correlated differences of :mod:`ringlight.core.simulate.reference`: for each lit point,
+    ``photons`` walks in ``volume`` scored with +1 from their first tentative collision in a
+    ``mixed`` column on, each then walked on from that point with the same random numbers in
+    ``reference`` (the reference volume, its own ``reference_optics`` and
+    ``reference_columns``; the same material tables and majorant) and scored with -1. Before
+    that point, and for walks that never reach a marked column, both volumes give the same
+    scores: their difference is zero. Other arguments and the outputs as in
+    :func:`simulate_points`; values are raw sums of differences."""
+    count = lit.shape[0]
+    blocks = truth.shape[0]
+    for block in numba.prange(blocks):
+        records = np.zeros((0, RECORD_COLUMNS))
+        for i in range(block * count // blocks, (block + 1) * count // blocks):
+            seeder = seed_state(seed, streams[i])
+            estimator_seeder = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
+            state = np.empty(2, np.uint64)
+            estimator_state = np.empty(2, np.uint64)
+            ly = lit[i, 0]
+            lx = lit[i, 1]
+            saved = np.empty(WALKER_SIZE)
+            saved_state = np.empty(2, np.uint64)
+            saved_estimator_state = np.empty(2, np.uint64)
+            for _ in range(photons):
+                # Each photon its own streams, so that the reference walk can take them up where
+                # the scene's walk reached a marked column, and no other photon reuses them.
+                fresh_state(seeder, state)
+                fresh_state(estimator_seeder, estimator_state)
+                entry_y = ly + uniform(state) - 0.5
+                entry_x = lx + uniform(state) - 0.5
+                _, _, reached = walk(state, estimator_state, entering_walker(entry_y, entry_x, optics), False, volume,
+                                     mu_t, albedo, g, majorant, optics, columns, camera, windows[i], ly, lx,
+                                     truth[block], bin_step, records, 0, 0, entry_y, entry_x, 1.0, mixed, saved,
+                                     saved_state, saved_estimator_state)
+                if reached:
+                    walk(saved_state, saved_estimator_state, saved, True, reference, mu_t, albedo, g, majorant,
+                         reference_optics, reference_columns, camera, windows[i], ly, lx, truth[block], bin_step,
+                         records, 0, 0, entry_y, entry_x, -1.0, NO_MAP, saved, saved_state, saved_estimator_state)

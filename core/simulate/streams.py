@@ -50,3 +50,19 @@ def uniform(state):
     state[0] = _rotl(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
     state[1] = _rotl(s1, 37)
     return (result >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True)
+def fresh_state(seeder, state):
+    """Reseed ``state`` (2 uint64, in place) from the next output of ``seeder`` (advanced):
+    independent streams one after another, for walks that must be replayed from their start."""
+    s0 = seeder[0]
+    s1 = seeder[1]
+    value = s0 + s1
+    s1 ^= s0
+    seeder[0] = _rotl(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
+    seeder[1] = _rotl(s1, 37)
+    value, state[0] = _splitmix(value)
+    value, state[1] = _splitmix(value)
+    if state[0] == 0 and state[1] == 0:
+        state[0] = np.uint64(1)

@@ -26,12 +26,24 @@ from ..dataset.manifest import Manifest
 from ..dataset.writer import DatasetWriter
 from . import photon
 from .adding_doubling import thick_slab_reflectance
-from .camera import column_optical_depths, optics, specular_reflectance
+from .camera import UNIFORM_MU_T, column_optical_depths, optics, specular_reflectance
 from .lattice import lattice_frames
+from .reference import (
+    KERNEL_STREAMS,
+    mixed_columns,
+    reference_kernel,
+    reference_optics,
+    reference_volume,
+    simulate_point_differences,
+    spread_kernel,
+)
 from .scene import Material, Scene
 
 TRUTH_BLOCKS = 16
 POINTS_PER_CALL = 64
+KERNEL_SHARE = 0.25
+"""With the reference estimator in a scene that differs from its reference, the kernel's
+photons as a fraction of all lit points' (measured on red-bead: the differences dominate the noise)."""
 SIMULATED_PREFIX = "simulated by ringlight"
 MEASURE_NOTE = re.compile(r"^measure: (camera|exitance)$", re.MULTILINE)
 
@@ -61,6 +73,7 @@ class Transport:
     path_length_images: np.ndarray
     seconds: float
     measure: str = "camera"
+    estimator: str = "reference"
 
 
 def _channel_tables(materials: tuple[Material, ...], channel: int):
@@ -70,16 +83,27 @@ def _channel_tables(materials: tuple[Material, ...], channel: int):
     return mu_t, albedo, g
 
 
+ESTIMATORS = ("reference", "analogue")
+"""``reference``: a shift-invariant reference plus correlated differences
+(:mod:`.reference`, the default); ``analogue``: every lit point's photons walk on their own."""
+
+
 def simulate_transport(scene: Scene, photons: int | None = None, seed: int | None = None,
-                       progress: ProgressCallback | None = None, points: np.ndarray | None = None) -> Transport:
+                       progress: ProgressCallback | None = None, points: np.ndarray | None = None,
+                       estimator: str = "reference") -> Transport:
     """Trace photons from every grid point of ``scene``; see :class:`Transport`.
 
     ``points`` (n, 2) ``[y, x]`` restricts the lit points (their windows alone are filled, and
-    the path-length images are then those of lighting just these points). Deterministic for a
-    seed whatever the number of threads: each point's random stream depends on the seed and
-    its row-major grid index only. ``progress`` gets the fraction done and may raise
-    :class:`Cancelled`.
+    the path-length images are then those of lighting just these points). ``estimator`` is one
+    of :data:`ESTIMATORS`; both give the same expectations. With ``reference``, the reference
+    kernel gets ``photons`` times the number of lit points, and each lit point ``photons``
+    correlated walks where the scene differs from the reference (none in a layered scene).
+    Deterministic for a seed whatever the number of threads: each point's random stream depends
+    on the seed and its row-major grid index only. ``progress`` gets the fraction done and may
+    raise :class:`Cancelled`.
     """
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
     photons = photons or scene.photons_per_point
     seed = scene.seed if seed is None else seed
     height, width = scene.height, scene.width
@@ -93,40 +117,108 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     channels = (0,) if scene.grey else (0, 1, 2)
     windows = np.zeros((height * width, size, size, 3), np.float64)
     truth = np.zeros((scene.bin_count, height, width, 3), np.float64)
-    calls = [(c, start) for c in channels for start in range(0, len(lit), POINTS_PER_CALL)]
-    used = np.unique(scene.volume)
-    camera = scene.measure == "camera"
     started = time.perf_counter()
-    for done, (channel, start) in enumerate(calls):
-        mu_t, albedo, g = _channel_tables(scene.materials, channel)
-        majorant = float(mu_t[used].max())
-        uniform_mu_t = majorant if mu_t[used].min() == majorant else -1.0
-        geometry = optics(scene.n, scene.depth, scene.projector, scene.camera, uniform_mu_t)
-        columns = (column_optical_depths(scene.volume, mu_t, scene.camera) if camera and uniform_mu_t < 0
-                   else np.zeros((0, 0, 0)))
-        chunk = lit[start:start + POINTS_PER_CALL]
-        chunk_windows = np.zeros((len(chunk), size, size))
-        chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
-        photon.simulate_points(
-            scene.volume, mu_t, albedo, g, majorant, geometry, columns, camera, chunk, photons, seed,
-            streams[start:start + POINTS_PER_CALL] + channel * height * width,
-            scene.bin_step, chunk_windows, chunk_truth,
-        )
-        windows[streams[start:start + len(chunk)], :, :, channel] = chunk_windows
-        truth[..., channel] += chunk_truth.sum(axis=0)
+    work = _reference_work if estimator == "reference" else _analogue_work
+    steps = list(work(scene, photons, seed, lit, streams, channels, windows, truth))
+    for done, step in enumerate(steps):
+        step()
         if progress is not None:
-            progress((done + 1) / len(calls))
+            progress((done + 1) / len(steps))
     if scene.grey:
         windows[..., 1:] = windows[..., :1]
         truth[..., 1:] = truth[..., :1]
-    windows /= photons
-    truth /= photons
     return Transport(
         scene=scene, photons=photons, seed=seed, window_radius=radius,
         windows=windows.reshape(height, width, size, size, 3).astype(np.float32),
         path_length_images=truth.astype(np.float32), seconds=time.perf_counter() - started,
-        measure=scene.measure,
+        measure=scene.measure, estimator=estimator,
     )
+
+
+def _channel_setup(scene: Scene, channel: int, volume: np.ndarray):
+    """``(tables, majorant, optics)`` of one channel for the materials used in ``volume``."""
+    tables = _channel_tables(scene.materials, channel)
+    used = np.unique(volume)
+    mu_t = tables[0]
+    majorant = float(mu_t[used].max())
+    uniform_mu_t = majorant if mu_t[used].min() == majorant else -1.0
+    return tables, majorant, optics(scene.n, scene.depth, scene.projector, scene.camera, uniform_mu_t)
+
+
+def _analogue_work(scene, photons, seed, lit, streams, channels, windows, truth):
+    """Steps (callables) of the analogue estimator: every lit point's photons on their own."""
+    height, width = scene.height, scene.width
+    camera = scene.measure == "camera"
+    size = windows.shape[1]
+
+    def chunk_step(channel, start):
+        def step():
+            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
+            columns = (column_optical_depths(scene.volume, tables[0], scene.camera)
+                       if camera and geometry[UNIFORM_MU_T] < 0 else np.zeros((0, 0, 0)))
+            chunk = lit[start:start + POINTS_PER_CALL]
+            chunk_windows = np.zeros((len(chunk), size, size))
+            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
+            photon.simulate_points(
+                scene.volume, *tables, majorant, geometry, columns, camera, chunk, photons, seed,
+                streams[start:start + POINTS_PER_CALL] + channel * height * width,
+                scene.bin_step, chunk_windows, chunk_truth,
+            )
+            windows[streams[start:start + len(chunk)], :, :, channel] = chunk_windows / photons
+            truth[..., channel] += chunk_truth.sum(axis=0) / photons
+        return step
+
+    for channel in channels:
+        for start in range(0, len(lit), POINTS_PER_CALL):
+            yield chunk_step(channel, start)
+
+
+def _reference_work(scene, photons, seed, lit, streams, channels, windows, truth):
+    """Steps (callables) of the reference estimator (:mod:`.reference`): per channel, the
+    reference kernel spread to every lit point, then the correlated differences."""
+    height, width = scene.height, scene.width
+    camera = scene.measure == "camera"
+    size = windows.shape[1]
+    base = reference_volume(scene.volume)
+    mixed = mixed_columns(scene.volume, base, scene.n, scene.camera)
+    # A walk can reach any column: every lit point needs its differences once one differs.
+    differing = np.arange(len(lit)) if mixed.any() else np.zeros(0, np.int64)
+    symmetric = scene.camera[0] == 0.0 and scene.projector[0] == 0.0
+    # Kernel streams sit above every point's walk streams.
+    kernel_stream = 3 * height * width
+    kernel_photons = photons * len(lit) if len(differing) == 0 else max(1, int(photons * len(lit) * KERNEL_SHARE))
+
+    def kernel_step(channel):
+        def step():
+            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
+            base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, tables[0], base)
+            window, kernel = reference_kernel(
+                base, tables, majorant, base_geometry, camera, scene.camera, kernel_photons, seed,
+                kernel_stream + channel * KERNEL_STREAMS, size // 2, (height, width), scene.bin_step,
+                scene.bin_count, symmetric)
+            windows[streams, :, :, channel] += window
+            truth[..., channel] += spread_kernel(kernel, lit, (height, width))
+        return step
+
+    def difference_step(channel, start):
+        def step():
+            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
+            base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, tables[0], base)
+            chosen = differing[start:start + POINTS_PER_CALL]
+            chunk = lit[chosen]
+            chunk_windows = np.zeros((len(chunk), size, size))
+            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
+            simulate_point_differences(
+                scene.volume, base, mixed, tables, majorant, geometry, base_geometry, camera, scene.camera, chunk,
+                photons, seed, streams[chosen] + channel * height * width, scene.bin_step, chunk_windows, chunk_truth)
+            windows[streams[chosen], :, :, channel] += chunk_windows / photons
+            truth[..., channel] += chunk_truth.sum(axis=0) / photons
+        return step
+
+    for channel in channels:
+        yield kernel_step(channel)
+        for start in range(0, len(differing), POINTS_PER_CALL):
+            yield difference_step(channel, start)
 
 
 def slab_reflectance(material: Material, n: float) -> np.ndarray:
