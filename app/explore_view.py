@@ -1,14 +1,20 @@
 """The Explore view's behaviour: picking, the radius, and drawing the image, truth, ring and profiles.
 
 A mixin of :class:`ringlight.app.window.MainWindow`: it reads the window's state (``loaded``,
-``stacks``, ``picked``) and widgets, and keeps the numbers it shows (``_shown_image``,
+``stacks``, ``noise``, ``picked``) and widgets, and keeps the numbers it shows (``_shown_image``,
 ``profile``, ``truth_correlation``) for the hover readout and the exports.
+
+After each new stack the noise of E_r and T_r (ring-member spread, :mod:`ringlight.core.rings.noise`)
+is estimated in a worker; it draws the profile bands, the SNR map view, the scrub bar's SNR strip
+and the Layers tab's trusted flags once it arrives.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-from ringlight.core import ring_geometry
+from ringlight.core import ImpulseDataset, ring_geometry
 from ringlight.core.colour.display import (
     DisplaySettings,
     display_levels,
@@ -17,7 +23,34 @@ from ringlight.core.colour.display import (
 )
 from ringlight.core.colour.regions import region_statistics
 from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.rings.noise import StackNoise, median_snr, smoothed, stack_noise, transient_snr
 from ringlight.core.rings.profiles import pixel_profile
+from ringlight.core.rings.stack_request import StackPair
+from ringlight.widgets.snr_colours import SNR_COLORMAP, SNR_LEVELS, snr_colormap, snr_rgb
+
+SNR_LABEL = "SNR = |Y(T_r)| / SE"
+
+
+@dataclass(frozen=True, eq=False)
+class ViewNoise:
+    """The noise of a stack pair on screen.
+
+    Attributes
+    ----------
+    snr
+        (n, H, W) float32 SNR of each T_r's luminance (:func:`transient_snr`).
+    """
+
+    pair: StackPair
+    noise: StackNoise
+    snr: np.ndarray
+
+
+def compute_view_noise(dataset: ImpulseDataset, pair: StackPair, progress) -> ViewNoise:
+    """Standard errors and SNR of ``pair``'s stacks (a worker job)."""
+    request = pair.request
+    noise = stack_noise(dataset, pair.radii, request.dr, request.thickness, request.antialias, progress)
+    return ViewNoise(pair, noise, transient_snr(pair.transient.images, noise))
 
 
 class ExploreView:
@@ -54,6 +87,49 @@ class ExploreView:
     def _on_display_settings(self, settings: DisplaySettings) -> None:
         self._refresh_image()
 
+    def _on_denoise_changed(self, _sigma: float, in_exports: bool) -> None:
+        self.image_panel.set_display_in_exports(in_exports)
+        self._refresh_image()
+
+    # ----------------------------------------------------------------- noise
+    def request_noise(self) -> None:
+        """Estimate the noise of the shown stacks in a worker, unless known, under way or failed."""
+        if (self.loaded is None or self.stacks is None or self.noise is not None or self.noise_jobs.busy
+                or self._noise_failed_for is self.stacks.pair):
+            return
+        dataset, pair = self.loaded.dataset, self.stacks.pair
+        self.noise_jobs.start(f"Estimating noise of {len(pair.radii)} radii",
+                              lambda progress: compute_view_noise(dataset, pair, progress))
+
+    def _forget_noise(self) -> None:
+        """New stacks: their noise is unknown until the worker brings it."""
+        self.noise_jobs.cancel()
+        self.noise = None
+        self.scrub_bar.set_snr(None)
+
+    def _on_noise_failed(self, message: str) -> None:
+        self._noise_failed_for = self.stacks.pair if self.stacks is not None else None  # no retry loop
+        self.show_error("Could not estimate the noise", message)
+
+    def _on_noise_ready(self, noise: ViewNoise) -> None:
+        if self.stacks is None or noise.pair is not self.stacks.pair:
+            return  # computed for stacks that were replaced meanwhile
+        self.noise = noise
+        self.layer_tab.set_noise(noise.noise)
+        self.refresh_snr_strip()
+        self._refresh_all()
+
+    def refresh_snr_strip(self) -> None:
+        """Median SNR of T_r per radius over the Layers tab's region (all pixels when none)."""
+        if self.noise is None:
+            self.scrub_bar.set_snr(None)
+            return
+        region = self.layer_tab.region
+        whole = region.shape != self.noise.snr.shape[1:] or region.all()
+        where = "the image" if whole else "the Layers region"
+        self.scrub_bar.set_snr(median_snr(self.noise.snr, None if whole else region),
+                               f"median {SNR_LABEL} of T_r over {where}:")
+
     def _on_hover(self, y: int, x: int) -> None:
         self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
 
@@ -61,10 +137,18 @@ class ExploreView:
         """Full-precision value of the shown image at (y, x) and the ring points behind it."""
         if self._shown_image is None or self.stacks is None:
             return ""
-        value = self._shown_image[y, x]
-        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
         index = self.radius_index()
         view = self.view()
+        if view == "snr":
+            if self.noise is None:
+                return ""
+            se = float(self.noise.noise.transient_luminance[index, y, x])
+            stack = self.stacks.pair.transient
+            return (f"y {y}  x {x}   SNR {float(self._shown_image[y, x]):.4g}  (SE of Y(T_r) {se:.4g})   "
+                    f"ring points: {int(stack.counts[index, y, x])} at r, "
+                    f"{int(stack.outer_counts[index, y, x])} at r+dr")
+        value = self._shown_image[y, x]
+        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
         if view in ("ring", "transient"):
             stack = self.stacks.pair.transient
             text += f"   ring points: {int(stack.counts[index, y, x])} at r"
@@ -73,7 +157,7 @@ class ExploreView:
         return text
 
     def cancel_all(self) -> None:
-        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.export_jobs):
             slot.cancel()
         self.scrub_bar.play_button.setChecked(False)
 
@@ -93,6 +177,8 @@ class ExploreView:
             if self._impulse_cache is None or self._impulse_cache[0] != self.picked:
                 self._impulse_cache = (self.picked, self.loaded.dataset.impulse_image(*self.picked))
             return self._impulse_cache[1]
+        if view == "snr":
+            return None if self.noise is None else self.noise.snr[self.radius_index()]
         stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
         return stack.images[self.radius_index()]
 
@@ -110,11 +196,15 @@ class ExploreView:
         return self._global_levels[key]
 
     def _refresh_all(self) -> None:
+        self.request_noise()  # again after a cancel (Esc): any change of view brings it back
         self._refresh_image()
         self._refresh_ring()
         self._refresh_profiles()
 
     def _refresh_image(self) -> None:
+        if self.view() == "snr":
+            self._refresh_snr_image()
+            return
         image = self.current_image()
         if image is None:
             return
@@ -123,11 +213,40 @@ class ExploreView:
         colorspace = self.loaded.dataset.colorspace
         self._levels = self._levels_for(image, settings, view)
         self._shown_image = image
-        self.image_panel.set_pixels(render(image, self._levels, settings, colorspace))
+        pixels = render(image, self._levels, settings, colorspace)
+        sigma = self.display_controls.denoise_sigma()
+        if sigma > 0 and view in ("ring", "transient"):
+            # Display only: the levels and the hover readout stay those of the data.
+            exports = "exports denoised too" if self.display_controls.denoise_exports() else "exports raw"
+            self.image_panel.set_pixels(pixels, render(smoothed(image, sigma), self._levels, settings, colorspace),
+                                        f"denoised for display:\nGaussian sigma {sigma:g} grid steps\n{exports}")
+        else:
+            self.image_panel.set_pixels(pixels)
+        self.image_panel.set_colour_bar(None)
         self.image_panel.set_title(self._image_title())
         self.display_controls.show_levels(self._levels, negative_fraction(image))
         self.levels_histogram.set_image(image, self._levels, 2.0 ** settings.exposure_stops)
         self._refresh_truth(settings, colorspace)
+        self.show_region_statistics()
+        self.image_shown.emit()
+
+    def _refresh_snr_image(self) -> None:
+        """The SNR map of T_r on the shared colour scale, with its colour bar."""
+        if self.loaded is None or self.stacks is None:
+            return
+        if self.noise is None:
+            self._shown_image = None
+            self.image_panel.set_title("SNR map of T_r: estimating the noise (status bar) ...")
+            return
+        image = self.noise.snr[self.radius_index()]
+        self._levels = SNR_LEVELS
+        self._shown_image = image
+        self.image_panel.set_pixels(snr_rgb(image))
+        self.image_panel.set_colour_bar(SNR_LEVELS, snr_colormap(), SNR_LABEL)
+        self.image_panel.set_title(self._image_title())
+        self.display_controls.show_levels(SNR_LEVELS, 0.0)
+        self.levels_histogram.set_image(image, SNR_LEVELS)
+        self._refresh_truth(self.display_settings(), self.loaded.dataset.colorspace)
         self.show_region_statistics()
         self.image_shown.emit()
 
@@ -145,6 +264,10 @@ class ExploreView:
         if self._shown_image is None or region.shape != self._shown_image.shape[:2] or region.all():
             self.region_label.setText("")
             return
+        if self._shown_image.ndim == 2:  # the SNR map
+            count, mean, std = region_statistics(self._shown_image[..., None], region)
+            self.region_label.setText(f"region: {count} px, mean SNR {mean[0]:.3g}, std {std[0]:.3g}")
+            return
         count, mean, std = region_statistics(self._shown_image, region)
         self.region_label.setText(f"region: {count} px, mean RGB {' '.join(f'{m:.4g}' for m in mean)}, "
                                   f"std {' '.join(f'{s:.3g}' for s in std)}")
@@ -159,6 +282,10 @@ class ExploreView:
         radius = self.stacks.pair.radii[self.radius_index()]
         if view == "ring":
             return f"E_r  r = {radius:g}  w = {request.thickness:g}"
+        if view == "snr":
+            return (f"SNR of T_r  r = {radius:g}  dr = {request.dr:g}\n"
+                    f"{SNR_COLORMAP} {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g} (above: {SNR_LEVELS[1]:g})\n"
+                    f"grey: < 2 ring members")
         return f"T_r  r = {radius:g}  dr = {request.dr:g}  w = {request.thickness:g}"
 
     def _refresh_truth(self, settings: DisplaySettings, colorspace: str) -> None:
@@ -195,7 +322,12 @@ class ExploreView:
         if self.loaded is None or self.stacks is None or self.picked is None:
             return
         self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
-        self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient)
+        ring_se = transient_se = None
+        if self.noise is not None:
+            y, x = self.picked
+            ring_se, transient_se = self.noise.noise.ring[:, y, x], self.noise.noise.transient[:, y, x]
+        self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient,
+                                       ring_se, transient_se)
         self.profile_plot.set_point(f"at y {self.picked[0]} x {self.picked[1]}")
         self._mark_radius()
 

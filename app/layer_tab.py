@@ -1,30 +1,41 @@
 """The Layers tab's logic: region -> trajectory -> picked radii -> recovered layer colours.
 
-Everything here is cheap (region means of a computed stack), so it runs in the GUI thread on
-each change; exports run in the window's export worker.
+Everything here is cheap (region means of a computed stack and its noise), so it runs in the GUI
+thread on each change; exports run in the window's export worker. The trusted flags come from the
+stack's noise (ring-member spread, :data:`~ringlight.core.colour.layer_report.TRUST_RULE`), which
+the window estimates in a worker after each stack: until it arrives the tab shows the trajectory
+and waits with the layers.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import QObject, Signal
 from ringlight.core import ImpulseDataset, RinglightError, Stack
 from ringlight.core.atomic import atomic_file
-from ringlight.core.colour.chroma import propose_radii, recover_layers, trajectory
+from ringlight.core.colour.chroma import colour_unavailable, propose_radii, recover_layers, trajectory
 from ringlight.core.colour.image_export import ExportError, write_text
 from ringlight.core.colour.layer_report import (
+    TRUST_RULE,
     LayerAnalysis,
     analysis_csv,
     analysis_json,
+    layer_snr,
     truth_layers,
+    with_ring_noise,
 )
 from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
+from ringlight.core.rings.noise import StackNoise
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.jobs import JobSlot
 from ringlight.widgets.layer_panel import LayerPanel
 from ringlight.widgets.scrub_bar import ScrubBar
+
+
+PENDING = "Trusted flags: estimating the noise of the stack (status bar)."
 
 
 class LayerTab(QObject):
@@ -42,6 +53,7 @@ class LayerTab(QObject):
         self.exports = exports
         self.dataset: ImpulseDataset | None = None
         self.stack: Stack | None = None
+        self.noise: StackNoise | None = None
         self.picked: list[float] = []
         self.analysis: LayerAnalysis | None = None
         self.region = np.zeros((0, 0), bool)
@@ -53,12 +65,14 @@ class LayerTab(QObject):
         panel.method_changed.connect(lambda _: self.refresh())
         panel.region_mode_changed.connect(image_panel.set_region_mode)
         panel.radius_clicked.connect(self._on_radius_clicked)
+        panel.set_trust_rule(TRUST_RULE)
         image_panel.region_changed.connect(self.update_region)
 
     def set_data(self, dataset: ImpulseDataset, stack: Stack) -> None:
-        """Use transient ``stack`` of ``dataset``; picks not among its radii are dropped."""
+        """Use transient ``stack`` of ``dataset``; picks not among its radii are dropped. Its
+        noise is unknown until :meth:`set_noise`."""
         new_dataset = dataset is not self.dataset
-        self.dataset, self.stack = dataset, stack
+        self.dataset, self.stack, self.noise = dataset, stack, None
         if new_dataset:
             self.picked = []
             self.panel.diagram.reset_view()  # the new trajectory may lie outside the old zoom
@@ -68,6 +82,11 @@ class LayerTab(QObject):
             self.update_region()
         else:
             self.refresh()
+
+    def set_noise(self, noise: StackNoise | None) -> None:
+        """Use ``noise`` (of the current stack's radii) for the trusted flags; None: unknown."""
+        self.noise = noise
+        self.refresh()
 
     def update_region(self) -> None:
         if self.dataset is None:
@@ -108,8 +127,12 @@ class LayerTab(QObject):
     def auto_pick(self, count: int) -> None:
         if self.stack is None:
             return
+        if self.noise is None:
+            self.panel.show_message(f"Auto picks trusted radii. {PENDING}")
+            return
         try:
-            self.picked = propose_radii(trajectory(self.stack, self.region), count)
+            self.picked = propose_radii(with_ring_noise(trajectory(self.stack, self.region), self.stack,
+                                                        self.noise, self.region), count)
         except RinglightError as error:
             self.panel.show_message(str(error))
             return
@@ -123,6 +146,12 @@ class LayerTab(QObject):
         if self.stack is None or self._stale:
             return
         self.panel.set_picked(self.picked)
+        if (grey := colour_unavailable(self.dataset.channels)) is not None:
+            self.panel.diagram.set_trajectory(np.zeros(0), np.zeros((0, 2)))
+            self.panel.show_result(None)
+            self.panel.show_message(f"No layer colours: {grey}.")
+            self.analysis_changed.emit()
+            return
         try:
             path = trajectory(self.stack, self.region)
         except RinglightError as error:
@@ -139,6 +168,9 @@ class LayerTab(QObject):
                                     f"trajectory) or press Auto.")
             self.analysis_changed.emit()
             return
+        # Until the noise is known every SNR is NaN: nothing is trusted, and the table says why.
+        path = replace(path, snr=np.full(len(path.radii), np.nan)) if self.noise is None else (
+            with_ring_noise(path, self.stack, self.noise, self.region))
         names, truth_rgb = truth_layers(self.dataset)
         try:
             result = recover_layers(path, self.picked, self.panel.method(), truth_rgb)
@@ -148,11 +180,13 @@ class LayerTab(QObject):
             self.analysis_changed.emit()
             return
         self.analysis = LayerAnalysis(self.region_description, path, result, names)
-        self.panel.show_result(result, names)
+        self.panel.show_result(result, names, layer_snr(self.analysis), trust_known=self.noise is not None)
         summary = f"Region: {self.region_description}; method {result.method}."
         if result.errors is not None:
             summary += " Mean xy error " + f"{np.nanmean(result.errors):.4f}."
-        self.panel.show_message(" ".join([summary, *result.warnings]))
+        # Pending, each layer would warn of its NaN SNR: the warnings return with the noise.
+        notes = result.warnings if self.noise is not None else [PENDING]
+        self.panel.show_message(" ".join([summary, *notes]))
         self.analysis_changed.emit()
 
     def on_shown(self) -> None:

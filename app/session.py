@@ -27,7 +27,7 @@ from ringlight.core.rings.stack_request import (
     compute_stacks,
     default_request,
 )
-from ringlight.core.simulate.presets import ensure_demo_dataset
+from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_dataset
 
 Progress = Callable[[float], None]
 
@@ -87,14 +87,16 @@ def open_radius(manifest_max_radius: float | None, height: int, width: int, requ
     return min(wanted, math.hypot(height - 1, width - 1))
 
 
-def load_for_viewing(path: str | Path | None, request: StackRequest | None, progress: Progress) -> LoadedDataset:
-    """Open ``path`` (the demo dataset, made first if needed, when None) with its stacks.
+def load_for_viewing(path: str | Path | None, request: StackRequest | None, progress: Progress,
+                     sample: str | None = None) -> LoadedDataset:
+    """Open ``path`` with its stacks; with ``sample``, that bundled sample, and with neither the
+    demo dataset (each written into the user cache first, the first time).
 
     ``request`` is used when the dataset can serve it, else :func:`default_request`.
     """
     if path is None:
-        path = ensure_demo_dataset(progress=scaled(progress, 0.0, 0.5))
-        progress = scaled(progress, 0.5, 1.0)
+        path = sample_dataset(sample or DEMO_SAMPLE, progress=scaled(progress, 0.0, 0.3))
+        progress = scaled(progress, 0.3, 1.0)
     manifest = read_manifest(path)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
     dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5))  # parsed once

@@ -1,8 +1,8 @@
 """The explorer's main window: wires the widgets to an opened dataset and its stacks.
 
 State lives here (dataset, stacks, picked point, radius index, display settings); widgets only
-show what they are given and report what the user did. Slow work (opening, stacks, exports) runs
-in :class:`JobSlot` workers; their results are applied in the GUI thread.
+show what they are given and report what the user did. Slow work (opening, stacks, their noise,
+exports) runs in :class:`JobSlot` workers; their results are applied in the GUI thread.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from ringlight.core import RinglightError
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
+from ringlight.core.simulate.presets import preset_notes
+from ringlight.core.simulate.samples import sample_folder, sample_names
 from ringlight.core.simulate.transport import simulated_before_camera_measure
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import VIEWS, DisplayControls
@@ -40,7 +42,7 @@ from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
 from .capture_tab import CaptureTab
-from .explore_view import ExploreView
+from .explore_view import ExploreView, ViewNoise
 from .export_actions import ExportActions
 from .help_dialogs import EXITANCE_NOTICE, HelpDialogs
 from .layer_tab import LayerTab
@@ -65,6 +67,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.stacks: ViewStacks | None = None
         self.picked: tuple[int, int] | None = None
         self.profile: PixelProfile | None = None
+        self.noise: ViewNoise | None = None
+        self._noise_failed_for = None  # the StackPair whose noise estimate failed, if any
         self.last_error = ""
         self._levels: tuple[float, float] = (0.0, 1.0)
         self._global_levels: dict[tuple, tuple[float, float]] = {}
@@ -78,6 +82,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.export_pool.setMaxThreadCount(1)
         self.load_jobs = JobSlot(self.pool, self)
         self.stack_jobs = JobSlot(self.pool, self)
+        self.noise_jobs = JobSlot(self.pool, self)
         self.export_jobs = JobSlot(self.export_pool, self)
         self.capture_pool = QThreadPool(self)
         self.capture_pool.setMaxThreadCount(1)
@@ -139,7 +144,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.statusBar().addWidget(self.hover_label, 1)
         self.region_label = QLabel()
         self.statusBar().addPermanentWidget(self.region_label)
-        for slot in (self.load_jobs, self.stack_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.export_jobs):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
         self.statusBar().addPermanentWidget(self.dataset_label)
@@ -167,6 +172,10 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
                      "Open an impulse dataset folder or its dataset.json")
         self.recent_menu = file_menu.addMenu("Open &recent")
         self._action(file_menu, "Open &demo dataset", lambda: self.open_dataset(None))
+        samples = file_menu.addMenu("Open &sample")
+        for name in sample_names():
+            self._action(samples, name, lambda _=False, name=name: self.open_sample(name),
+                         tip=f"The bundled {name} sample ({preset_notes(name)})")
         file_menu.addSeparator()
         self.export_actions = [
             self._action(file_menu, "Export stack as &EXR…", self.choose_stack_export, "Ctrl+E",
@@ -207,6 +216,10 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.stack_jobs.finished.connect(self._on_stacks_ready)
         self.stack_jobs.failed.connect(self._on_stacks_failed)
         self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
+        self.noise_jobs.finished.connect(self._on_noise_ready)
+        self.noise_jobs.failed.connect(self._on_noise_failed)
+        for slot in (self.load_jobs, self.stack_jobs):  # new stacks come: free the worker for them
+            slot.started.connect(lambda _: self.noise_jobs.cancel())
         self.export_jobs.finished.connect(lambda path: self.statusBar().showMessage(f"Exported {path}", 8000))
         self.export_jobs.failed.connect(lambda message: self.show_error("Export failed", message))
         self.image_panel.pixel_picked.connect(self.pick)
@@ -218,9 +231,11 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.display_controls.view_changed.connect(lambda _: self._refresh_all())
         self.display_controls.settings_changed.connect(self._on_display_settings)
         self.display_controls.profile_log_changed.connect(self.profile_plot.set_log_y)
+        self.display_controls.denoise_changed.connect(self._on_denoise_changed)
         self.stack_controls.request_changed.connect(self.request_stacks)
         self.layer_panel.export_requested.connect(self.choose_layer_export)
         self.layer_tab.region_changed.connect(self.show_region_statistics)
+        self.layer_tab.region_changed.connect(self.refresh_snr_strip)
         self.levels_histogram.levels_dragged.connect(self.set_manual_levels)
         self.capture_tab.error.connect(self.show_error)
         self.capture_tab.dataset_ready.connect(self._open_captured)
@@ -241,6 +256,13 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
+
+    def open_sample(self, name: str) -> None:
+        """Open the bundled sample ``name`` (written into the user cache the first time)."""
+        request = self.saved_request(sample_folder(name))
+        self.stack_jobs.cancel()
+        self.load_jobs.start(f"Opening the {name} sample",
+                             lambda progress: load_for_viewing(None, request, progress, sample=name))
 
     def _hint_when_empty(self) -> None:
         """With no dataset shown (first start, an open cancelled or failed), say how to get one."""
@@ -314,6 +336,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
             self.stack_controls.set_request(self.stacks.pair.request, self.loaded.dataset.max_radius)
 
     def _install_stacks(self, stacks: ViewStacks) -> None:
+        self._forget_noise()
         self.stacks = stacks
         self._global_levels.clear()
         self.scrub_bar.set_radii(stacks.pair.radii)

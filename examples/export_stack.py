@@ -16,7 +16,7 @@ from ringlight.core import (
     transient_stack,
     write_stack,
 )
-from ringlight.core.simulate.presets import ensure_demo_dataset
+from ringlight.core.simulate.samples import ensure_demo_dataset
 
 source = Path(sys.argv[1]) if len(sys.argv) > 1 else ensure_demo_dataset()
 out = Path(sys.argv[2]) if len(sys.argv) > 2 else Path(tempfile.mkdtemp(prefix="ringlight-example-")) / "stack"

@@ -2,7 +2,7 @@
 
     python examples/open_demo_save_transient.py [OUT_FOLDER]
 
-The demo (red-bead preset, 32 x 32) is simulated on first use, about 15 s, into the user cache.
+The demo (the bundled red-bead sample, 48 x 48) is written into the user cache on first use.
 """
 
 import sys
@@ -12,7 +12,7 @@ from pathlib import Path
 from ringlight.core import open_dataset, transient_stack
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
 from ringlight.core.colour.image_export import write_png
-from ringlight.core.simulate.presets import ensure_demo_dataset
+from ringlight.core.simulate.samples import ensure_demo_dataset
 
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="ringlight-example-"))
 dataset = open_dataset(ensure_demo_dataset())

@@ -25,13 +25,13 @@ class CountingReads:
 
     def __init__(self, monkeypatch):
         self.count = 0
-        original = frames_module.read_exr_rgb
+        original = frames_module.read_exr_channels
 
         def counted(path, *args):
             self.count += 1
             return original(path, *args)
 
-        monkeypatch.setattr(frames_module, "read_exr_rgb", counted)
+        monkeypatch.setattr(frames_module, "read_exr_channels", counted)
 
 
 def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):

@@ -125,7 +125,8 @@ def test_a_scan_stopped_midway_and_resumed_equals_an_uninterrupted_one(tmp_path)
 def test_a_camera_that_stops_answering_pauses_the_scan(tmp_path):
     windows = analytic_windows()
     with pytest.raises(ScanPaused, match="paused after 3 of 49 frames: simulated camera stopped answering"):
-        run_scan(tmp_path / "scan", SimulatedRig(windows, fail_after=8))  # dark + 3 frames, 2 brackets each
+        # dark + 3 frames, 2 brackets each, and the projector check before frame 0 (one capture)
+        run_scan(tmp_path / "scan", SimulatedRig(windows, fail_after=9))
 
     class HangingCamera:
         def __init__(self, camera):
@@ -394,7 +395,7 @@ def test_a_folder_deleted_during_a_scan_is_not_made_again_and_a_fresh_run_comple
     with pytest.raises(ScanError, match="scan's folder was removed during the scan"):
         run_scan(out, SimulatedRig(analytic_windows()), should_stop=delete_the_folder)
     assert not out.exists()
-    with pytest.raises(ScanError, match="no unfinished scan to resume .*start the scan again without --resume"):
+    with pytest.raises(ScanError, match="no unfinished scan to resume .*start the scan again"):
         resume_scan(out)
     fresh = run_scan(out, SimulatedRig(analytic_windows()))
     whole = run_scan(tmp_path / "whole", SimulatedRig(analytic_windows()))
@@ -540,3 +541,41 @@ def test_a_capture_killed_at_any_step_resumes_or_restarts_to_the_same_dataset(tm
         scan.run(rig.camera, rig.projector)
         got = {path.relative_to(out).as_posix(): path.read_bytes() for path in sorted(out.rglob("*")) if path.is_file()}
         assert got == expected, f"killed before step {at}: {sorted(set(got) ^ set(expected))}"
+
+
+def test_the_projector_check_reports_a_dimming_projectors_drift(tmp_path):
+    rig = SimulatedRig(analytic_windows())
+    plan = scan_plan()
+    reference = plan.pattern(plan.frames()[0], rig.size)
+    truth = []  # the brightness of each showing of the reference pattern: the drift to find
+
+    class DimmingProjector:
+        """The rig's projector losing 0.3 % of its light with every pattern shown."""
+
+        def __init__(self, projector):
+            self.projector, self.shows = projector, 0
+
+        def __getattr__(self, name):
+            return getattr(self.projector, name)
+
+        def show(self, pattern):
+            brightness = 1 - 0.003 * self.shows
+            self.shows += 1
+            if np.array_equal(pattern, reference):
+                truth.append(brightness)
+            self.projector.show(pattern * brightness)
+
+    scan = Scan(tmp_path / "scan", plan, identity_mapping(rig, plan.roi), check_every=10)
+    scan.prepare(resume=False)
+    reported = []
+    scan.run(rig.camera, DimmingProjector(rig.projector), progress=lambda state: reported.append(state.drift))
+    drifts = scan.projector_check.drifts()
+    assert [entry["frame"] for entry in scan.projector_check.entries()] == [0, 10, 20, 30, 40, 49]
+    # The checks are the reference pattern's showings but the second (frame 0 itself, after check 0).
+    expected = np.array(truth[:1] + truth[2:]) / truth[0] - 1
+    # Shot and read noise: 0.16 % of a check's radiance (measured over 30 repeats), 0.23 % for a
+    # drift (two checks): 3 sigma is 0.7 %. Measured: largest error 0.42 %.
+    np.testing.assert_allclose(drifts, expected, atol=0.007)
+    assert reported[-1] == pytest.approx(drifts[-2]) and drifts[-1] < -0.1
+    notes = json.loads((tmp_path / "scan/dataset.json").read_text())["notes"]
+    assert f"radiance {drifts.min():+.2%} to +0.00% of the first" in notes

@@ -74,17 +74,18 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
     assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
 
 
-def test_demo_command_makes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):
+def test_demo_command_writes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):
     assert main(["demo"]) == 0
     out = capsys.readouterr().out
-    assert "grid         32 x 32" in out and "lit points   1024" in out
+    # The bundled red-bead sample, written from the package into the user cache folder.
+    assert "grid         48 x 48" in out and "lit points   2304" in out
     assert "ground truth 64 path-length images" in out
-    assert str(private_cache) in out  # made in the user cache folder, not in the package
+    assert str(private_cache) in out and "red-bead" in out
 
-    def no_second_simulation(*args, **kwargs):
-        raise AssertionError("the demo is made once")
+    def no_second_write(*args, **kwargs):
+        raise AssertionError("the demo is written once")
 
-    monkeypatch.setattr("ringlight.core.simulate.transport.simulate_transport", no_second_simulation)
+    monkeypatch.setattr("ringlight.core.simulate.samples.write_transport", no_second_write)
     assert main(["demo"]) == 0
 
 

@@ -17,14 +17,14 @@ from reference import brute_ring_image
 from ringlight.core import open_dataset, read_stack
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
 from ringlight.core.colourspaces import colour_module
-from ringlight.core.simulate.presets import ensure_demo_dataset
+from ringlight.core.simulate.samples import ensure_demo_dataset
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 @pytest.fixture(scope="module")
 def demo_cache(tmp_path_factory):
-    """One demo dataset for the examples that open it (simulated once, ~15 s)."""
+    """One demo dataset for the examples that open it (the bundled sample, written once)."""
     return tmp_path_factory.mktemp("examples-cache")
 
 
@@ -51,13 +51,13 @@ def test_open_demo_example_saves_the_transient_png(demo_cache, tmp_path, monkeyp
     (tmp_path / "cwd").mkdir()
     out = run_example("open_demo_save_transient.py", tmp_path / "out", cache=demo_cache, cwd=tmp_path / "cwd")
     pixels = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / "transient_r2.png")), cv2.COLOR_BGR2RGB)
-    assert pixels.shape == (32, 32, 3) and "T_r at r = 2" in out
+    assert pixels.shape == (48, 48, 3) and "T_r at r = 2" in out
     # The PNG is T_2 = E_2 - E_3 brute-forced from the dataset's impulse images, drawn by the
     # display pipeline with its default settings (per-image 99.5th percentile).
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(demo_cache))
     dataset = open_dataset(ensure_demo_dataset())
-    impulses = {(y, x): dataset.impulse_image(y, x) for y in range(32) for x in range(32)}
-    transient = brute_ring_image(impulses, 32, 32, 2.0) - brute_ring_image(impulses, 32, 32, 3.0)
+    impulses = {(y, x): dataset.impulse_image(y, x) for y in range(48) for x in range(48)}
+    transient = brute_ring_image(impulses, 48, 48, 2.0) - brute_ring_image(impulses, 48, 48, 3.0)
     settings = DisplaySettings()
     expected = render(transient, display_levels(transient, settings), settings, dataset.colorspace)
     assert np.abs(pixels.astype(int) - expected.astype(int)).max() <= 1
@@ -69,7 +69,7 @@ def test_export_stack_example_writes_the_stack_it_prints(demo_cache, tmp_path):
     folder = Path(re.search(r"wrote (\S+)", out).group(1))
     document, images = read_stack(folder)
     assert out.splitlines()[1] == "radii " + " ".join(f"{r:g}" for r in document["radii"]) == "radii 0 1 2 3 4 5 6"
-    assert out.splitlines()[2] == "shape 7 32 32 3" and images.shape == (7, 32, 32, 3)
+    assert out.splitlines()[2] == "shape 7 48 48 3" and images.shape == (7, 48, 48, 3)
 
 
 def test_simulate_example_writes_a_dataset_that_opens(tmp_path):

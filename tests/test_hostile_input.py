@@ -72,13 +72,13 @@ class CountingReads:
 
     def __init__(self, monkeypatch):
         self.count = 0
-        original = frames_module.read_exr_rgb
+        original = frames_module.read_exr_channels
 
         def counted(*args, **kwargs):
             self.count += 1
             return original(*args, **kwargs)
 
-        monkeypatch.setattr(frames_module, "read_exr_rgb", counted)
+        monkeypatch.setattr(frames_module, "read_exr_channels", counted)
 
 
 # Manifest: the bounded JSON reader -------------------------------------------------------------

@@ -49,3 +49,36 @@ def test_job_indicator_is_busy_until_progress_arrives(qtbot):
     assert (indicator.bar.minimum(), indicator.bar.maximum()) == (0, 0)  # Qt's busy indicator
     slot.progress.emit(0.25)
     assert (indicator.bar.maximum(), indicator.bar.value()) == (1000, 250)
+
+
+def test_colour_page_takes_four_corner_clicks_in_order_and_clears_them(qtbot):
+    import numpy as np
+
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    page = wizard.colour_page
+    page.view.pixel_picked.emit(3, 4)  # no chart yet: ignored
+    assert page.corners == [] and not page.fit_button.isEnabled()
+    page.show_chart(np.ones((40, 60, 3), np.float32))
+    fitted = []
+    page.fit_requested.connect(fitted.append)
+    for y, x in ((5, 6), (5, 50), (30, 6), (30, 50)):
+        assert not page.fit_button.isEnabled()
+        page.view.pixel_picked.emit(y, x)
+    page.view.pixel_picked.emit(20, 20)  # one click too many: ignored
+    assert page.fit_button.isEnabled() and "Four patches picked" in page.instructions.text()
+    page.fit_button.click()
+    assert fitted == [[(5, 6), (5, 50), (30, 6), (30, 50)]]
+    assert page.points.data["x"].tolist() == [6.5, 50.5, 6.5, 50.5]  # drawn at the pixels' centres
+    page.clear_button.click()
+    assert page.corners == [] and "patch 1 dark skin" in page.instructions.text()
+
+
+def test_multiplexing_choice_gives_the_code_order(qtbot):
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    orders = []
+    for index in range(wizard.multiplex_box.count()):
+        wizard.multiplex_box.setCurrentIndex(index)
+        orders.append(wizard.multiplex_order())
+    assert orders == [0, 7, 15, 31]

@@ -1,4 +1,5 @@
-"""The capture wizard's pages: devices, correspondence, exposure and region, plan, scan, finish.
+"""The capture wizard's pages: devices, live view, dark frame, colour, correspondence, exposure and
+region, plan, scan, finish (the calibration pages are in :mod:`.calibration_pages`).
 
 Steps are listed on the left and each can be re-entered; the widget shows what it is given and
 reports what the user asks for by signals (the app runs the hardware in workers).
@@ -27,9 +28,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from .calibration_pages import ColourPage, DarkFramePage, LiveViewPage
 from .image_panel import ImagePanel
 
-STEPS = ["1  Devices", "2  Correspondence", "3  Region and exposure", "4  Plan", "5  Scan", "6  Finish"]
+STEPS = ["1  Devices", "2  Live view", "3  Dark frame", "4  Colour", "5  Correspondence",
+         "6  Region and exposure", "7  Plan", "8  Scan", "9  Finish"]
+(DEVICES, LIVE_VIEW, DARK_FRAME, COLOUR, CORRESPONDENCE, REGION, PLAN, SCAN, FINISH) = range(len(STEPS))
+MULTIPLEX_CHOICES = {"Off: one lattice frame per capture": 0, "Hadamard code of 7": 7,
+                     "Hadamard code of 15": 15, "Hadamard code of 31": 31}
 
 
 def _page(*widgets) -> QWidget:
@@ -53,7 +59,10 @@ def _label(text: str = "") -> QLabel:
 class CaptureWizard(QWidget):
     """Signals
     -------
-    open_requested(camera, projector, options)
+    open_requested(camera, projector, options, camera_options)
+    live_requested(exposure_s), live_stop_requested()
+    dark_requested(exposure_s, frames)
+    chart_requested(), colour_fit_requested(corners)
     correspondence_requested()
     probe_requested(roi, max_radius)      roi = (y0, x0, y1, x1)
     scan_requested(out, resume)
@@ -61,7 +70,7 @@ class CaptureWizard(QWidget):
     open_dataset_requested(path)
     """
 
-    open_requested = Signal(str, str, str)
+    open_requested = Signal(str, str, str, str)
     correspondence_requested = Signal()
     probe_requested = Signal(tuple, float)
     scan_requested = Signal(str, bool)
@@ -82,14 +91,31 @@ class CaptureWizard(QWidget):
         self.options_edit = QLineEdit("size=24x24 photons=600")
         self.options_edit.setToolTip("KEY=VALUE options for both devices, separated by spaces")
         self.open_button = QPushButton("Open devices")
+        self.camera_options_edit = QLineEdit()
+        self.camera_options_edit.setPlaceholderText("e.g. serial=0815-0000 pixel_format=Mono12")
+        self.camera_options_edit.setToolTip("KEY=VALUE options for the camera only, separated by spaces")
         self.open_button.clicked.connect(lambda: self.open_requested.emit(
-            self.camera_box.currentText(), self.projector_box.currentText(), self.options_edit.text()))
+            self.camera_box.currentText(), self.projector_box.currentText(), self.options_edit.text(),
+            self.camera_options_edit.text()))
         self.devices_label = _label()
         devices = QFormLayout()
         devices.addRow("Camera", self.camera_box)
         devices.addRow("Projector", self.projector_box)
         devices.addRow("Options", self.options_edit)
+        devices.addRow("Camera options", self.camera_options_edit)
         self.pages.addWidget(_page(devices, self.open_button, self.devices_label))
+
+        # 2-4 live view, dark frame, colour
+        self.live_page = LiveViewPage()
+        self.dark_page = DarkFramePage()
+        self.colour_page = ColourPage()
+        for page in (self.live_page, self.dark_page, self.colour_page):
+            self.pages.addWidget(page)
+        self.live_requested = self.live_page.live_requested
+        self.live_stop_requested = self.live_page.stop_requested
+        self.dark_requested = self.dark_page.dark_requested
+        self.chart_requested = self.colour_page.chart_requested
+        self.colour_fit_requested = self.colour_page.fit_requested
 
         # 2 correspondence
         self.correspondence_button = QPushButton("Project Gray code and decode")
@@ -136,7 +162,14 @@ class CaptureWizard(QWidget):
         out.addWidget(QLabel("Output folder"))
         out.addWidget(self.out_edit, 1)
         out.addWidget(browse)
-        self.pages.addWidget(_page(self.plan_label, out))
+        self.multiplex_box = QComboBox()
+        self.multiplex_box.addItems(list(MULTIPLEX_CHOICES))
+        self.multiplex_box.setToolTip("Light several lattice frames per capture through a Hadamard S-matrix code "
+                                      "and demultiplex: more signal where read noise dominates (faint light), "
+                                      "less where shot noise does (see benchmarks/bench_multiplex.py)")
+        coding = QFormLayout()
+        coding.addRow("Multiplexing", self.multiplex_box)
+        self.pages.addWidget(_page(self.plan_label, out, coding))
 
         # 5 scan
         self.scan_button = QPushButton("Start scan")
@@ -151,7 +184,8 @@ class CaptureWizard(QWidget):
         self.scan_bar = QProgressBar()
         self.scan_bar.setRange(0, 1000)
         self.scan_label = _label()
-        self.pages.addWidget(_page(buttons, self.scan_bar, self.scan_label))
+        self.drift_label = _label("Projector check: the light of one lit impulse is measured again during the scan.")
+        self.pages.addWidget(_page(buttons, self.scan_bar, self.scan_label, self.drift_label))
 
         # 6 finish
         self.finish_label = _label("The dataset appears here when the scan is complete.")
@@ -196,6 +230,10 @@ class CaptureWizard(QWidget):
     def _update_navigation(self, step: int) -> None:
         self.back_button.setEnabled(step > 0)
         self.next_button.setEnabled(step < len(STEPS) - 1)
+
+    def multiplex_order(self) -> int:
+        """The chosen S-matrix order (0: no multiplexing)."""
+        return MULTIPLEX_CHOICES[self.multiplex_box.currentText()]
 
     def roi(self) -> tuple[int, int, int, int]:
         return tuple(box.value() for box in self.roi_boxes)

@@ -1,4 +1,5 @@
-"""Controls for what the image view shows and how: view, normalisation, levels, exposure."""
+"""Controls for what the image view shows and how: view, normalisation, levels, exposure, and a
+display-only denoise."""
 
 from __future__ import annotations
 
@@ -25,8 +26,9 @@ VIEWS = {
     "ring": "Ring light E_r",
     "impulse": "Impulse image of picked point",
     "steady": "Steady state (all lit)",
+    "snr": "SNR map of T_r (|T_r| / SE)",
 }
-"""View keys and their labels."""
+"""View keys and their labels (the window's View menu numbers them Ctrl+1, Ctrl+2, ...)."""
 
 _NORMALISATION_LABELS = {
     "per-image": "Per image (robust max)",
@@ -48,18 +50,22 @@ class DisplayControls(QWidget):
         A new :class:`DisplaySettings`.
     profile_log_changed(bool)
         Whether the profile plots use a log y axis.
+    denoise_changed(float, bool)
+        Gaussian sigma of the display-only denoise in grid steps (0: off), and whether exports
+        get it too (only when the user ticks that).
     """
 
     view_changed = Signal(str)
     settings_changed = Signal(object)
     profile_log_changed = Signal(bool)
+    denoise_changed = Signal(float, bool)
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
         self.view_box = QComboBox()
         for key, label in VIEWS.items():
             self.view_box.addItem(label, key)
-        self.view_box.setToolTip("Image shown (Ctrl+1 .. Ctrl+4)")
+        self.view_box.setToolTip(f"Image shown (Ctrl+1 .. Ctrl+{len(VIEWS)})")
         self.normalisation_box = QComboBox()
         for key in NORMALISATIONS:
             self.normalisation_box.addItem(_NORMALISATION_LABELS[key], key)
@@ -88,6 +94,18 @@ class DisplayControls(QWidget):
         self.diverging_box = QCheckBox("Signed (diverging map)")
         self.diverging_box.setToolTip("Show signed luminance, blue < 0 < red, so negative transients stay visible")
         self.profile_log_box = QCheckBox("Profiles: log y")
+        self.denoise_box = QCheckBox("Denoise display: Gaussian")
+        self.denoise_box.setToolTip("Blur E_r and T_r images on screen only (NaN pixels stay undefined); "
+                                    "the image is labelled while this is on, and exports stay raw")
+        self.sigma_box = QDoubleSpinBox()
+        self.sigma_box.setRange(0.3, 5.0)
+        self.sigma_box.setSingleStep(0.1)
+        self.sigma_box.setValue(1.0)
+        self.sigma_box.setPrefix("sigma ")
+        self.sigma_box.setSuffix(" steps")
+        self.sigma_box.setToolTip("Standard deviation of the Gaussian in grid steps")
+        self.denoise_exports_box = QCheckBox("Denoise exports too")
+        self.denoise_exports_box.setToolTip("Also blur the exported view PNGs (off: exports hold the raw values)")
         self.levels_label = QLabel()
         self.levels_label.setWordWrap(True)
         self.levels_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
@@ -99,6 +117,9 @@ class DisplayControls(QWidget):
         exposure.addWidget(self.exposure_slider, 1)
         exposure.addWidget(self.exposure_label)
         exposure.addWidget(reset)
+        denoise = QHBoxLayout()
+        denoise.addWidget(self.denoise_box)
+        denoise.addWidget(self.sigma_box)
         layout = QFormLayout(self)
         layout.addRow("View", self.view_box)
         layout.addRow("Normalise", self.normalisation_box)
@@ -109,6 +130,8 @@ class DisplayControls(QWidget):
         layout.addRow(self.diverging_box)
         layout.addRow(self.levels_label)
         layout.addRow(self.profile_log_box)
+        layout.addRow(denoise)
+        layout.addRow(self.denoise_exports_box)
 
         self.set_settings(DisplaySettings())
         self.view_box.currentIndexChanged.connect(lambda _: self.view_changed.emit(self.view()))
@@ -120,12 +143,24 @@ class DisplayControls(QWidget):
         self.exposure_slider.valueChanged.connect(self._on_edited)
         self.diverging_box.toggled.connect(self._on_edited)
         self.profile_log_box.toggled.connect(self.profile_log_changed)
+        self.denoise_box.toggled.connect(self._on_denoise_edited)
+        self.sigma_box.valueChanged.connect(self._on_denoise_edited)
+        self.denoise_exports_box.toggled.connect(self._on_denoise_edited)
+        self._on_denoise_edited()
 
     def view(self) -> str:
         return self.view_box.currentData()
 
     def set_view(self, key: str) -> None:
         self.view_box.setCurrentIndex(list(VIEWS).index(key))
+
+    def denoise_sigma(self) -> float:
+        """Sigma (grid steps) of the display-only Gaussian denoise; 0 when off."""
+        return self.sigma_box.value() if self.denoise_box.isChecked() else 0.0
+
+    def denoise_exports(self) -> bool:
+        """Whether the user asked for the denoise in exports too."""
+        return self.denoise_box.isChecked() and self.denoise_exports_box.isChecked()
 
     def settings(self) -> DisplaySettings:
         low, high = _number(self.low_edit.text(), 0.0), _number(self.high_edit.text(), 1.0)
@@ -170,6 +205,11 @@ class DisplayControls(QWidget):
         self.percentile_box.setEnabled(not manual)
         self.decades_box.setEnabled(settings.normalisation == "log")
         self.exposure_label.setText(f"{settings.exposure_stops:+.1f} EV")
+
+    def _on_denoise_edited(self, *_) -> None:
+        self.sigma_box.setEnabled(self.denoise_box.isChecked())
+        self.denoise_exports_box.setEnabled(self.denoise_box.isChecked())
+        self.denoise_changed.emit(self.denoise_sigma(), self.denoise_exports())
 
     def _on_edited(self, *_):
         try:

@@ -4,6 +4,10 @@ Pixel ``(y, x)`` of the grid covers the square ``[x, x+1) x [y, y+1)`` of the vi
 the top. Left click or left drag picks a pixel, the wheel zooms, middle drag pans, right click
 opens pyqtgraph's view menu. The panel draws RGB pixels it is given and never rescales them, so
 the levels are entirely the caller's (pyqtgraph's ImageView would reset them per frame).
+
+A display-only variant of the pixels (a denoised image) can be drawn in their place, labelled on
+the image; :meth:`pixels` and :meth:`grab`, which the exports use, keep the data pixels unless the
+caller allows the variant into exports. A colour bar can stand beside the image (scalar maps).
 """
 
 from __future__ import annotations
@@ -70,7 +74,12 @@ class ImagePanel(pg.GraphicsView):
     def __init__(self, title: str = "", parent: QWidget | None = None):
         super().__init__(parent, background="#202024")
         self.view = _PickingViewBox(self._pick_at)
-        self.setCentralItem(self.view)
+        self.layout_item = pg.GraphicsLayout()
+        self.layout_item.setContentsMargins(0, 0, 0, 0)
+        self.layout_item.addItem(self.view, 0, 0)
+        self.setCentralItem(self.layout_item)
+        self.colour_bar: pg.ColorBarItem | None = None
+        self._colour_bar_key: tuple | None = None
         self.image_item = pg.ImageItem(axisOrder="row-major")
         self.overlay_item = pg.ImageItem(axisOrder="row-major")
         self.overlay_item.setZValue(10)
@@ -83,6 +92,13 @@ class ImagePanel(pg.GraphicsView):
             self.view.addItem(item)
         self.title = pg.TextItem(title, color="w", anchor=(0, 0))
         self.title.setParentItem(self.view)
+        self.display_label = pg.TextItem("", color="#ffd600", anchor=(0, 1), fill=pg.mkBrush(0, 0, 0, 170))
+        self.display_label.setParentItem(self.view)
+        self.display_label.setZValue(40)
+        self.view.sigResized.connect(lambda _: self.display_label.setPos(0, self.view.height()))
+        self._data_pixels: np.ndarray | None = None
+        self._display_pixels: np.ndarray | None = None
+        self._display_in_exports = False
         self._shape: tuple[int, int] | None = None
         self._region_mode = "all"
         self.region_roi: pg.ROI | None = None
@@ -113,10 +129,15 @@ class ImagePanel(pg.GraphicsView):
         self.scale_bar.setParentItem(self.view)
         self.scale_bar.anchor((1, 1), (1, 1), offset=(-12, -12))
 
-    def set_pixels(self, pixels: np.ndarray) -> None:
-        """Show (H, W, 3) uint8 RGB ``pixels``; a new grid size resets the zoom."""
+    def set_pixels(self, pixels: np.ndarray, display: np.ndarray | None = None, label: str = "") -> None:
+        """Show (H, W, 3) uint8 RGB ``pixels``, or in their place ``display`` (same shape), a
+        display-only variant that is labelled ``label`` on the image; a new grid size resets
+        the zoom."""
         shape = pixels.shape[:2]
-        self.image_item.setImage(pixels, autoLevels=False, levels=(0, 255))
+        self._data_pixels, self._display_pixels = pixels, display
+        self.display_label.setText(label if display is not None else "")
+        self.display_label.setVisible(display is not None)
+        self.image_item.setImage(pixels if display is None else display, autoLevels=False, levels=(0, 255))
         if shape != self._shape:
             self._shape = shape
             self.clear_ring()
@@ -165,9 +186,49 @@ class ImagePanel(pg.GraphicsView):
         points = [self.region_roi.mapToParent(handle["pos"]) for handle in self.region_roi.handles]
         return ("polygon", np.array([[point.y(), point.x()] for point in points]))
 
+    def set_display_in_exports(self, allowed: bool) -> None:
+        """Whether :meth:`pixels` and :meth:`grab` (the exports) include a display-only variant."""
+        self._display_in_exports = bool(allowed)
+
     def pixels(self) -> np.ndarray | None:
-        """The RGB pixels shown now."""
+        """The (H, W, 3) uint8 RGB pixels for exports: those shown, except a display-only variant
+        unless :meth:`set_display_in_exports` allowed it."""
+        if self._display_pixels is not None and self._display_in_exports:
+            return self._display_pixels
+        return self._data_pixels
+
+    def shown_pixels(self) -> np.ndarray | None:
+        """The RGB pixels drawn now (a display-only variant when one is on)."""
         return self.image_item.image
+
+    def grab(self, *args):
+        """The panel as drawn (QPixmap), but drawing the data pixels, without the variant's
+        label, while a display-only variant is on and not allowed into exports."""
+        if self._display_pixels is None or self._display_in_exports:
+            return super().grab(*args)
+        self.image_item.setImage(self._data_pixels, autoLevels=False, levels=(0, 255))
+        self.display_label.hide()
+        try:
+            return super().grab(*args)
+        finally:
+            self.image_item.setImage(self._display_pixels, autoLevels=False, levels=(0, 255))
+            self.display_label.show()
+
+    def set_colour_bar(self, levels: tuple[float, float] | None, colormap: pg.ColorMap | None = None,
+                       label: str = "") -> None:
+        """Show a colour bar of ``colormap`` over ``levels`` right of the image, titled ``label``;
+        None removes it. The bar is a legend only: the caller colours the pixels alike."""
+        key = None if levels is None else (levels, colormap.name, label)
+        if self.colour_bar is not None and key == self._colour_bar_key:
+            return
+        self._colour_bar_key = key
+        if self.colour_bar is not None:
+            self.layout_item.removeItem(self.colour_bar)
+            self.colour_bar = None
+        if levels is not None:
+            self.colour_bar = pg.ColorBarItem(values=levels, colorMap=colormap, label=label,
+                                              interactive=False, width=14)
+            self.layout_item.addItem(self.colour_bar, 0, 1)
 
     def show_ring(self, center: tuple[int, int], positions: np.ndarray, weights: np.ndarray,
                   missing: np.ndarray, radius: float, outer_radius: float | None = None) -> None:

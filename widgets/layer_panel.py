@@ -20,7 +20,7 @@ from ringlight.core.colour.chroma import METHODS, LayerResult
 from .chromaticity_diagram import ChromaticityDiagram
 
 REGION_MODES = {"all": "All pixels", "rectangle": "Rectangle", "polygon": "Polygon"}
-_COLUMNS = ["layer", "r", "x", "y", "recovered", "truth", "true x, y", "xy error", "trusted"]
+_COLUMNS = ["layer", "r", "x", "y", "recovered", "truth", "true x, y", "xy error", "SNR", "trusted"]
 
 
 class LayerPanel(QWidget):
@@ -76,6 +76,7 @@ class LayerPanel(QWidget):
         self.diagram.radius_clicked.connect(self.radius_clicked)
         self.table = QTableWidget(0, len(_COLUMNS))
         self.table.setHorizontalHeaderLabels(_COLUMNS)
+        self._trust_rule = ""
         self.table.verticalHeader().setVisible(False)
         self.table.setMaximumHeight(150)
         exports = QHBoxLayout()
@@ -116,8 +117,16 @@ class LayerPanel(QWidget):
     def show_message(self, text: str) -> None:
         self.message_label.setText(text)
 
-    def show_result(self, result: LayerResult | None, truth_names=()) -> None:
-        """Fill the swatch table and mark layers on the diagram (None clears them)."""
+    def set_trust_rule(self, text: str) -> None:
+        """The rule behind the trusted column, shown as its tooltip (header and cells)."""
+        self._trust_rule = text
+        for column in (len(_COLUMNS) - 2, len(_COLUMNS) - 1):
+            self.table.horizontalHeaderItem(column).setToolTip(text)
+
+    def show_result(self, result: LayerResult | None, truth_names=(), snr=(), trust_known: bool = True) -> None:
+        """Fill the swatch table and mark layers on the diagram (None clears them); ``snr``: the
+        number behind each layer's trusted flag (the rule of :meth:`set_trust_rule`), which reads
+        "pending" while not ``trust_known``."""
         self.table.setRowCount(0)
         if result is None:
             self.diagram.set_layers([], [])
@@ -130,10 +139,15 @@ class LayerPanel(QWidget):
             cells = [str(row + 1), f"{layer.radius:g}", f"{layer.xy[0]:.4f}", f"{layer.xy[1]:.4f}",
                      "#%02x%02x%02x" % layer.srgb8, truth_name,
                      "" if truth_xy is None else f"{truth_xy[0]:.4f}, {truth_xy[1]:.4f}",
-                     "" if error is None else f"{error:.4f}", "yes" if layer.trusted else "no"]
+                     "" if error is None else f"{error:.4f}",
+                     f"{snr[row]:.3g}" if row < len(snr) and trust_known else "",
+                     ("yes" if layer.trusted else "no") if trust_known else "pending"]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setFlags(item.flags() & ~Qt.ItemFlag.ItemIsEditable)
+                if column >= len(_COLUMNS) - 2:
+                    note = layer.note if trust_known else "waiting for the noise estimate"
+                    item.setToolTip("\n".join(filter(None, [note, self._trust_rule])))
                 self.table.setItem(row, column, item)
             self.table.item(row, 4).setBackground(QColor(*layer.srgb8))
         self.table.resizeColumnsToContents()

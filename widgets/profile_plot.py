@@ -1,4 +1,8 @@
-"""Plots of E(r) and T(r) at the picked pixel, with the current radius marked.
+"""Plots of E(r) and T(r) at the picked pixel, with the current radius marked and noise bands.
+
+The bands span E ± BAND_SE standard errors (and T likewise), the standard errors from the spread
+of the ring members (:mod:`ringlight.core.rings.noise`), an upper bound of the noise where the
+surface itself varies.
 
 Clicking in either plot, or dragging the radius line, asks for that radius (``radius_requested``);
 the window snaps it to the nearest radius of the stack.
@@ -12,6 +16,28 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QWidget
 
 CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
+BAND_SE = 2.0
+"""Half-width of the noise bands in standard errors (about 95 % for Gaussian noise)."""
+LOG_BAND_FLOOR = 0.1
+"""In log y, where E - BAND_SE * SE <= 0 the band's lower edge is drawn at this fraction of E."""
+BAND_TIP = (f"Bands: value ± {BAND_SE:g} standard errors, from the spread of the ring members at each "
+            f"radius (SE of T from both rings). The spread also holds real variation of the surface, so "
+            f"there the band is an upper bound of the noise. In log y a lower edge <= 0 is drawn at "
+            f"{LOG_BAND_FLOOR:g} x the value.")
+
+
+def _band(plot: pg.PlotItem, colour: str) -> pg.FillBetweenItem:
+    """A FillBetweenItem in ``colour`` (translucent) between two invisible curves of ``plot``
+    (PlotDataItems, so that they follow the plot's log mode), drawn under the value curves."""
+    edges = [pg.PlotDataItem(pen=pg.mkPen(0, 0, 0, 0)) for _ in range(2)]  # pen None: no path to fill
+    for edge in edges:
+        plot.addItem(edge)
+    brush = pg.mkColor(colour)
+    brush.setAlpha(60)
+    fill = pg.FillBetweenItem(edges[0], edges[1], brush=brush)
+    fill.setZValue(-5)
+    plot.addItem(fill)
+    return fill
 
 
 class ValueAxis(pg.AxisItem):
@@ -51,15 +77,19 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
-        self.ring_plot = self.addPlot(row=0, col=0, title="E(r): ring light",
+        self.ring_plot = self.addPlot(row=0, col=0, title=f"E(r): ring light, band ±{BAND_SE:g} SE",
                                       axisItems={"left": ValueAxis("left")})
-        self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr): transient",
-                                           axisItems={"left": ValueAxis("left")})
+        self.transient_plot = self.addPlot(
+            row=1, col=0, title=f"T(r) = E(r) - E(r+dr): transient, band ±{BAND_SE:g} SE",
+            axisItems={"left": ValueAxis("left")})
         self.transient_plot.setXLink(self.ring_plot)
         self.transient_plot.setLabel("bottom", "radius r (grid steps)")
         self.transient_plot.getAxis("bottom").enableAutoSIPrefix(False)
+        self.ring_bands = [_band(self.ring_plot, pen) for pen in CHANNEL_PENS]
+        self.transient_bands = [_band(self.transient_plot, pen) for pen in CHANNEL_PENS]
         self.ring_curves = [self.ring_plot.plot(pen=pen) for pen in CHANNEL_PENS]
         self.transient_curves = [self.transient_plot.plot(pen=pen) for pen in CHANNEL_PENS]
+        self.setToolTip(BAND_TIP)
         self.zero_line = pg.InfiniteLine(0, angle=0, pen=pg.mkPen("#888", style=Qt.PenStyle.DotLine))
         self.transient_plot.addItem(self.zero_line)
         self.radius_lines = []
@@ -78,17 +108,24 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self._radii = np.zeros(0)
         self._ring = np.zeros((0, 3))
         self._transient = np.zeros((0, 3))
+        self._ring_se = np.zeros((0, 3))
+        self._transient_se = np.zeros((0, 3))
         self._set_axes()
 
     @property
     def log_y(self) -> bool:
         return self._log_y
 
-    def set_profiles(self, radii: np.ndarray, ring: np.ndarray, transient: np.ndarray) -> None:
-        """Plot (n,) radii against (n, 3) E and T values (NaN points are left out)."""
+    def set_profiles(self, radii: np.ndarray, ring: np.ndarray, transient: np.ndarray,
+                     ring_se: np.ndarray | None = None, transient_se: np.ndarray | None = None) -> None:
+        """Plot (n,) radii against (n, 3) E and T values (NaN points are left out), with bands
+        of +- BAND_SE times their (n, 3) standard errors (None: no bands; NaN: none there)."""
         self._radii = np.asarray(radii, np.float64)
         self._ring = np.asarray(ring, np.float64)
         self._transient = np.asarray(transient, np.float64)
+        blank = np.full(self._ring.shape, np.nan)
+        self._ring_se = blank if ring_se is None else np.asarray(ring_se, np.float64)
+        self._transient_se = blank if transient_se is None else np.asarray(transient_se, np.float64)
         self._redraw()
 
     def set_point(self, text: str) -> None:
@@ -113,13 +150,37 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self._set_axes()
         self._redraw()
 
+    def band_data(self) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], list]:
+        """The bands drawn now: for E and for T, per channel ``(radii, lower, upper)``, read back
+        from the curves that bound each FillBetweenItem (their data before any log transform)."""
+        bands = []
+        for plot_bands in (self.ring_bands, self.transient_bands):
+            rows = []
+            for fill in plot_bands:
+                upper, lower = fill.curves
+                x, high = upper.getOriginalDataset()
+                _, low = lower.getOriginalDataset()
+                rows.append((np.asarray(x, np.float64), np.asarray(low, np.float64), np.asarray(high, np.float64)))
+            bands.append(rows)
+        return bands[0], bands[1]
+
     def _redraw(self) -> None:
-        for curves, values in ((self.ring_curves, self._ring), (self.transient_curves, self._transient)):
-            for channel, curve in enumerate(curves):
+        x = self._radii
+        for curves, bands, values, errors in (
+                (self.ring_curves, self.ring_bands, self._ring, self._ring_se),
+                (self.transient_curves, self.transient_bands, self._transient, self._transient_se)):
+            for channel, (curve, fill) in enumerate(zip(curves, bands)):
                 y = values[:, channel] if len(values) else np.zeros(0)
-                x = self._radii
                 keep = np.isfinite(y) & ((y > 0) if self._log_y else True)
                 curve.setData(x[keep], y[keep])
+                error = errors[:, channel] if len(errors) else np.zeros(0)
+                shown = keep & np.isfinite(error)
+                low, high = y - BAND_SE * error, y + BAND_SE * error
+                if self._log_y:
+                    low = np.where(low > 0, low, LOG_BAND_FLOOR * y)
+                upper, lower = fill.curves
+                upper.setData(x[shown], high[shown])
+                lower.setData(x[shown], low[shown])
 
     def _set_axes(self) -> None:
         for plot in (self.ring_plot, self.transient_plot):

@@ -1,4 +1,5 @@
-"""A radius slider over a stack's radii with step buttons, play / pause, frame rate and loop."""
+"""A radius slider over a stack's radii with step buttons, play / pause, frame rate and loop, and
+under the slider a strip of one SNR cell per radius (:class:`~.snr_strip.SnrStrip`)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,14 @@ from PySide6.QtWidgets import (
     QLabel,
     QSlider,
     QSpinBox,
+    QStyle,
+    QStyleOptionSlider,
     QToolButton,
+    QVBoxLayout,
     QWidget,
 )
+
+from .snr_strip import SnrStrip
 
 
 class ScrubBar(QWidget):
@@ -64,11 +70,18 @@ class ScrubBar(QWidget):
         self.loop_box.setChecked(True)
         self.timer = QTimer(self)
         self.timer.timeout.connect(self._advance)
+        self.snr_strip = SnrStrip()
+        track = QVBoxLayout()
+        track.setSpacing(0)
+        track.addWidget(self.slider)
+        track.addWidget(self.snr_strip)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(4, 2, 4, 2)
-        for widget in (self.radius_label, self.radius_box, self.back_button, self.slider, self.forward_button,
-                       self.play_button, self.fps_box, self.loop_box):
-            layout.addWidget(widget, 1 if widget is self.slider else 0)
+        for widget in (self.radius_label, self.radius_box, self.back_button):
+            layout.addWidget(widget)
+        layout.addLayout(track, 1)
+        for widget in (self.forward_button, self.play_button, self.fps_box, self.loop_box):
+            layout.addWidget(widget)
         self.set_radii(np.zeros(0))
 
     @property
@@ -93,6 +106,8 @@ class ScrubBar(QWidget):
         self.slider.setValue(index)
         self.slider.blockSignals(False)
         self.setEnabled(len(self._radii) > 0)
+        self.snr_strip.set_values(self._radii, None)
+        self.snr_strip.set_current(index)
         self._update_label()
 
     def nearest_index(self, radius: float) -> int:
@@ -109,11 +124,33 @@ class ScrubBar(QWidget):
     def toggle_play(self) -> None:
         self.play_button.toggle()
 
+    def set_snr(self, snr: np.ndarray | None, description: str = "") -> None:
+        """Colour the strip under the slider with (len(radii),) ``snr``, one per radius, as
+        ``description`` names it (shown in the tooltip); None clears it."""
+        self.snr_strip.set_values(self._radii, snr, description)
+        self._align_strip()
+
     def set_fps(self, fps: int) -> None:
         self.fps_box.setValue(fps)
 
+    def resizeEvent(self, event) -> None:
+        super().resizeEvent(event)
+        self._align_strip()
+
+    def _align_strip(self) -> None:
+        """Inset the strip's cells by half the slider's handle, so that each lies under the
+        handle's position for its radius."""
+        option = QStyleOptionSlider()
+        self.slider.initStyleOption(option)
+        handle = self.slider.style().subControlRect(QStyle.ComplexControl.CC_Slider, option,
+                                                    QStyle.SubControl.SC_SliderHandle, self.slider)
+        cell = (self.slider.width() - handle.width()) / max(len(self._radii) - 1, 1)
+        # Cell i centred on the handle's centre at value i: margin = half the handle - half a cell.
+        self.snr_strip.set_margin(max(int(round((handle.width() - cell) / 2)), 0))
+
     def _on_value_changed(self, index: int) -> None:
         self._update_label()
+        self.snr_strip.set_current(index)
         self.index_changed.emit(index)
 
     def _update_label(self) -> None:

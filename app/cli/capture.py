@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
 from ringlight.core.capture.scan import Scan
+from ringlight.core.capture.multiplex import s_matrix
 from ringlight.core.capture.scan_plan import ScanError, estimate_disk, format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
+    estimated_seconds,
     measure_correspondence,
     plan_scan,
     resume_scan,
@@ -30,6 +33,9 @@ def add_command(subparsers) -> None:
     capture.add_argument("--max-radius", type=float, default=8.0, help="grid steps (default 8)")
     capture.add_argument("--out", help="dataset folder (new, or an unfinished scan with --resume)")
     capture.add_argument("--resume", action="store_true", help="continue the unfinished scan in --out")
+    capture.add_argument("--multiplex", type=int, default=0, metavar="N",
+                         help="capture blocks of N lattice frames through a Hadamard S-matrix code "
+                              "(N = 7, 15, 31, ...; default 0: one lattice frame per capture)")
     capture.add_argument("--option", action="append", metavar="KEY=VALUE", help="option for both devices")
     capture.add_argument("--camera-option", action="append", metavar="KEY=VALUE")
     capture.add_argument("--projector-option", action="append", metavar="KEY=VALUE")
@@ -48,6 +54,8 @@ def run_capture(args) -> int:
               if not value]
     if absent:
         raise ScanError(f"capture needs {', '.join(absent)} (see ringlight capture --list for device names)")
+    if args.multiplex:
+        s_matrix(args.multiplex)  # refuses an order that has no code before any device opens
     shared = parse_options(args.option)
     camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)})
     projector = make_device(discovery.projectors(), args.projector, {**shared, **parse_options(args.projector_option)})
@@ -66,11 +74,13 @@ def run_capture(args) -> int:
             height, width = projector.size
             roi = parse_rectangle(args.roi) if args.roi else (0, 0, height, width)
             planned = plan_scan(camera, projector, correspondence, roi, args.max_radius)
-            plan = planned.plan
+            plan = dataclasses.replace(planned.plan, multiplex=args.multiplex)
             needed, free = estimate_disk(plan, planned.mapping.shape[:2], args.out)
             print(f"plan: {plan.grid_shape[0]} x {plan.grid_shape[1]} grid, spacing {plan.spacing}, "
                   f"{len(plan.frames())} frames instead of {plan.grid_shape[0] * plan.grid_shape[1]}, exposures "
-                  f"{', '.join(f'{e:.3g}' for e in plan.exposures)} s; about {plan.estimated_seconds():.0f} s, "
+                  f"{', '.join(f'{e:.3g}' for e in plan.exposures)} s"
+                  f"{f', Hadamard code of {plan.multiplex}' if plan.multiplex else ''}; about "
+                  f"{estimated_seconds(planned, projector):.0f} s, "
                   f"{format_bytes(needed)} ({format_bytes(free)} free)")
             if needed > free:
                 raise ScanError(f"{args.out}: the scan needs about {format_bytes(needed)}, only {format_bytes(free)} are free")

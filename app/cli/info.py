@@ -5,8 +5,10 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from ringlight.core import effective_max_radius, read_manifest, response_memory_bytes
+from ringlight.core import DatasetError, effective_max_radius, read_manifest, response_memory_bytes
+from ringlight.core.colourspaces import CUSTOM_PREFIX
 from ringlight.core.dataset.checks import check_files
+from ringlight.core.dataset.frames import dataset_channels
 from ringlight.core.simulate.transport import (
     simulated_before_camera_measure,
     simulated_measure,
@@ -24,6 +26,18 @@ def add_command(subparsers) -> None:
     info.set_defaults(handler=run_info)
 
 
+def _describe_channels(manifest, allow_outside: bool) -> str:
+    """``"R, G, B"``, ``"Y (monochrome: grey, layer colours need an RGB camera)"``, with the part."""
+    try:
+        channels = dataset_channels(manifest, allow_outside)
+    except DatasetError:  # the first frame's problem is listed with the file problems
+        channels = manifest.channels or ("R", "G", "B")
+    text = ", ".join(channels)
+    if len(channels) == 1:
+        text += " (monochrome: grey, layer colours need an RGB camera)"
+    return text + (f" of part {manifest.part!r}" if manifest.part is not None else "")
+
+
 def run_info(args) -> int:
     manifest = read_manifest(args.dataset)
     counts = manifest.lit_counts()
@@ -35,7 +49,8 @@ def run_info(args) -> int:
     lines = [
         f"dataset      {manifest.folder}",
         f"grid         {manifest.height} x {manifest.width}{pitch}",
-        f"colorspace   {manifest.colorspace}",
+        f"colorspace   {manifest.colorspace.removeprefix(CUSTOM_PREFIX)}",
+        f"channels     {_describe_channels(manifest, getattr(args, 'allow_outside', False))}",
         f"frames       {len(manifest.frames)} in {manifest.frame_space} frame space"
         f" ({min(points_per_frame)}-{max(points_per_frame)} lit points per frame;"
         f" exposures {', '.join(f'{e:g}' for e in exposures[:6])}{' ...' if len(exposures) > 6 else ''})",

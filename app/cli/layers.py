@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from ringlight.core import RinglightError, open_dataset
+from ringlight.core import RinglightError, open_dataset, read_manifest
 from ringlight.core.atomic import check_output_file
-from ringlight.core.colour.chroma import METHODS
+from ringlight.core.colour.chroma import METHODS, require_colour
 from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.layer_report import (
     analyse_layers,
@@ -12,6 +12,7 @@ from ringlight.core.colour.layer_report import (
     analysis_stack_request,
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
+from ringlight.core.dataset.frames import dataset_channels
 
 from .progress import progress_bar
 
@@ -51,8 +52,10 @@ def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
     if args.json:
         check_output_file(args.json, args.force)  # refused before the dataset is opened
+    manifest = read_manifest(args.dataset)
+    require_colour(dataset_channels(manifest, args.allow_outside))  # from the first frame's header
     with progress_bar("opening the dataset") as progress:
-        dataset = open_dataset(args.dataset, progress=progress, allow_outside=args.allow_outside)
+        dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
     if args.roi:
         y0, x0, y1, x1 = parse_rectangle(args.roi)
         region = rectangle_region(dataset.grid_shape, y0, x0, y1, x1)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import sys
+
 from ringlight.core.dataset.writer import check_dataset_target
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError
-from ringlight.core.simulate.transport import simulate_transport, write_transport
+from ringlight.core.simulate.progressive import CheckpointError, Status, forget_checkpoint, simulate_until
+from ringlight.core.simulate.transport import ESTIMATORS, simulate_transport, write_transport
 
 from .progress import progress_bar
 
@@ -16,7 +19,18 @@ def add_command(subparsers) -> None:
     )
     simulate.add_argument("scene", nargs="?", help="preset name (see --list) or scene JSON file")
     simulate.add_argument("--out", help="output dataset folder")
-    simulate.add_argument("--photons", type=int, default=None, help="photons per lit point and channel")
+    simulate.add_argument("--photons", type=int, default=None,
+                          help="photons per lit point and channel (with --noise or --time: per batch, default 50)")
+    simulate.add_argument("--noise", type=float, default=None, metavar="FRACTION",
+                          help="add photons until the estimated relative noise of the transient at the largest "
+                               "radius is at most this (e.g. 0.05); resumable: an interrupted run continues "
+                               "where it stopped when the same command is given again")
+    simulate.add_argument("--time", default=None, metavar="DURATION",
+                          help="with or without --noise: stop adding photons after this much simulation "
+                               "(e.g. 90s, 10m, 1h)")
+    simulate.add_argument("--estimator", choices=ESTIMATORS, default="reference",
+                          help="reference: a shift-invariant reference plus correlated differences (default, "
+                               "far less noise); analogue: every point's photons on their own")
     simulate.add_argument("--size", default=None, metavar="HxW", help="grid size, e.g. 32x32 (shapes scale)")
     simulate.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's)")
     simulate.add_argument("--overwrite", action="store_true",
@@ -35,6 +49,47 @@ def parse_size(text: str) -> tuple[int, int]:
     return height, width
 
 
+BATCH = 50
+
+
+def parse_duration(text: str) -> float:
+    """Seconds of a duration such as ``90``, ``90s``, ``10m`` or ``1.5h``."""
+    units = {"s": 1.0, "m": 60.0, "h": 3600.0}
+    number, unit = (text[:-1], text[-1]) if text and text[-1].lower() in units else (text, "s")
+    try:
+        value = float(number) * units[unit.lower()]
+        if not value > 0 or value == float("inf"):
+            raise ValueError
+    except ValueError:
+        raise SceneError(f"--time {text!r} must be a positive duration such as 90s, 10m or 1h") from None
+    return value
+
+
+def run_progressive(scene, args, seconds):
+    """Simulate with :func:`simulate_until`, printing the noise after every pair of batches."""
+    def report(status: Status) -> None:
+        where = "resumed at" if status.resumed else "at"
+        print(f"{where} {status.photons} photons per point: noise of T_r up to r = {status.radius} "
+              f"at most {status.worst:.3f}"
+              + (f" (target {args.noise})" if args.noise is not None else "")
+              + f", {status.seconds:.0f} s", file=sys.stderr, flush=True)
+
+    try:
+        with progress_bar(f"simulating {scene.name} (a pair of batches)") as progress:
+            transport, status = simulate_until(scene, args.noise, seconds, batch=args.photons or BATCH,
+                                               seed=args.seed, estimator=args.estimator, report=report,
+                                               progress=progress)
+    except KeyboardInterrupt:
+        print("ringlight: interrupted; the photons simulated so far are kept: give the same command to continue",
+              file=sys.stderr)
+        raise SystemExit(130) from None
+    except CheckpointError as error:
+        raise SceneError(f"{error}; delete it to start afresh") from None
+    if args.noise is not None and status.worst > args.noise:
+        print(f"stopped at --time with noise {status.worst:.3f} above the target {args.noise}", file=sys.stderr)
+    return transport
+
+
 def run_simulate(args) -> int:
     if args.list:
         for name in preset_names():
@@ -46,12 +101,21 @@ def run_simulate(args) -> int:
         raise SceneError(f"--photons must be positive, got {args.photons}")
     if args.seed is not None and args.seed < 0:
         raise SceneError(f"--seed must be >= 0, got {args.seed}")
+    if args.noise is not None and not 0 < args.noise < 1:
+        raise SceneError(f"--noise must be a fraction between 0 and 1, e.g. 0.05, got {args.noise}")
+    seconds = parse_duration(args.time) if args.time is not None else None
     scene = load_scene(args.scene, size=parse_size(args.size) if args.size else None)
     check_dataset_target(args.out, overwrite=args.overwrite)  # refused before simulating
-    with progress_bar(f"simulating {scene.name}") as progress:
-        transport = simulate_transport(scene, photons=args.photons, seed=args.seed, progress=progress)
+    if args.noise is None and seconds is None:
+        with progress_bar(f"simulating {scene.name}") as progress:
+            transport = simulate_transport(scene, photons=args.photons, seed=args.seed, progress=progress,
+                                           estimator=args.estimator)
+    else:
+        transport = run_progressive(scene, args, seconds)
     with progress_bar("writing dataset") as progress:
         write_transport(transport, args.out, overwrite=args.overwrite, progress=progress)
+    if args.noise is not None or seconds is not None:
+        forget_checkpoint(scene, args.seed, args.photons or BATCH, args.estimator)
     channels = 1 if scene.grey else 3
     total = scene.height * scene.width * transport.photons * channels
     print(

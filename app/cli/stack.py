@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from ringlight.core import (
+    StackError,
     needed_radius,
     open_dataset,
     parse_radius_range,
@@ -11,6 +12,8 @@ from ringlight.core import (
     transient_stack,
     write_stack,
 )
+from ringlight.core.rings.coverage import coverage_warning, ring_coverage
+from ringlight.core.rings.interpolate import interpolated_stack
 from ringlight.core.rings.stack_io import check_stack_target
 
 from .progress import progress_bar
@@ -32,6 +35,9 @@ def add_command(subparsers) -> None:
         help="transient step: T_r = E_r - E_{r+dr} (default: the STEP of --radii)",
     )
     stack.add_argument("--antialias", action="store_true", help="weight ring pixels by area")
+    stack.add_argument("--interpolate", action="store_true",
+                       help="estimate each ring mean by interpolating every pixel's responses in distance "
+                            "(for sparsely lit datasets; not the FORMAT.md default)")
     stack.add_argument("--out", required=True, help="output folder (new, empty, or an earlier stack)")
     stack.add_argument("--no-cache", action="store_true", help="neither read nor write the packed cache")
     stack.add_argument("--allow-outside", action="store_true",
@@ -47,20 +53,28 @@ def run_stack(args) -> int:
         default_step = 1.0
     step = args.dr if args.dr is not None else default_step
     reach = needed_radius(radii, args.thickness, step if args.kind == "transient" else 0.0, args.antialias)
+    if args.interpolate and args.antialias:
+        raise StackError("--interpolate estimates the default ring mean; it cannot be combined with --antialias")
     check_stack_target(args.out)  # refused before anything is computed
     with progress_bar("reading frames") as progress:
         dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress,
                                allow_outside=args.allow_outside)
     with progress_bar("computing rings") as progress:
-        if args.kind == "ring":
+        if args.interpolate:
+            stack = interpolated_stack(dataset, radii, args.kind, step, args.thickness)
+        elif args.kind == "ring":
             stack = ring_stack(dataset, radii, args.thickness, args.antialias, progress=progress)
         else:
             stack = transient_stack(dataset, radii, step, args.thickness, args.antialias, progress=progress)
+    coverage = ring_coverage(dataset, radii, args.thickness)
     with progress_bar("writing EXR") as progress:
-        folder = write_stack(stack, args.out, progress=progress)
+        folder = write_stack(stack, args.out, progress=progress, coverage=coverage)
     undefined = int(np.count_nonzero(np.isnan(stack.images).any(-1)))
     print(
         f"wrote {len(radii)} {args.kind} images ({dataset.grid_shape[0]} x {dataset.grid_shape[1]}) to "
         f"{folder}; {undefined} pixel(s) undefined (NaN)"
+        + ("; ring means interpolated in distance" if args.interpolate else "")
     )
+    if (warning := coverage_warning(coverage)) is not None:
+        print(f"warning: {warning}")
     return 0

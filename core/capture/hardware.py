@@ -95,12 +95,17 @@ Factory = Callable[..., object]
 
 @dataclass(frozen=True)
 class HardwarePlugin:
-    """What a plugin offers: ``cameras`` and ``projectors`` map device names to factories."""
+    """What a plugin offers: ``cameras`` and ``projectors`` map device names to factories.
+
+    ``unavailable``: a one-line reason when the plugin's SDK is missing (it names what to
+    install); such a plugin is listed among the failures and offers no devices.
+    """
 
     name: str
     cameras: dict[str, Factory] = field(default_factory=dict)
     projectors: dict[str, Factory] = field(default_factory=dict)
     description: str = ""
+    unavailable: str = ""
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,9 @@ def discover_plugins(group: str = ENTRY_POINT_GROUP) -> Discovery:
             continue
         if not isinstance(plugin, HardwarePlugin):
             failures.append((entry.name, f"{entry.value} is a {type(plugin).__name__}, not a HardwarePlugin"))
+            continue
+        if plugin.unavailable:
+            failures.append((entry.name, plugin.unavailable))
             continue
         plugins.append(plugin)
     return Discovery(tuple(plugins), tuple(failures))

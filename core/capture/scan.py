@@ -2,12 +2,15 @@
 
 Lit points are the projector pixels of a region of interest on a lattice of spacing
 ``floor(2 * max_radius) + 1`` (> 2 max_radius, so FORMAT.md attributes all light within
-max_radius of a lit point to it): (spacing)^2 frames instead of one per pixel.
+max_radius of a lit point to it): (spacing)^2 frames instead of one per pixel. With a multiplexed
+plan, blocks of lattice frames are captured through a Hadamard code and demultiplexed
+(:mod:`.multiplex`); the dataset holds the lattice frames either way.
 
 A scan writes into its output folder as it goes::
 
     OUT/.scan/plan.json       the plan and the camera's description: what a resume continues
     OUT/.scan/journal.jsonl   one line per finished frame, flushed and fsynced
+    OUT/.scan/projector.jsonl the projector checks (:mod:`.projector_check`)
     OUT/frames/NNNNN.exr      each merged HDR frame, written atomically as soon as it exists
     OUT/mapping.exr, OUT/dark.exr
     OUT/dataset.json          written last: the folder is a dataset only once the scan is complete
@@ -52,6 +55,8 @@ from ..dataset.manifest import parse_manifest
 from ..errors import Cancelled, RinglightError
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
+from .multiplex import coded_lit, demultiplex
+from .projector_check import CHECK_EVERY, CHECK_NAME, ProjectorCheck
 from .scan_plan import (
     BYTES_PER_PIXEL,
     PLAN_NAME,
@@ -116,19 +121,29 @@ def as_rgb(frame: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ScanProgress:
+    """Frames done of total; ``drift``: the projector check's latest relative change of the lit
+    impulse's radiance from the first check (None before two checks)."""
+
     done: int
     total: int
+    drift: float | None = None
 
 
 class Scan:
     """A scan into ``out`` (see the module docstring); :meth:`run` captures what is missing."""
 
-    def __init__(self, out, plan: ScanPlan, mapping: np.ndarray, camera_notes: str = ""):
+    def __init__(self, out, plan: ScanPlan, mapping: np.ndarray, camera_notes: str = "",
+                 colorspace: str | dict = "sRGB", check_every: int = CHECK_EVERY):
+        """``colorspace``: the manifest's value (a name, or ``{"matrix": M}`` from the colour
+        step); ``check_every``: frames between projector checks (0: none)."""
         self.out = Path(out)
         self.plan = plan
         self.mapping = np.asarray(mapping, np.float32)
         self.camera_notes = camera_notes
+        self.colorspace = colorspace
         self.frames = plan.frames()
+        self.projector_check = ProjectorCheck(self.out / SCAN_FOLDER / CHECK_NAME, self.frames[0], self.mapping,
+                                              check_every, len(self.frames), plan.max_radius)
 
     @property
     def plan_path(self) -> Path:
@@ -145,8 +160,8 @@ class Scan:
             raise ScanError(f"{self.out}: already holds a finished dataset; choose another folder")
         if self.plan_path.exists():
             if not resume:
-                raise ScanError(f"{self.out}: holds an unfinished scan; resume it (--resume) or choose another folder")
-            stored, self.camera_notes = read_plan(self.out)
+                raise ScanError(f"{self.out}: holds an unfinished scan; resume it or choose another folder")
+            stored, self.camera_notes, self.colorspace = read_plan(self.out)
             if stored != self.plan:
                 raise ScanError(f"{self.plan_path}: the unfinished scan has another plan; resume with its settings")
             self._clear_temporaries()
@@ -182,7 +197,7 @@ class Scan:
         staging = self.out / f"{SCAN_FOLDER}.partial-{secrets.token_hex(6)}"
         staging.mkdir()
         with atomic_file(staging / PLAN_NAME, make_parents=False, durable=True) as temporary:
-            temporary.write_text(self.plan.to_json(self.camera_notes), encoding="utf-8")
+            temporary.write_text(self.plan.to_json(self.camera_notes, self.colorspace), encoding="utf-8")
         os.rename(staging, self.out / SCAN_FOLDER)  # the scan exists from here on, whole
         fsync_path(self.out)
 
@@ -224,7 +239,8 @@ class Scan:
 
     def run(self, camera: Camera, projector: Projector, progress: Callable[[ScanProgress], None] | None = None,
             should_stop: Callable[[], bool] | None = None, timeout: float = CAPTURE_TIMEOUT_S) -> Path:
-        """Capture the dark frame and every unfinished frame, then write the manifest.
+        """Capture the dark frame and every unfinished block of frames (with the projector checks),
+        then write the manifest.
 
         Raises ScanPaused (camera failure, disk full, a write refused) or Cancelled
         (``should_stop``), leaving a resumable scan; ScanError when the scan's folder vanished;
@@ -233,27 +249,38 @@ class Scan:
         frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
         done = self.finished_frames()
         saturated = sum(entry.get("saturated", 0) for entry in done.values())
+        check = self.projector_check
         try:
             if not (self.out / "dark.exr").is_file():
                 self._check_disk(frame_bytes)
                 dark = capture_hdr(camera, projector, None, self.plan, timeout)
                 self._write_exr("dark.exr", dark.radiance)
-            for index, lit in enumerate(self.frames):
-                if index in done:
+            for indices, code in self.plan.blocks():
+                if all(index in done for index in indices):
                     continue
                 if should_stop is not None and should_stop():
                     raise Cancelled(f"scan stopped after {len(done)} of {len(self.frames)} frames; resume to continue")
-                self._check_disk(frame_bytes)
-                merged = capture_hdr(camera, projector, self.plan.pattern(lit, projector.size), self.plan, timeout)
-                self._write_exr(_frame_name(index), merged.radiance)
-                if merged.saturated_count:
-                    self._write_saturation_mask(index, merged.saturated.any(axis=-1))
-                entry = {"index": index, "file": _frame_name(index), "saturated": merged.saturated_count}
-                self._append_journal(entry)
-                done[index] = entry
-                saturated += merged.saturated_count
+                if check.due(indices):
+                    self._check_projector(indices[0], camera, projector, timeout)
+                self._check_disk(frame_bytes * len(indices))
+                captures = [capture_hdr(camera, projector, self.plan.pattern(lit, projector.size), self.plan, timeout)
+                            for lit in coded_lit(self.frames, indices, code)]
+                recovered = demultiplex(np.stack([merged.radiance for merged in captures]), code)
+                # A recovered frame mixes every capture of its block: saturated where any of them is.
+                mask = np.any([merged.saturated.any(axis=-1) for merged in captures], axis=0)
+                for index, radiance in zip(indices, recovered):
+                    self._write_exr(_frame_name(index), radiance.astype(np.float32))
+                    count = int(mask.sum()) if code is not None else captures[0].saturated_count
+                    if count:
+                        self._write_saturation_mask(index, mask)
+                    entry = {"index": index, "file": _frame_name(index), "saturated": count}
+                    self._append_journal(entry)
+                    done[index] = entry
+                    saturated += count
                 if progress is not None:
-                    progress(ScanProgress(len(done), len(self.frames)))
+                    progress(ScanProgress(len(done), len(self.frames), check.drift()))
+            if check.due(range(len(self.frames), len(self.frames) + 1)):
+                self._check_projector(len(self.frames), camera, projector, timeout)
             return self._write_manifest(saturated)
         except HardwareError as error:
             raise ScanPaused(f"scan paused after {len(done)} of {len(self.frames)} frames: {error}; "
@@ -262,6 +289,15 @@ class Scan:
             raise self._write_failed(error, len(done)) from error
         finally:
             projector.show_black()
+
+    def _check_projector(self, frame: int, camera: Camera, projector: Projector, timeout: float) -> None:
+        """Show the reference lattice frame and record its radiance (:mod:`.projector_check`)."""
+        projector.show(self.plan.pattern(self.projector_check.lit, projector.size))
+        if projector.settle_time > 0:
+            time.sleep(projector.settle_time)
+        exposure = min(self.plan.exposures)
+        image = as_rgb(capture_with_timeout(camera, exposure, timeout))
+        self.projector_check.record(frame, image, exposure, camera.black_level)
 
     def _write_failed(self, error: OSError | OutputError, done: int) -> RinglightError:
         """One line for a write that failed: a full disk or a read-only folder pauses the scan;
@@ -315,10 +351,10 @@ class Scan:
         notes = (f"captured by ringlight: roi {list(self.plan.roi)}, exposures "
                  f"{', '.join(f'{e:g}' for e in self.plan.exposures)} s merged to counts/s; "
                  f"{saturated} pixel-frames saturated in every bracket (per camera pixel: "
-                 f"{SCAN_FOLDER}/saturation.exr). {self.camera_notes}").strip()
+                 f"{SCAN_FOLDER}/saturation.exr). {self.projector_check.summary()} {self.camera_notes}").strip()
         manifest = {
             "format": "ringlight-impulse", "version": 1, "grid": {"height": height, "width": width},
-            "colorspace": "sRGB", "frame_space": "camera", "mapping": "mapping.exr",
+            "colorspace": self.colorspace, "frame_space": "camera", "mapping": "mapping.exr",
             "max_radius": self.plan.max_radius, "dark": "dark.exr", "notes": notes,
             "frames": [{"file": _frame_name(index), "lit": lit.tolist(), "exposure": 1.0}
                        for index, lit in enumerate(self.frames)],

@@ -5,8 +5,13 @@ radiance under a pattern is the sum of the lit points' simulated responses (the 
 transport windows). The camera samples that radiance through a :class:`CameraSampling` (scale,
 rotation, offset: camera pixel centre -> projector position) and records it like a machine-vision
 sensor: electrons = radiance x gain x exposure with Poisson shot noise, Gaussian read noise, a
-black level, 12-bit quantisation and saturation. Noise is seeded by the pattern and exposure, so
-the same capture repeats exactly (a resumed scan equals an uninterrupted one).
+black level, 12-bit quantisation and saturation. Noise is seeded by the pattern, the exposure and
+how many frames of that exposure were taken since the pattern was shown, so the same sequence of
+shows and captures repeats exactly (a resumed scan equals an uninterrupted one) while repeated
+frames of one pattern carry independent noise (a dark frame's average measures the read noise).
+
+The scene ``colorchecker`` is a flat ColorChecker chart (Lambertian, no subsurface light) seen by
+a camera whose RGB -> XYZ matrix is :data:`CAMERA_RGB_TO_XYZ`: the colour step's test target.
 """
 
 from __future__ import annotations
@@ -80,6 +85,8 @@ class SimulatedRig:
         self.fail_after = fail_after
         self.captures = 0
         self.pattern = np.zeros(self.size, np.float32)
+        self.repeats: dict[float, int] = {}
+        """Frames taken per exposure since the pattern was shown (a noise seed)."""
         self.projector = SimulatedProjector(self, settle_time)
         self.camera = SimulatedCamera(self)
         rows, cols = np.mgrid[:sampling.camera_shape(self.size)[0], :sampling.camera_shape(self.size)[1]]
@@ -113,8 +120,12 @@ class SimulatedRig:
         seen = np.zeros((*self.seen_y.shape, 3))
         seen[self.sees_scene] = radiance[self.seen_y[self.sees_scene], self.seen_x[self.sees_scene]]
         key = zlib.crc32(self.pattern.tobytes())
-        rng = np.random.default_rng([self.seed, key, int(round(exposure * 1e9))])
-        electrons = rng.poisson(seen * self.sensor.gain * exposure).astype(np.float64)
+        repeat = self.repeats.get(exposure, 0)
+        self.repeats[exposure] = repeat + 1
+        rng = np.random.default_rng([self.seed, key, int(round(exposure * 1e9))] + ([repeat] if repeat else []))
+        # A Monte Carlo estimate of the transport may dip below zero where little light returns:
+        # no camera sees negative light.
+        electrons = rng.poisson(np.maximum(seen, 0.0) * self.sensor.gain * exposure).astype(np.float64)
         raw = electrons + rng.normal(0.0, self.sensor.read_noise, seen.shape) + self.sensor.black_level
         return np.clip(np.round(raw), 0, self.sensor.saturation_level).astype(np.float32)
 
@@ -179,6 +190,7 @@ class SimulatedProjector:
         if pattern.shape != self.rig.size:
             raise HardwareError(f"simulated projector: pattern {pattern.shape} is not {self.rig.size}")
         self.rig.pattern = np.clip(pattern, 0, 1)
+        self.rig.repeats = {}
 
     def show_black(self) -> None:
         self.show(np.zeros(self.rig.size, np.float32))
@@ -187,12 +199,35 @@ class SimulatedProjector:
         self.show(np.ones(self.rig.size, np.float32))
 
 
+CAMERA_RGB_TO_XYZ = np.array([[0.7977, 0.1352, 0.0313], [0.2880, 0.7119, 0.0001], [0.0, 0.0, 0.8249]])
+"""The simulated camera's RGB -> XYZ (ProPhoto RGB's primaries: every ColorChecker patch has
+positive camera RGB), for the ``colorchecker`` scene."""
+
+
+def colorchecker_windows(height: int, width: int) -> np.ndarray:
+    """Transport windows (H, W, 3, 3, 3) of a flat ColorChecker filling the grid: 4 x 6 patches,
+    each the central 70 % of its cell, camera RGB = inverse(CAMERA_RGB_TO_XYZ) @ the patch's XYZ;
+    the gaps between patches reflect 0.01. Light stays where it enters (the centre tap)."""
+    from .calibration import CHECKER_COLUMNS, CHECKER_ROWS, colorchecker_xyz
+
+    rgb = np.linalg.solve(CAMERA_RGB_TO_XYZ, colorchecker_xyz().T).T
+    v = (np.arange(height) + 0.5) / height * CHECKER_ROWS
+    u = (np.arange(width) + 0.5) / width * CHECKER_COLUMNS
+    inside = (np.abs(v % 1 - 0.5) < 0.35)[:, None] & (np.abs(u % 1 - 0.5) < 0.35)[None, :]
+    patch = v.astype(int)[:, None] * CHECKER_COLUMNS + u.astype(int)[None, :]
+    windows = np.zeros((height, width, 3, 3, 3), np.float32)
+    windows[:, :, 1, 1] = np.where(inside[..., None], rgb[patch], 0.01)
+    return windows
+
+
 @functools.lru_cache(maxsize=4)
 def _preset_rig(scene: str, size: str, photons: int, seed: int, fail_after: int | None) -> SimulatedRig:
     from ..simulate.presets import load_scene
     from ..simulate.transport import simulate_transport
 
     height, width = (int(part) for part in size.lower().split("x"))
+    if scene == "colorchecker":
+        return SimulatedRig(colorchecker_windows(height, width), seed=seed, fail_after=fail_after)
     transport = simulate_transport(load_scene(scene, size=(height, width)), photons=photons, seed=seed)
     return SimulatedRig(transport.windows, seed=seed, fail_after=fail_after)
 

@@ -17,6 +17,7 @@ from ..dataset.exr import read_exr_channels
 from .correspondence import Correspondence, capture_gray_code, decode_gray_code
 from .exposure_probe import ExposurePlan, probe_exposures
 from .hardware import Camera, Projector
+from .projector_check import CHECK_EVERY
 from .scan import Scan, ScanProgress, as_rgb, capture_with_timeout
 from .scan_plan import (
     PLAN_NAME,
@@ -77,10 +78,16 @@ def resume_scan(out) -> Scan:
     """The unfinished scan in ``out``, from its stored plan, camera description and mapping."""
     if not (Path(out) / SCAN_FOLDER / PLAN_NAME).is_file():
         raise ScanError(f"{out}: no unfinished scan to resume (no {SCAN_FOLDER}/{PLAN_NAME}); "
-                        "start the scan again without --resume")
-    plan, notes = read_plan(Path(out))
+                        "start the scan again")
+    plan, notes, colorspace = read_plan(Path(out))
     mapping = read_exr_channels(Path(out) / "mapping.exr", ("y", "x"))
-    return Scan(out, plan, mapping, notes)
+    return Scan(out, plan, mapping, notes, colorspace)
+
+
+def estimated_seconds(planned: PlannedScan, projector: Projector) -> float:
+    """The scan's duration: the plan's exposures, the projector's settle time and the camera's
+    overhead per capture measured while probing, with the dark frame and projector checks."""
+    return planned.plan.estimated_seconds(planned.exposure.capture_overhead, projector.settle_time, CHECK_EVERY)
 
 
 def camera_notes(camera: Camera) -> str:

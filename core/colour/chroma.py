@@ -107,6 +107,31 @@ class LayerResult:
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
 
+def colour_unavailable(channels: tuple[str, ...]) -> str | None:
+    """Why a dataset read from ``channels`` has no colour to recover, or None when it has.
+
+    A monochrome camera's dataset (one channel) is grey, R = G = B: every transient image has the
+    white point's chromaticity, so layer colours need an RGB camera. The Layers tab shows this
+    line in place of a result.
+
+    Examples
+    --------
+    >>> colour_unavailable(("R", "G", "B")) is None
+    True
+    >>> colour_unavailable(("Y",))
+    'the dataset is monochrome (frames of one channel, Y): layer colours need an RGB camera'
+    """
+    if len(channels) == 1:
+        return f"the dataset is monochrome (frames of one channel, {channels[0]}): layer colours need an RGB camera"
+    return None
+
+
+def require_colour(channels: tuple[str, ...]) -> None:
+    """Raise :class:`LayerError` with :func:`colour_unavailable`'s line for a monochrome dataset."""
+    if (reason := colour_unavailable(channels)) is not None:
+        raise LayerError(reason)
+
+
 def chromaticity(rgb: np.ndarray, colorspace: str) -> np.ndarray:
     """CIE 1931 xy of linear ``rgb`` (..., 3) in ``colorspace``: (..., 2); NaN where the
     luminance Y <= 0 or the tristimulus sum X + Y + Z <= 0 (no meaningful chromaticity).
@@ -133,7 +158,8 @@ def luminance(rgb: np.ndarray, colorspace: str) -> np.ndarray:
 
 
 def white_point(colorspace: str) -> np.ndarray:
-    """(2,) xy of the colourspace's white point."""
+    """(2,) xy of the colourspace's white point (a name in ``colour.RGB_COLOURSPACES``, custom
+    colourspaces of :func:`~ringlight.core.colourspaces.parse_colourspace` included)."""
     return np.asarray(colour_module().RGB_COLOURSPACES[colorspace].whitepoint, np.float64)
 
 

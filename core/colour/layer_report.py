@@ -1,18 +1,30 @@
-"""Layer colour recovery end to end, and its results as JSON and CSV (CLI and window share it)."""
+"""Layer colour recovery end to end, and its results as JSON and CSV (CLI and window share it).
+
+A recovered layer is *trusted* when the transient it comes from stands out of its noise: the
+region-mean luminance of T_r is at least MIN_SNR (3) standard errors above zero, the standard
+error from the spread of each pixel's ring members (:mod:`ringlight.core.rings.noise`), which is
+an upper bound of the noise where the surface itself varies.
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
+from ..rings.noise import StackNoise, region_snr, stack_noise
 from ..rings.stack_request import StackRequest, largest_stop
-from ..rings.stacks import transient_stack
-from .chroma import LayerResult, Trajectory, propose_radii, recover_layers, trajectory
+from ..rings.stacks import Stack, transient_stack
+from .chroma import MIN_SNR, LayerResult, Trajectory, propose_radii, recover_layers, trajectory
+
+TRUST_RULE = (f"trusted: the region-mean luminance of T_r is at least {MIN_SNR:g} standard errors above 0; "
+              "standard errors from the spread of each pixel's ring members (SE of T_r from both rings), "
+              "an upper bound of the noise where the surface itself varies")
+"""The trusted flag's rule, as the reports and the Layers tab state it."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -23,6 +35,20 @@ class LayerAnalysis:
     path: Trajectory
     result: LayerResult
     truth_names: tuple[str, ...] = ()
+
+
+def with_ring_noise(path: Trajectory, stack: Stack, noise: StackNoise, region: np.ndarray) -> Trajectory:
+    """``path`` (the trajectory of transient ``stack`` over the (H, W) bool ``region``) with its
+    ``snr`` replaced by the region-mean T_r luminance SNR from the ring-member spread
+    (:func:`ringlight.core.rings.noise.region_snr`): the number the trusted flag tests
+    (``Trajectory.trusted``: luminance > 0 and snr >= MIN_SNR), in recovery and auto picks."""
+    return replace(path, snr=region_snr(stack.images, noise, region))
+
+
+def layer_snr(analysis: LayerAnalysis) -> list[float]:
+    """The SNR behind each recovered layer's trusted flag (its transient's, see :data:`TRUST_RULE`)."""
+    path = analysis.path
+    return [float(path.snr[int(np.argmin(np.abs(path.radii - layer.radius)))]) for layer in analysis.result.layers]
 
 
 def analysis_stack_request(dataset: ImpulseDataset, step: float = 1.0, dr: float = 1.0,
@@ -43,12 +69,16 @@ def truth_layers(dataset: ImpulseDataset) -> tuple[tuple[str, ...], np.ndarray |
 def analyse_layers(dataset: ImpulseDataset, region: np.ndarray, region_description: str, *,
                    radii=None, auto: int | None = None, method: str = "paper", request: StackRequest | None = None,
                    progress=None) -> LayerAnalysis:
-    """Transient stack over ``request`` (default :func:`analysis_stack_request`), trajectory over
-    ``region``, and layers from ``radii`` or ``auto`` proposed radii."""
+    """Transient stack over ``request`` (default :func:`analysis_stack_request`) and its noise,
+    trajectory over ``region`` with the noise's SNR, and layers from ``radii`` or ``auto``
+    proposed radii."""
     request = request or analysis_stack_request(dataset)
     request.check(dataset)
-    stack = transient_stack(dataset, request.radii(), request.dr, request.thickness, request.antialias, progress)
-    path = trajectory(stack, region)
+    half = (lambda fraction: progress(fraction / 2)) if progress else None
+    stack = transient_stack(dataset, request.radii(), request.dr, request.thickness, request.antialias, half)
+    noise = stack_noise(dataset, request.radii(), request.dr, request.thickness, request.antialias,
+                        (lambda fraction: progress(0.5 + fraction / 2)) if progress else None)
+    path = with_ring_noise(trajectory(stack, region), stack, noise, region)
     if radii is None:
         radii = propose_radii(path, auto or 3)
     names, truth_rgb = truth_layers(dataset)
@@ -62,11 +92,11 @@ def analysis_document(analysis: LayerAnalysis, dataset_path: str) -> dict:
     document = {
         "format": "ringlight-layers", "version": 1,
         "dataset": dataset_path, "region": analysis.region_description, "method": result.method,
-        "colorspace": path.colorspace, "radii": list(result.radii),
+        "colorspace": path.colorspace, "radii": list(result.radii), "trust": TRUST_RULE,
         "layers": [
             {"radius": layer.radius, "xy": _finite(layer.xy), "rgb": _finite(layer.rgb),
-             "srgb8": list(layer.srgb8), "trusted": layer.trusted, "note": layer.note}
-            for layer in result.layers
+             "srgb8": list(layer.srgb8), "snr": _finite([snr])[0], "trusted": layer.trusted, "note": layer.note}
+            for layer, snr in zip(result.layers, layer_snr(analysis))
         ],
         "warnings": list(result.warnings),
         "trajectory": {
@@ -88,13 +118,15 @@ def analysis_csv(analysis: LayerAnalysis) -> str:
     """One row per recovered layer; truth and error columns empty when unknown."""
     buffer = io.StringIO()
     buffer.write(f"# ringlight layers: method {analysis.result.method}, region {analysis.region_description}\n")
+    buffer.write(f"# {TRUST_RULE}\n")
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["layer", "radius", "x", "y", "R", "G", "B", "sRGB8", "trusted", "truth_x", "truth_y", "xy_error"])
+    writer.writerow(["layer", "radius", "x", "y", "R", "G", "B", "sRGB8", "snr", "trusted", "truth_x", "truth_y",
+                     "xy_error"])
     result = analysis.result
-    for index, layer in enumerate(result.layers):
+    for index, (layer, snr) in enumerate(zip(result.layers, layer_snr(analysis))):
         truth = result.truth_xy[index] if result.truth_xy and index < len(result.truth_xy) else ("", "")
         error = result.errors[index] if result.errors and index < len(result.errors) else ""
-        writer.writerow([index + 1, layer.radius, *layer.xy, *layer.rgb, "#%02x%02x%02x" % layer.srgb8,
+        writer.writerow([index + 1, layer.radius, *layer.xy, *layer.rgb, "#%02x%02x%02x" % layer.srgb8, snr,
                          layer.trusted, *truth, error])
     return buffer.getvalue()
 

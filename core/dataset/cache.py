@@ -63,7 +63,8 @@ def cache_key(manifest: Manifest, max_radius: float) -> str:
     """
     digest = hashlib.sha256()
     digest.update(f"layout {LAYOUT_VERSION} radius {max_radius!r} grid {manifest.height} {manifest.width} "
-                  f"{manifest.frame_space} {manifest.mapping!r} {manifest.dark!r}\n".encode())
+                  f"{manifest.frame_space} {manifest.mapping!r} {manifest.dark!r} {manifest.channels!r} "
+                  f"{manifest.part!r} {manifest.colorspace!r}\n".encode())
     frames = manifest.frames
     digest.update("\0".join(frame.file for frame in frames).encode("utf-8"))
     digest.update(np.array([len(frame.lit) for frame in frames], np.int64).tobytes())

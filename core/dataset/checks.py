@@ -10,9 +10,9 @@ from collections.abc import Callable
 
 from ..errors import DatasetError
 from .exr import check_exr
+from .exr_header import RGB
+from .frames import dataset_channels
 from .manifest import Manifest
-
-_RGB = ("R", "G", "B")
 
 
 def check_files(manifest: Manifest, allow_outside: bool = False,
@@ -21,10 +21,11 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
 
     Each file is checked as reading it would check it (see
     :func:`ringlight.core.dataset.exr.check_exr`): it resolves inside the dataset folder (unless
-    ``allow_outside``), is a regular OpenEXR file, has the channels it needs (R, G, B; ``y`` and
-    ``x`` for the mapping) at full resolution, has the size it must have (frames and dark: the
-    grid, or the mapping's size in camera frame space; ground-truth images: the grid), and its
-    chunk table fits the file (a truncated file fails this).
+    ``allow_outside``), is a regular OpenEXR file, has the channels it needs (the manifest's
+    ``channels``, else R, G, B or a lone Y; ``y`` and ``x`` for the mapping) at full resolution, in the manifest's ``part``, with chromaticities that
+    match its ``colorspace`` and a data window that is its display window, has the size it must
+    have (frames and dark: the grid, or the mapping's size in camera frame space; ground-truth
+    images: the grid), and its chunk table fits the file (a truncated file fails this).
 
     Parameters
     ----------
@@ -41,9 +42,10 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
     """
     problems: list[str] = []
 
-    def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None):
+    def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
         try:
-            header = check_exr(manifest.file_path(name, allow_outside), channels, shape, what, size_of)
+            header = check_exr(manifest.file_path(name, allow_outside), channels, shape, what, size_of,
+                               manifest.part if frame else None, manifest.colorspace if frame else None)
         except DatasetError as error:
             problems.append(str(error))
             return None
@@ -52,18 +54,22 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
     frame_shape, size_of = (manifest.height, manifest.width), "the grid"
     if manifest.frame_space == "camera":
         # A broken mapping leaves the frames' size unknown: they are then checked for all else.
-        frame_shape = check(manifest.mapping, ("y", "x"), None, "mapping", None)
+        frame_shape = check(manifest.mapping, ("y", "x"), None, "mapping", None, frame=False)
         size_of = "the mapping"
+    try:
+        channels = dataset_channels(manifest, allow_outside)
+    except DatasetError:  # the first frame's own problem is reported below
+        channels = manifest.channels or RGB
     if manifest.dark is not None:
-        check(manifest.dark, _RGB, frame_shape, "dark frame", size_of)
+        check(manifest.dark, channels, frame_shape, "dark frame", size_of)
     truth = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
     total = len(manifest.frames) + len(truth)
     for done, frame in enumerate(manifest.frames):
-        check(frame.file, _RGB, frame_shape, "frame", size_of)
+        check(frame.file, channels, frame_shape, "frame", size_of)
         if progress is not None and done % 256 == 255:
             progress((done + 1) / total)
     for image in truth:
-        check(image.file, _RGB, (manifest.height, manifest.width), "ground-truth image", "the grid")
+        check(image.file, RGB, (manifest.height, manifest.width), "ground-truth image", "the grid", frame=False)
     if progress is not None:
         progress(1.0)
     return problems

@@ -1,136 +1,41 @@
-"""Reading and writing RGB OpenEXR images as float32 numpy arrays.
+"""Reading and writing OpenEXR images as float32 numpy arrays.
 
-Images are (H, W, 3) float32 in channel order R, G, B. Half and float files are both read;
-files are written as float (32-bit) unless ``half=True``.
+Images are (H, W, C) float32 in the order of the channel names asked for (R, G, B for colour
+frames, Y for a monochrome camera); HALF, FLOAT and UINT channels are all read, scanline or tiled
+(the full-resolution level), any compression the library reads. Files are written as float
+(32-bit) unless ``half=True``.
 
-Every read checks the header first (:func:`check_exr`): the size against what the caller
-expects, the channels, and that the file's chunk table fits in the file, so that a small
-damaged or hostile file is refused before anything is decoded.
+Every read checks the header first (:func:`check_exr`): the part, the size against what the
+caller expects, the window rule, the channels, the chromaticities against the dataset's
+colourspace, and that the file's chunk table fits in the file, so that a small damaged or hostile
+file is refused before anything is decoded. Only the channels asked for are decoded from a
+single-part file; the library decodes every channel of a multi-part file.
 """
 
 from __future__ import annotations
 
+import json
 import os
-import stat
-import sys
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
+import Imath
 import numpy as np
 import OpenEXR
 
+from ..colourspaces import chromaticities_differ, colourspace_chromaticities, describe_chromaticities
 from ..errors import DatasetError
-from .exr_chunks import MAX_PIXELS, chunk_table_problem
+from .exr_chunks import chunk_table_problem
+from .exr_header import ExrHeader, first_line, open_regular, quiet_library, read_exr_header
 
-_EXR_MAGIC = b"\x76\x2f\x31\x01"
 MAX_DECODED_BYTES = 2**30
-"""Largest total of all channels of a file (the library decodes every channel of a part)."""
-
-_QUIET_LOCK = threading.Lock()
-
-
-@dataclass(frozen=True)
-class ExrHeader:
-    """What ringlight needs from an EXR header: image size (pixels) and channel names."""
-
-    height: int
-    width: int
-    channels: tuple[str, ...]
-    subsampled: tuple[str, ...]
-    """Channels with an x or y sampling other than 1 (their planes are smaller than the image)."""
-
-
-@contextmanager
-def _quiet_library() -> Iterator[None]:
-    """Silence what the OpenEXR C++ library itself prints on stdout and stderr for damaged files,
-    so that the user sees ringlight's one line and nothing else.
-
-    File descriptors 1 and 2 are process-wide, so the lock serialises the library's calls; a
-    Python thread printing meanwhile loses that output, which ringlight's workers never do.
-    """
-    with _QUIET_LOCK:
-        for stream in (sys.stdout, sys.stderr):
-            if stream is not None:
-                stream.flush()
-        saved = [os.dup(1), os.dup(2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(null, 1)
-            os.dup2(null, 2)
-            yield
-        finally:
-            os.dup2(saved[0], 1)
-            os.dup2(saved[1], 2)
-            for descriptor in (*saved, null):
-                os.close(descriptor)
-
-
-def _open_regular(path: Path):
-    """Open ``path`` for reading if it is a regular file (following links), else DatasetError.
-
-    O_NONBLOCK: a FIFO put in place of a frame must not block the open.
-    """
-    try:
-        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except OSError as error:
-        raise DatasetError(f"{path}: cannot be read ({error.strerror or error})") from None
-    if not stat.S_ISREG(os.fstat(descriptor).st_mode):
-        os.close(descriptor)
-        raise DatasetError(f"{path}: not a file")
-    return os.fdopen(descriptor, "rb")
-
-
-def _check_magic(path: Path) -> None:
-    with _open_regular(path) as handle:
-        try:
-            magic = handle.read(4)
-        except OSError as error:
-            raise DatasetError(f"{path}: cannot be read ({error.strerror or error})") from None
-    if magic != _EXR_MAGIC:
-        raise DatasetError(f"{path}: not an OpenEXR file")
-
-
-def read_exr_header(path: str | os.PathLike) -> ExrHeader:
-    """The size and channels of an EXR file, from its header alone.
-
-    Raises
-    ------
-    DatasetError
-        Naming the file: missing, not a regular file, not an OpenEXR file, a damaged header, a
-        deep (per-sample) file, an empty data window or one over :data:`MAX_PIXELS`.
-    """
-    path = Path(path)
-    _check_magic(path)
-    try:
-        with _quiet_library(), OpenEXR.File(str(path), header_only=True) as exr:
-            header = exr.header()
-            low, high = header["dataWindow"]
-            channels = list(header.get("channels", []))
-            names = tuple(str(channel.name) for channel in channels)
-            subsampled = tuple(str(channel.name) for channel in channels
-                               if channel.xSampling != 1 or channel.ySampling != 1)
-    except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError/KeyError for damaged data
-        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({_first_line(error)})") from None
-    if "deep" in str(header.get("type", "")).lower():
-        raise DatasetError(f"{path}: deep (per-sample) OpenEXR files are not supported")
-    # Python ints: a hostile window cannot overflow.
-    height, width = int(high[1]) - int(low[1]) + 1, int(high[0]) - int(low[0]) + 1
-    if height <= 0 or width <= 0:
-        raise DatasetError(f"{path}: empty data window {height} x {width}")
-    if height * width > MAX_PIXELS:
-        raise DatasetError(f"{path}: the header says {height} x {width} pixels, over the "
-                           f"{MAX_PIXELS / 2**20:.0f} megapixels ringlight decodes")
-    return ExrHeader(height, width, names, subsampled)
+"""Largest total of the channels a read decodes (4 bytes a value)."""
+_FLOAT = Imath.PixelType(Imath.PixelType.FLOAT)
 
 
 def check_exr(path: str | os.PathLike, names: tuple[str, ...],
               expected_shape: tuple[int, int] | None = None, what: str = "image",
-              size_of: str | None = None) -> ExrHeader:
+              size_of: str | None = None, part: str | None = None,
+              colorspace: str | None = None) -> ExrHeader:
     """Check everything about an EXR file that can be known without decoding its pixels.
 
     Parameters
@@ -138,27 +43,33 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
     path
         The EXR file.
     names
-        Channels it must hold, e.g. ``("R", "G", "B")``.
+        Channels it must hold, e.g. ``("R", "G", "B")``, ``("camera.R", ...)`` or ``("Y",)``.
     expected_shape
         ``(height, width)`` in pixels it must have, or None for any size.
     what
         What the file is, for the message (``"frame"``, ``"dark frame"``, ...).
     size_of
         What ``expected_shape`` is the size of (``"the grid"``), for the message.
+    part
+        Name of the part to read in a multi-part file (None: the one part holding ``names``).
+    colorspace
+        The dataset's colourspace name: a ``chromaticities`` attribute that differs from it by
+        more than 1e-3 is refused. None: not checked (mappings, ground truth of other spaces).
 
     Returns
     -------
-    The file's :class:`ExrHeader`.
+    The header of the part read (:class:`ExrHeader`).
 
     Raises
     ------
     DatasetError
         One line naming the file: any problem of :func:`read_exr_header`, a size other than
-        ``expected_shape``, a missing or subsampled channel, more channel data than
-        :data:`MAX_DECODED_BYTES`, or a chunk table that does not fit the file (truncation).
+        ``expected_shape``, a missing or subsampled channel, chromaticities of another colourspace
+        (both named), more channel data than :data:`MAX_DECODED_BYTES`, or a chunk table that does
+        not fit the file (truncation).
     """
     path = Path(path)
-    header = read_exr_header(path)
+    header = read_exr_header(path, names, part)
     if expected_shape is not None and (header.height, header.width) != tuple(expected_shape):
         raise DatasetError(f"{path}: {what} is {header.height} x {header.width}, "
                            f"expected {expected_shape[0]} x {expected_shape[1]}"
@@ -166,17 +77,28 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
     missing = [name for name in names if name not in header.channels]
     if missing:
         found = ", ".join(sorted(header.channels)) or "none"
-        raise DatasetError(f"{path}: missing channel(s) {', '.join(missing)} (found: {found})")
+        prefixed = [next((found for found in sorted(header.channels) if found.endswith("." + name)), None)
+                    for name in names]
+        hint = (f"; read them with \"channels\": {json.dumps(prefixed)} in the manifest"
+                if what in ("frame", "dark frame") and all(prefixed) else "")
+        raise DatasetError(f"{path}: missing channel(s) {', '.join(missing)} (found: {found}){hint}")
     if subsampled := [name for name in names if name in header.subsampled]:
         raise DatasetError(f"{path}: channel(s) {', '.join(subsampled)} are subsampled; "
                            "ringlight reads full-resolution channels only")
-    decoded = 4 * header.height * header.width * len(header.channels)
+    if (colorspace is not None and header.chromaticities is not None
+            and chromaticities_differ(header.chromaticities, colorspace)):
+        raise DatasetError(
+            f"{path}: chromaticities {describe_chromaticities(header.chromaticities)} differ from the "
+            f"dataset's colorspace {colorspace} ({describe_chromaticities(colourspace_chromaticities(colorspace))}); "
+            "write the file's chromaticities into 'colorspace' to read it")
+    decoded_channels = len(names) if header.parts == 1 else header.all_channels
+    decoded = 4 * header.height * header.width * decoded_channels
     if decoded > MAX_DECODED_BYTES:
-        raise DatasetError(f"{path}: its {len(header.channels)} channels would decode to "
+        raise DatasetError(f"{path}: its {decoded_channels} decoded channels would take "
                            f"{decoded / 2**30:.1f} GiB, over the {MAX_DECODED_BYTES / 2**30:.0f} GiB "
                            "ringlight decodes")
     try:
-        with _open_regular(path) as handle:
+        with open_regular(path) as handle:
             problem = chunk_table_problem(handle, os.fstat(handle.fileno()).st_size)
     except OSError as error:
         raise DatasetError(f"{path}: cannot be read ({error.strerror or error})") from None
@@ -187,7 +109,8 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
 
 def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                       expected_shape: tuple[int, int] | None = None, what: str = "image",
-                      size_of: str | None = None) -> np.ndarray:
+                      size_of: str | None = None, part: str | None = None,
+                      colorspace: str | None = None) -> np.ndarray:
     """Read the named channels of an EXR file.
 
     Parameters
@@ -200,10 +123,13 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         ``(height, width)`` the image must have (checked in the header, before decoding).
     what, size_of
         What the file is and what ``expected_shape`` is the size of, for messages.
+    part, colorspace
+        See :func:`check_exr`.
 
     Returns
     -------
-    (H, W, len(names)) float32 array.
+    (H, W, len(names)) float32 array: HALF and FLOAT values exactly, UINT values rounded to
+    float32.
 
     Raises
     ------
@@ -212,25 +138,36 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         library cannot decode; the message names the file.
     """
     path = Path(path)
-    header = check_exr(path, names, expected_shape, what, size_of)
+    header = check_exr(path, names, expected_shape, what, size_of, part, colorspace)
     image = np.empty((header.height, header.width, len(names)), np.float32)
     try:
-        with _quiet_library(), OpenEXR.File(str(path), separate_channels=True) as exr:
-            channels = exr.channels()
-            for index, name in enumerate(names):
-                plane = np.asarray(channels[name].pixels)
-                if plane.shape != (header.height, header.width):
-                    raise DatasetError(f"{path}: channel {name} differs in size from the header's data window")
-                image[..., index] = plane
+        with quiet_library():
+            if header.parts == 1:
+                # The library's channel-selecting reader: other channels are never converted or stored.
+                exr = OpenEXR.InputFile(str(path))
+                try:
+                    planes = exr.channels(list(names), _FLOAT)
+                finally:
+                    exr.close()
+                for index, plane in enumerate(planes):
+                    if len(plane) != 4 * header.height * header.width:
+                        raise DatasetError(f"{path}: channel {names[index]} differs in size from the header's data window")
+                    image[..., index] = np.frombuffer(plane, np.float32).reshape(header.height, header.width)
+            else:
+                with OpenEXR.File(str(path), separate_channels=True) as exr:
+                    if len(exr.parts) != header.parts:  # the library skips a part it cannot decode
+                        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file (a part cannot be decoded)")
+                    channels = exr.parts[header.part].channels
+                    for index, name in enumerate(names):
+                        plane = np.asarray(channels[name].pixels)
+                        if plane.shape != (header.height, header.width):
+                            raise DatasetError(f"{path}: channel {name} differs in size from the header's data window")
+                        image[..., index] = plane
     except DatasetError:
         raise
     except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError for damaged data
-        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({_first_line(error)})") from None
+        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({first_line(error)})") from None
     return image
-
-
-def _first_line(error: Exception) -> str:
-    return (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
 
 
 def read_exr_rgb(path: str | os.PathLike, expected_shape: tuple[int, int] | None = None,

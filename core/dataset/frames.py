@@ -1,11 +1,18 @@
-"""Turning frame files into grid-space radiance: EXR decoding, camera mapping, dark, exposure."""
+"""Turning frame files into grid-space radiance: EXR decoding, camera mapping, dark, exposure.
+
+Frames are read with the manifest's ``channels`` (three for R, G, B; one for a monochrome
+camera, whose value every tool takes as R = G = B), from its ``part``, checked against its
+``colorspace`` (FORMAT.md "Frame files").
+"""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import check_exr, read_exr_channels, read_exr_rgb
+from .exr import check_exr, read_exr_channels
+from .exr_header import frame_channels
 from .manifest import FrameEntry, Manifest
 
 MIN_COVERAGE = 0.01
@@ -15,38 +22,83 @@ MIN_COVERAGE_GRID = 2**20
 """Grids up to this many points are exempt from :data:`MIN_COVERAGE` (their memory is small)."""
 
 
+def dataset_channels(manifest: Manifest, allow_outside: bool = False) -> tuple[str, ...]:
+    """The channels a dataset's frames are read with: the manifest's ``channels``, else R, G, B,
+    or Y when the first frame holds a single Y and no R, G, B (from its header alone)."""
+    if manifest.channels is not None:
+        return manifest.channels
+    return frame_channels(manifest.file_path(manifest.frames[0].file, allow_outside), manifest.part)
+
+
+@numba.njit(cache=True, nogil=True)
+def _map_camera_pixels(y, x, height, width):  # pragma: no cover - compiled
+    """(N,) float32 mapped positions -> (camera pixel, grid point) int32 pairs of the seen ones."""
+    grid_of = np.empty(y.size, np.int32)
+    seen = 0
+    for i in range(y.size):
+        # floor(v + 0.5) in float64, as FORMAT.md's rounding; NaN fails every comparison.
+        row = np.floor(np.float64(y[i]) + 0.5)
+        col = np.floor(np.float64(x[i]) + 0.5)
+        if row >= 0 and row < height and col >= 0 and col < width:
+            grid_of[i] = np.int32(row) * width + np.int32(col)
+            seen += 1
+        else:
+            grid_of[i] = -1
+    pixels = np.empty(seen, np.int32)
+    grid = np.empty(seen, np.int32)
+    at = 0
+    for i in range(y.size):
+        if grid_of[i] >= 0:
+            pixels[at] = i
+            grid[at] = grid_of[i]
+            at += 1
+    return pixels, grid
+
+
+@numba.njit(cache=True, nogil=True)
+def _camera_mean(flat, pixels, grid_index, counts, out):  # pragma: no cover - compiled
+    """out[g] = mean of flat[pixels[i]] over i with grid_index[i] = g; NaN where counts[g] = 0.
+
+    Sums in float64 in camera-pixel order (the order of ``np.bincount``)."""
+    total = np.zeros((out.shape[0], flat.shape[1]), np.float64)
+    for i in range(pixels.size):
+        g = grid_index[i]
+        for c in range(flat.shape[1]):
+            total[g, c] += flat[pixels[i], c]
+    for g in range(out.shape[0]):
+        for c in range(flat.shape[1]):
+            out[g, c] = total[g, c] / counts[g] if counts[g] > 0 else np.nan
+
+
 class CameraMapping:
     """Averages camera pixels onto the grid: grid ``[y, x]`` is the mean of the camera pixels
     whose rounded mapped position is ``[y, x]`` (rounded half up: ``floor(v + 0.5)``).
 
     Built from ``mapping.exr`` (float channels ``y`` and ``x``, NaN where a pixel sees no grid
-    point); positions that round outside the grid are ignored.
+    point); positions that round outside the grid are ignored. Stored compactly: two int32 per
+    seen camera pixel and one int32 count per grid point (8 bytes a camera pixel for a 20 MP
+    camera: 160 MB at most).
     """
 
     def __init__(self, y: np.ndarray, x: np.ndarray, grid_shape: tuple[int, int]):
         height, width = grid_shape
         self.camera_shape = y.shape
-        with np.errstate(invalid="ignore"):
-            row = np.floor(y.astype(np.float64) + 0.5)
-            col = np.floor(x.astype(np.float64) + 0.5)
-            seen = np.isfinite(row) & np.isfinite(col) & (row >= 0) & (row < height) & (col >= 0) & (col < width)
-        self.camera_pixels = np.flatnonzero(seen.ravel())
-        self.grid_index = (row.ravel()[self.camera_pixels] * width + col.ravel()[self.camera_pixels]).astype(np.int64)
-        counts = np.bincount(self.grid_index, minlength=height * width)
-        self.observed = (counts > 0).reshape(grid_shape)
-        self._inverse_counts = np.where(counts > 0, 1.0 / np.maximum(counts, 1), np.nan)
+        self.camera_pixels, self.grid_index = _map_camera_pixels(
+            np.ascontiguousarray(y, np.float32).ravel(), np.ascontiguousarray(x, np.float32).ravel(),
+            height, width)
+        self.counts = np.bincount(self.grid_index, minlength=height * width).astype(np.int32)
+        self.observed = (self.counts > 0).reshape(grid_shape)
         self.grid_shape = grid_shape
 
     def to_grid(self, image: np.ndarray) -> np.ndarray:
-        """(Hc, Wc, 3) camera image -> (H, W, 3) float32 grid image, NaN at unobserved points."""
-        size = self.grid_shape[0] * self.grid_shape[1]
-        flat = image.reshape(-1, 3)[self.camera_pixels].astype(np.float64)
-        grid = np.stack(
-            [np.bincount(self.grid_index, weights=flat[:, c], minlength=size) for c in range(3)],
-            axis=-1,
-        )
-        grid *= self._inverse_counts[:, None]
-        return grid.reshape(*self.grid_shape, 3).astype(np.float32)
+        """(Hc, Wc, C) camera image -> (H, W, C) float32 grid image, NaN at unobserved points.
+
+        Memory: the (H * W, C) float64 sums and the float32 result; no copy of the image."""
+        channels = image.shape[-1]
+        grid = np.empty((self.grid_shape[0] * self.grid_shape[1], channels), np.float32)
+        _camera_mean(np.ascontiguousarray(image, np.float32).reshape(-1, channels), self.camera_pixels,
+                     self.grid_index, self.counts, grid)
+        return grid.reshape(*self.grid_shape, channels)
 
 
 class FrameReader:
@@ -64,6 +116,7 @@ class FrameReader:
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         self.frame_shape, self.size_of = self.grid_shape, "the grid"
+        self.channels = dataset_channels(manifest, allow_outside)
         if manifest.frame_space == "camera":
             mapping_path = manifest.file_path(manifest.mapping, allow_outside)
             header = check_exr(mapping_path, ("y", "x"), what="mapping")
@@ -78,8 +131,8 @@ class FrameReader:
                     "the grid should be the projector region the camera sees")
             # The mapping's size is only known from its own header: the first frame's header must
             # agree before the mapping is decoded, so a small file cannot claim a huge camera.
-            check_exr(manifest.file_path(manifest.frames[0].file, allow_outside), ("R", "G", "B"),
-                      self.frame_shape, "frame", self.size_of)
+            check_exr(manifest.file_path(manifest.frames[0].file, allow_outside), self.channels,
+                      self.frame_shape, "frame", self.size_of, manifest.part, manifest.colorspace)
             yx = read_exr_channels(mapping_path, ("y", "x"), self.frame_shape, "mapping")
             self.mapping = CameraMapping(yx[..., 0], yx[..., 1], self.grid_shape)
             if not self.mapping.observed.any():
@@ -88,7 +141,7 @@ class FrameReader:
         self.dark: np.ndarray | None = None
         if manifest.dark is not None:
             dark_path = manifest.file_path(manifest.dark, allow_outside)
-            dark = read_exr_rgb(dark_path, self.frame_shape, "dark frame", self.size_of)
+            dark = self._read_file(dark_path, "dark frame")
             bad = ~np.isfinite(dark)
             if bad.any():
                 raise DatasetError(f"{dark_path}: {int(bad.sum())} NaN or Inf values in the dark frame")
@@ -101,18 +154,29 @@ class FrameReader:
             return np.ones(self.grid_shape, bool)
         return self.mapping.observed
 
+    @property
+    def monochrome(self) -> bool:
+        """True when frames are read from one channel (a monochrome camera)."""
+        return len(self.channels) == 1
+
+    def _read_file(self, path, what: str) -> np.ndarray:
+        """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame."""
+        return read_exr_channels(path, self.channels, self.frame_shape, what, self.size_of,
+                                 self.manifest.part, self.manifest.colorspace)
+
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
 
     def read(self, frame: FrameEntry) -> tuple[np.ndarray, int]:
-        """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance and how many of
-        its pixel values were NaN or Inf (the caller decides how to report them).
+        """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance (R = G = B for a
+        monochrome camera) and how many of its pixel values were NaN or Inf (the caller decides how
+        to report them).
 
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
         path = self.manifest.file_path(frame.file, self.allow_outside)
-        image = read_exr_rgb(path, self.frame_shape, "frame", self.size_of)
+        image = self._read_file(path, "frame")
         bad = int(np.count_nonzero(~np.isfinite(image)))
         grid = self._to_grid(image)
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
@@ -124,4 +188,7 @@ class FrameReader:
                                "takes values out of float32's range")
         if (~np.isfinite(radiance) & finite).any():
             raise DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
-        return radiance.astype(np.float32, copy=False), bad
+        radiance = radiance.astype(np.float32, copy=False)
+        if self.monochrome:
+            radiance = np.repeat(radiance, 3, axis=-1)
+        return radiance, bad

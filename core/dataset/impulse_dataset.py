@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from . import cache
-from .frames import FrameReader
+from .frames import FrameReader, dataset_channels
 from .manifest import Manifest, read_manifest
 
 ProgressCallback = Callable[[float], None]
@@ -53,6 +53,9 @@ class ImpulseDataset:
         (H, W) int32: frames in which each point was lit; 0 marks a missing point.
     observed
         (H, W) bool: grid points the frames show (camera datasets may miss some).
+    channels
+        The frame channels read: three (R, G, B) or one (a monochrome camera, whose responses
+        hold its value in all three of R, G, B).
     """
 
     manifest: Manifest
@@ -61,6 +64,12 @@ class ImpulseDataset:
     responses: np.ndarray
     lit_counts: np.ndarray
     observed: np.ndarray
+    channels: tuple[str, ...] = ("R", "G", "B")
+
+    @property
+    def monochrome(self) -> bool:
+        """True for a monochrome camera's dataset (grey: R = G = B everywhere)."""
+        return len(self.channels) == 1
 
     @property
     def path(self) -> Path:
@@ -217,6 +226,7 @@ def open_dataset(
             f"(limit {memory_limit / 2**30:.1f} GiB); open with a smaller radius"
         )
     offsets = disc_offsets(max_radius)
+    channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
     location = cache.cache_location(manifest.folder) if use_cache else None
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
     height, width = manifest.height, manifest.width
@@ -232,7 +242,7 @@ def open_dataset(
         progress(1.0)
     return ImpulseDataset(
         manifest=manifest, max_radius=max_radius, offsets=offsets, responses=arrays.responses,
-        lit_counts=arrays.lit_counts, observed=arrays.observed,
+        lit_counts=arrays.lit_counts, observed=arrays.observed, channels=channels,
     )
 
 

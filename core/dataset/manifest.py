@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..colourspaces import is_known_colourspace
+from ..colourspaces import parse_colourspace
 from ..errors import DatasetError
 from ..validation import Validator, read_json, short_repr
 
@@ -23,7 +23,7 @@ MANIFEST_NAME = "dataset.json"
 
 _TOP_KEYS = {
     "format", "version", "grid", "colorspace", "frame_space", "mapping", "max_radius",
-    "frames", "dark", "ground_truth", "notes",
+    "frames", "dark", "ground_truth", "notes", "channels", "part",
 }
 _GRID_KEYS = {"height", "width", "pitch_mm"}
 _FRAME_KEYS = {"file", "lit", "exposure"}
@@ -84,6 +84,8 @@ class Manifest:
     width: int
     pitch_mm: float | None
     colorspace: str
+    """A name in ``colour.RGB_COLOURSPACES``: the manifest's name, or the registered name of its
+    primaries or matrix (:func:`~ringlight.core.colourspaces.parse_colourspace`)."""
     frame_space: str
     mapping: str | None
     max_radius: float | None
@@ -91,6 +93,11 @@ class Manifest:
     dark: str | None
     ground_truth: GroundTruth | None
     notes: str | None
+    channels: tuple[str, ...] | None = None
+    """Frame channels to read: three for R, G, B or one for a monochrome camera; None: R, G, B,
+    or ``Y`` when frames hold a single ``Y`` and no R, G, B (see :mod:`.frames`)."""
+    part: str | None = None
+    """Name of the part of multi-part frames to read; None: the one part holding the channels."""
 
     @property
     def path(self) -> Path:
@@ -181,9 +188,12 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
                            "no projector region is that large")
     pitch_mm = check.positive_number(grid["pitch_mm"], "grid.pitch_mm") if "pitch_mm" in grid else None
 
-    colorspace = check.string(doc.get("colorspace", "sRGB"), "colorspace")
-    if not is_known_colourspace(colorspace):
-        raise DatasetError(f"{where}: 'colorspace' {colorspace!r} is not a colour-science RGB colourspace")
+    try:
+        colorspace = parse_colourspace(doc.get("colorspace", "sRGB"))
+    except ValueError as problem:
+        raise DatasetError(f"{where}: 'colorspace' {problem}") from None
+    channels = _parse_channels(check, doc["channels"]) if "channels" in doc else None
+    part = check.string(doc["part"], "part") if "part" in doc else None
     frame_space = check.string(doc.get("frame_space", "grid"), "frame_space")
     if frame_space not in ("grid", "camera"):
         raise DatasetError(f"{where}: 'frame_space' must be \"grid\" or \"camera\", not {frame_space!r}")
@@ -205,13 +215,23 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
         folder=folder, height=height, width=width, pitch_mm=pitch_mm, colorspace=colorspace,
         frame_space=frame_space, mapping=mapping, max_radius=max_radius, frames=frames, dark=dark,
         ground_truth=_parse_ground_truth(check, doc["ground_truth"]) if "ground_truth" in doc else None,
-        notes=notes,
+        notes=notes, channels=channels, part=part,
     )
     if manifest.multiplexed:
         if max_radius is None:
             raise DatasetError(f"{where}: frames light several points at once, so 'max_radius' is required")
         _check_multiplexed_spacing(where, frames, max_radius)
     return manifest
+
+
+def _parse_channels(check: Validator, value: object) -> tuple[str, ...]:
+    """The ``channels`` key: three distinct non-empty names (R, G, B) or one (monochrome)."""
+    names = tuple(check.string(name, f"channels[{index}]")
+                  for index, name in enumerate(check.sequence(value, "channels")))
+    if len(names) not in (1, 3) or len(set(names)) != len(names) or not all(names):
+        raise DatasetError(f"{check.where}: 'channels' must be three distinct channel names for R, G, B "
+                           f"or one for a monochrome camera, got {short_repr(value)}")
+    return names
 
 
 def _parse_frames(check: Validator, entries: list, height: int, width: int) -> tuple[FrameEntry, ...]:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import Owned, check_output_folder, output_folder
+from ..colourspaces import colourspace_json
 from ..errors import DatasetError
 from ..validation import read_json
 from .cache import CACHE_FOLDER_NAME
@@ -98,7 +99,7 @@ class DatasetWriter:
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
             "grid": {"height": int(grid_shape[0]), "width": int(grid_shape[1])},
-            "colorspace": colorspace,
+            "colorspace": colourspace_json(colorspace),  # a custom space as its primaries or matrix
             "frame_space": frame_space,
             "frames": [],
         }

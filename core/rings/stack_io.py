@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import Owned, check_output_folder, output_folder
+from ..colourspaces import colourspace_json
 from ..dataset.exr import read_exr_rgb, write_exr_rgb
 from ..errors import DatasetError
 from ..validation import read_json
+from .coverage import RingCoverage, coverage_warning
 from .stacks import Stack
 
 STACK_FORMAT = "ringlight-stack"
@@ -44,8 +46,12 @@ def check_stack_target(folder) -> None:
     check_output_folder(folder, stack_files, "stack")
 
 
-def write_stack(stack: Stack, folder, progress: Callable[[float], None] | None = None) -> Path:
+def write_stack(stack: Stack, folder, progress: Callable[[float], None] | None = None,
+                coverage: RingCoverage | None = None) -> Path:
     """Write ``stack`` as ``folder/stack.json`` plus one float EXR per radius, atomically.
+
+    With ``coverage`` (of the stack's rings), ``stack.json`` also holds its per-radius summary
+    under ``"coverage"`` and, when coverage is poor, the warning line under ``"warnings"``.
 
     ``folder`` may be absent, an empty folder or an earlier stack export holding only the files
     its ``stack.json`` names (replaced whole); anything else raises
@@ -58,9 +64,13 @@ def write_stack(stack: Stack, folder, progress: Callable[[float], None] | None =
     manifest = {
         "format": STACK_FORMAT, "version": STACK_VERSION, "kind": stack.kind,
         "radii": [float(r) for r in stack.radii], "thickness": stack.thickness,
-        "step": stack.step, "colorspace": stack.colorspace,
+        "step": stack.step, "colorspace": colourspace_json(stack.colorspace),
         "images": names,
     }
+    if coverage is not None:
+        manifest["coverage"] = coverage.summary()
+        warning = coverage_warning(coverage)
+        manifest["warnings"] = [] if warning is None else [warning]
     with output_folder(folder, stack_files, "stack") as staging:
         for index, name in enumerate(names):
             write_exr_rgb(staging / name, stack.images[index])

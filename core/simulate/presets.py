@@ -1,19 +1,12 @@
-"""Scene presets bundled in ``ringlight.resources.scenes`` and the demo dataset."""
+"""Scene presets bundled in ``ringlight.resources.scenes``."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
-from ..dataset.cache import user_cache_root
 from .scene import Scene, SceneError, parse_scene, read_scene
-
-DEMO_PRESET = "red-bead"
-DEMO_SIZE = (32, 32)
-DEMO_PHOTONS = 1500
-DEMO_MEASURE = "camera"
 
 
 def preset_names() -> list[str]:
@@ -40,23 +33,3 @@ def load_scene(name_or_path: str, size: tuple[int, int] | None = None) -> Scene:
     if not path.exists() and path.suffix != ".json":
         raise SceneError(f"{name_or_path}: neither a preset ({', '.join(preset_names())}) nor a scene file")
     return read_scene(path, size=size)
-
-
-def demo_dataset_path() -> Path:
-    """Where the demo dataset lives (made on first use by :func:`ensure_demo_dataset`); the name
-    carries the measure, so that a demo made before the camera measure (exitance) is not reused."""
-    return user_cache_root() / f"demo-{DEMO_PRESET}-{DEMO_SIZE[0]}x{DEMO_SIZE[1]}-{DEMO_PHOTONS}-{DEMO_MEASURE}"
-
-
-def ensure_demo_dataset(progress=None) -> Path:
-    """Make the demo dataset (the red-bead preset at 32 x 32, 1500 photons per point, seed 0,
-    the camera measure) in the user cache folder if it is not there yet; returns its folder."""
-    from ..dataset.writer import is_dataset_folder
-    from .transport import simulate_transport, write_transport
-
-    path = demo_dataset_path()
-    if not is_dataset_folder(path):
-        scene = replace(load_scene(DEMO_PRESET, size=DEMO_SIZE), measure=DEMO_MEASURE)
-        transport = simulate_transport(scene, photons=DEMO_PHOTONS, progress=progress)
-        write_transport(transport, path, overwrite=True)
-    return path

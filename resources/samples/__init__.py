@@ -1,0 +1,1 @@
+"""Bundled sample datasets (see ringlight.core.simulate.samples)."""
