@@ -130,7 +130,7 @@ class CaptureTab(QObject):
 
     def fit_colour(self, corners: list) -> None:
         if self.white is None:
-            self.error.emit("Capture", "Capture the chart under white first (step 4, Colour).")
+            self.error.emit("Capture", "Capture the chart first (step 4, Colour: Capture chart).")
             return
         white = self.white
         self._start("colour", "Fitting the colour matrix", lambda progress: calibrate_colour(white, corners))

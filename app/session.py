@@ -20,6 +20,7 @@ from ringlight.core.dataset.ground_truth import (
     read_path_length_images,
     stack_correlations,
 )
+from ringlight.core.rings.coverage import coverage_warning, ring_coverage
 from ringlight.core.rings.profiles import ProfileRings, profile_rings
 from ringlight.core.rings.stack_request import (
     StackPair,
@@ -44,11 +45,17 @@ class ViewStacks:
     ----------
     correlations
         (n,) NCC of each T_r with its nearest ground-truth bin, or None without ground truth.
+    poor_coverage
+        (n,) bool: radii whose rings the dataset's lit points cover poorly
+        (:func:`ringlight.core.rings.coverage.coverage_warning`); ``coverage_note`` its one line,
+        or None when every ring is well covered.
     """
 
     pair: StackPair
     rings: ProfileRings
     correlations: np.ndarray | None
+    poor_coverage: np.ndarray
+    coverage_note: str | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,8 +125,9 @@ def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None,
     correlations = None
     if truth is not None:
         correlations = stack_correlations(pair.radii, request.dr, pair.transient.images, truth)
+    coverage = ring_coverage(dataset, pair.radii, request.thickness)
     progress(1.0)
-    return ViewStacks(pair, rings, correlations)
+    return ViewStacks(pair, rings, correlations, coverage.poor(), coverage_warning(coverage))
 
 
 def _serves(dataset: ImpulseDataset, request: StackRequest) -> bool:

@@ -340,6 +340,9 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.stacks = stacks
         self._global_levels.clear()
         self.scrub_bar.set_radii(stacks.pair.radii)
+        self.scrub_bar.set_poor_coverage(stacks.poor_coverage)
+        if stacks.coverage_note is not None:
+            self.statusBar().showMessage(stacks.coverage_note[0].upper() + stacks.coverage_note[1:], 15000)
         self._refresh_all()
         self.layer_tab.set_data(self.loaded.dataset, stacks.pair.transient)
         self.stacks_ready.emit()

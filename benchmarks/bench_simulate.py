@@ -28,6 +28,7 @@ from ringlight.core.rings.geometry import ring_geometry
 from ringlight.core.simulate.camera import optics
 from ringlight.core.simulate.photon import total_run
 from ringlight.core.simulate.presets import load_scene
+from ringlight.core.simulate.tables import single_channel_tables
 from ringlight.core.simulate.transport import simulate_transport
 
 CASES = {
@@ -45,15 +46,15 @@ def photon_rates(photons: int) -> None:
     volume = np.zeros((1, 1, 1), np.uint8)
     for name, case in CASES.items():
         mu_t = case["mua"] + case["mus"]
-        tables = (np.array([mu_t]), np.array([case["mus"] / mu_t]), np.array([case["g"]]))
+        tables = single_channel_tables([mu_t], [case["mus"] / mu_t], [case["g"]])
         geometry = optics(case["n"], case["depth"], uniform_mu_t=mu_t)
         count = photons if case["g"] else photons // 4
         print(name)
         for measure in MEASURES:
             camera = measure == "camera"
-            total_run(volume, *tables, mu_t, geometry, camera, 1000, 0, 0)
+            total_run(volume, *tables, geometry, camera, 1000, 0, 0)
             start = time.perf_counter()
-            total, total_sq = total_run(volume, *tables, mu_t, geometry, camera, count, 1, 0)
+            (total,), (total_sq,) = total_run(volume, *tables, geometry, camera, count, 1, 0)
             seconds = time.perf_counter() - start
             mean = total / count
             error = math.sqrt((total_sq / count - mean * mean) / count)

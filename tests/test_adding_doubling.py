@@ -12,6 +12,7 @@ from ringlight.core.simulate.adding_doubling import (
     thick_slab_reflectance,
 )
 from ringlight.core.simulate.photon import reflectance_run
+from ringlight.core.simulate.tables import single_channel_tables
 
 
 def chandrasekhar_h_at_one(albedo: float, nodes: int = 200) -> float:
@@ -77,8 +78,8 @@ def test_mismatched_half_space_matches_giovanelli():
 def test_mismatched_half_space_matches_the_simulators_monte_carlo(mus, mua, g, n):
     photons = 200_000
     mu_t = mus + mua
-    total, squares = reflectance_run(np.zeros((1, 1, 1), np.uint8), np.array([mu_t]), np.array([mus / mu_t]),
-                                     np.array([g]), mu_t, n, np.inf, photons, 3, 0)
+    tables, majorant = single_channel_tables([mu_t], [mus / mu_t], [g])
+    (total,), (squares,) = reflectance_run(np.zeros((1, 1, 1), np.uint8), tables, majorant, n, np.inf, photons, 3, 0)
     # The exitance run scores per photon that got in: per incident power, times 1 - specular.
     mean = total / photons * (1 - specular(n))
     error = math.sqrt(max(squares / photons - (total / photons) ** 2, 0.0) / photons) * (1 - specular(n))

@@ -26,6 +26,7 @@ from ringlight.core.simulate.camera import (
 from ringlight.core.simulate.photon import simulate_points, total_run
 from ringlight.core.simulate.presets import load_scene
 from ringlight.core.simulate.scene import parse_scene
+from ringlight.core.simulate.tables import single_channel_tables, walk_tables
 from ringlight.core.simulate.transport import (
     simulate_transport,
     simulated_measure,
@@ -49,8 +50,8 @@ def chandrasekhar_h(albedo: float, mu: np.ndarray, nodes: int = 64) -> np.ndarra
 
 def total(mu_t, albedo, g, geometry, camera, photons, seed):
     """Mean total score per photon over the whole surface and its standard error."""
-    sums, squares = total_run(ONE_VOXEL, np.array([mu_t]), np.array([albedo]), np.array([g]), mu_t,
-                              geometry, camera, photons, seed, 0)
+    (sums,), (squares,) = total_run(ONE_VOXEL, *single_channel_tables([mu_t], [albedo], [g]), geometry, camera,
+                                    photons, seed, 0)
     mean = sums / photons
     return mean, math.sqrt(max(squares / photons - mean * mean, 0.0) / photons)
 
@@ -160,9 +161,10 @@ def test_voxel_traversal_gives_the_optical_depth_along_oblique_paths():
         zenith, azimuth = rng.uniform(0, 60), rng.uniform(0, 360)
         view = optics(1.3, 6.0, camera=(zenith, azimuth))[VIEW_Y:VIEW_Z + 1]
         z, y, x = rng.uniform(0.1, 5.9), rng.uniform(-2, 6), rng.uniform(-2, 8)
-        exact = optical_depth_to_surface(volume, mu_t, z, y, x, *view, 1e9)
-        reference = brute_optical_depth(volume, mu_t, z, y, x, view)
-        assert exact == pytest.approx(reference, rel=1e-3)
+        exact = np.zeros(2)
+        optical_depth_to_surface(volume, np.stack([mu_t, 2 * mu_t[::-1]]), z, y, x, *view, 1e9, exact)
+        reference = [brute_optical_depth(volume, table, z, y, x, view) for table in (mu_t, 2 * mu_t[::-1])]
+        np.testing.assert_allclose(exact, reference, rtol=1e-3)
 
 
 def test_layered_oblique_camera_simulation_is_deterministic_whatever_the_thread_count():
@@ -192,13 +194,14 @@ def test_datasets_say_which_measure_they_hold(tmp_path):
 def test_the_column_table_of_a_straight_down_camera_gives_the_traversals_result():
     # Both are exact, so the same walks give the same frames up to rounding.
     scene = load_scene("red-bead", size=(6, 6))
-    mu_t, albedo, g = (np.array(values) for values in zip(*[
-        (m.mus[0] + m.mua[0], m.mus[0] / (m.mus[0] + m.mua[0]), m.g) for m in scene.materials]))
+    mus = np.array([m.mus[0] for m in scene.materials])
+    mua = np.array([[m.mua[c] for m in scene.materials] for c in range(3)])
+    tables, majorant = walk_tables(mus, mua, np.array([m.g for m in scene.materials]))
     lit = np.array([[2, 3], [4, 1]])
     frames = []
-    for columns in (column_optical_depths(scene.volume, mu_t), np.zeros((0, 0, 0))):
-        windows, truth = np.zeros((2, 9, 9)), np.zeros((2, 8, 6, 6))
-        simulate_points(scene.volume, mu_t, albedo, g, mu_t.max(), optics(1.4, scene.depth), columns, True,
+    for columns in (column_optical_depths(scene.volume, mus + mua), np.zeros((0, 0, 0, 0))):
+        windows, truth = np.zeros((2, 9, 9, 3)), np.zeros((2, 8, 6, 6, 3))
+        simulate_points(scene.volume, tables, majorant, optics(1.4, scene.depth), columns, True,
                         lit, 300, 3, np.array([0, 1]), 1.0, windows, truth)
         frames.append(windows)
     assert frames[0].sum() > 0

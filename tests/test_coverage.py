@@ -128,3 +128,36 @@ def test_the_stack_command_writes_coverage_and_its_warning(tmp_path, capsys):
                  "--interpolate"]) == 0
     assert "warning" not in capsys.readouterr().out
     assert json.loads((tmp_path / "out2" / "stack.json").read_text())["warnings"] == []
+
+
+def test_the_explorer_hatches_the_radii_of_poor_coverage_on_the_scrub_bar(qtbot):
+    pytest.importorskip("PySide6")
+    from PySide6.QtGui import QColor
+    from ringlight.app.session import compute_view_stacks
+    from ringlight.core.rings.stack_request import default_request
+    from ringlight.widgets.scrub_bar import ScrubBar
+
+    bar = ScrubBar()
+    qtbot.addWidget(bar)
+    bar.resize(600, 60)
+    for spacing in (1, 4):
+        dataset = slab(spacing)
+        stacks = compute_view_stacks(dataset, None, default_request(dataset.max_radius), lambda fraction: None)
+        expected = ring_coverage(dataset, stacks.pair.radii).poor()
+        np.testing.assert_array_equal(stacks.poor_coverage, expected)
+        assert (stacks.coverage_note is None) == (spacing == 1) and expected.any() == (spacing == 4)
+        bar.set_radii(stacks.pair.radii)
+        bar.set_poor_coverage(stacks.poor_coverage)
+        strip = bar.snr_strip
+        image = strip.grab().toImage()
+        count = len(stacks.pair.radii)
+        for index in range(count):
+            # The middle of cell i: red hatch lines cross every cell of poor coverage, no other.
+            left = strip._margin + (strip.width() - 2 * strip._margin) * index // count
+            right = strip._margin + (strip.width() - 2 * strip._margin) * (index + 1) // count
+            reds = [QColor(image.pixel(x, y)).red() > 200 and QColor(image.pixel(x, y)).green() < 100
+                    for x in range(left + 1, right - 1) for y in range(strip.height())]
+            assert any(reds) == bool(expected[index]), (spacing, index)
+        if spacing == 4:
+            poor = int(np.nonzero(expected)[0][0])
+            assert "poor ring coverage" in strip.tooltip_text(poor)

@@ -12,6 +12,7 @@ from ringlight.core.simulate.lattice import lattice_frames
 from ringlight.core.simulate.photon import reflectance_run, trace_events
 from ringlight.core.simulate.presets import load_scene, preset_names
 from ringlight.core.simulate.scene import SceneError, parse_scene
+from ringlight.core.simulate.tables import single_channel_tables, walk_tables
 from ringlight.core.simulate.transport import (
     simulate_transport,
     simulated_measure,
@@ -24,9 +25,8 @@ ONE_VOXEL = np.zeros((1, 1, 1), np.uint8)
 def reflectance(mua, mus, g, n, depth, photons, stream=0):
     """Total diffuse reflectance (specular excluded, entry loss included) and its standard error."""
     mu_t = mua + mus
-    total, total_sq = reflectance_run(
-        ONE_VOXEL, np.array([mu_t]), np.array([mus / mu_t]), np.array([g]), mu_t, n, depth,
-        photons, 7, stream)
+    (total,), (total_sq,) = reflectance_run(ONE_VOXEL, *single_channel_tables([mu_t], [mus / mu_t], [g]), n, depth,
+                                            photons, 7, stream)
     mean = total / photons
     error = math.sqrt(max(total_sq / photons - mean * mean, 0.0) / photons)
     keep = 1.0 - specular_reflectance(n)
@@ -74,8 +74,8 @@ def test_far_field_radial_profile_follows_the_diffusion_dipole_in_shape():
     mua, mus = 0.01, 1.0
     volume = np.zeros((1, 1, 1), np.uint8)
     photons = 300_000
-    exits = trace_events(volume, np.array([mua + mus]), np.array([mus / (mua + mus)]), np.array([0.0]),
-                         mua + mus, optics(1.0, np.inf), False, 0.0, 0.0, photons, 3, 0, photons)
+    exits = trace_events(volume, *single_channel_tables([mua + mus], [mus / (mua + mus)], [0.0]),
+                         optics(1.0, np.inf), False, 0.0, 0.0, photons, 3, 0, photons)
     rho = np.hypot(exits[:, 3] - exits[:, 1], exits[:, 4] - exits[:, 2])
     edges = np.linspace(4, 16, 9)
     weights, _ = np.histogram(rho, edges, weights=exits[:, 6])
@@ -105,7 +105,7 @@ def test_path_length_is_never_shorter_than_the_surface_distance(camera, view):
     channel = 1
     mu_t = np.array([m.mus[channel] + m.mua[channel] for m in scene.materials])
     albedo = np.array([m.mus[channel] for m in scene.materials]) / mu_t
-    events = trace_events(scene.volume, mu_t, albedo, np.zeros(3), mu_t.max(),
+    events = trace_events(scene.volume, *single_channel_tables(mu_t, albedo, np.zeros(3)),
                           optics(1.4, scene.depth, camera=view), camera, 4.0, 4.0, 5_000, 1, 0, 2_000_000)
     distance = np.hypot(events[:, 3] - events[:, 1], events[:, 4] - events[:, 2])
     assert len(events) > 1_000
@@ -121,12 +121,13 @@ def test_impulse_reflectance_equals_the_sum_of_its_path_length_images():
     truth_total = transport_one.path_length_images.sum(axis=(0, 1, 2))
     # Every exit lands inside both the window and the bins here (checked on the photons themselves).
     # The same photons, replayed one by one: point [20, 20]'s random stream is its grid index.
-    done = trace_events(scene.volume, np.array([1.3]), np.array([1 / 1.3]), np.zeros(1), 1.3,
-                        optics(1.0, scene.depth, uniform_mu_t=1.3), True, 20.0, 20.0, 3000, 5, 20 * 41 + 20,
-                        1_000_000)
+    # The scene's three channels share walks (same mus): channel 0 alone replays the same walk.
+    tables, majorant = walk_tables([1.0], [[0.3], [0.6], [0.9]], [0.0])
+    done = trace_events(scene.volume, tables, majorant, optics(1.0, scene.depth, uniform_mu_t=0.0), True, 20.0,
+                        20.0, 3000, 5, 20 * 41 + 20, 1_000_000)
     assert np.abs(np.floor(done[:, 3:5] + 0.5) - 20).max() <= 20 and done[:, 5].max() < 400
     np.testing.assert_allclose(impulse_total, truth_total, rtol=1e-5)
-    np.testing.assert_allclose(impulse_total[0], done[:, 6].sum() / 3000, rtol=1e-5)
+    np.testing.assert_allclose(impulse_total, done[:, 6:9].sum(axis=0) / 3000, rtol=1e-5)
 
 
 def test_simulation_is_deterministic_whatever_the_thread_count():

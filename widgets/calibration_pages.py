@@ -148,11 +148,14 @@ class ColourPage(QWidget):
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
         self.corners: list[tuple[int, int]] = []
-        self.capture_button = QPushButton("Capture the chart under white")
+        # Short labels, the full action in the tooltip: the page fits beside the step list at 1366 px.
+        self.capture_button = QPushButton("Capture chart")
+        self.capture_button.setToolTip("Capture the ColorChecker under the projector's white")
         self.capture_button.clicked.connect(self.chart_requested)
         self.clear_button = QPushButton("Clear points")
         self.clear_button.clicked.connect(self.clear_corners)
-        self.fit_button = QPushButton("Fit the colour matrix")
+        self.fit_button = QPushButton("Fit matrix")
+        self.fit_button.setToolTip("Fit the camera RGB to CIE XYZ matrix to the four picked patches")
         self.fit_button.clicked.connect(lambda: self.fit_requested.emit(list(self.corners)))
         self.view = ImagePanel("ColorChecker under the projector's white: click the four corner patches")
         self.points = pg.ScatterPlotItem(symbol="o", size=12, pen=pg.mkPen("#ffd600", width=2), brush=None)

@@ -107,6 +107,7 @@ class ScrubBar(QWidget):
         self.slider.blockSignals(False)
         self.setEnabled(len(self._radii) > 0)
         self.snr_strip.set_values(self._radii, None)
+        self.snr_strip.set_poor_coverage(None)
         self.snr_strip.set_current(index)
         self._update_label()
 
@@ -128,6 +129,12 @@ class ScrubBar(QWidget):
         """Colour the strip under the slider with (len(radii),) ``snr``, one per radius, as
         ``description`` names it (shown in the tooltip); None clears it."""
         self.snr_strip.set_values(self._radii, snr, description)
+        self._align_strip()
+
+    def set_poor_coverage(self, poor: np.ndarray | None) -> None:
+        """Hatch the strip's cells of the radii where ``poor`` ((len(radii),) bool) is set: the
+        dataset's lit points cover those rings poorly (:mod:`ringlight.core.rings.coverage`)."""
+        self.snr_strip.set_poor_coverage(poor)
         self._align_strip()
 
     def set_fps(self, fps: int) -> None:

@@ -1,10 +1,11 @@
-"""A strip of one coloured cell per radius: a per-radius SNR summary under the scrub slider."""
+"""A strip of one coloured cell per radius under the scrub slider: a per-radius SNR summary,
+hatched where the dataset's lit points cover the ring poorly."""
 
 from __future__ import annotations
 
 import numpy as np
-from PySide6.QtCore import QEvent, QRect, QSize
-from PySide6.QtGui import QColor, QPainter, QPen
+from PySide6.QtCore import QEvent, QRect, QSize, Qt
+from PySide6.QtGui import QBrush, QColor, QPainter, QPen
 from PySide6.QtWidgets import QToolTip, QWidget
 
 from .snr_colours import SNR_COLORMAP, SNR_LEVELS, TRUSTED_SNR, snr_rgb
@@ -12,8 +13,9 @@ from .snr_colours import SNR_COLORMAP, SNR_LEVELS, TRUSTED_SNR, snr_rgb
 
 class SnrStrip(QWidget):
     """Cells for (n,) SNR values on the shared scale (:mod:`.snr_colours`), the current one
-    outlined; hovering a cell shows its radius and number. ``margin`` (pixels) insets the cells
-    on both sides so that cell i sits under the slider's handle at value i."""
+    outlined, radii of poor ring coverage hatched in red; hovering a cell shows its radius and
+    numbers. ``margin`` (pixels) insets the cells on both sides so that cell i sits under the
+    slider's handle at value i."""
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
@@ -22,6 +24,7 @@ class SnrStrip(QWidget):
         self._description = ""
         self._current = -1
         self._margin = 0
+        self._poor = np.zeros(0, bool)
         self.setFixedHeight(10)
 
     def set_values(self, radii: np.ndarray, snr: np.ndarray | None, description: str = "") -> None:
@@ -31,6 +34,16 @@ class SnrStrip(QWidget):
         self._snr = np.zeros(0) if snr is None else np.asarray(snr, np.float64)
         self._description = description
         self.update()
+
+    def set_poor_coverage(self, poor: np.ndarray | None) -> None:
+        """Hatch the cells of radii where ``poor`` ((n,) bool, one per radius) is set; None
+        clears the marks."""
+        self._poor = np.zeros(0, bool) if poor is None else np.asarray(poor, bool)
+        self.update()
+
+    def poor_coverage(self) -> np.ndarray:
+        """(n,) bool: the radii marked for poor coverage (empty when none were given)."""
+        return self._poor
 
     def values(self) -> np.ndarray:
         """(n,) SNR shown now (empty when cleared)."""
@@ -47,9 +60,12 @@ class SnrStrip(QWidget):
     def sizeHint(self) -> QSize:
         return QSize(200, 10)
 
+    def _count(self) -> int:
+        return max(len(self._snr), len(self._poor)) if len(self._radii) else 0
+
     def cell_at(self, x: float) -> int | None:
         """Index of the cell under widget x coordinate ``x``, or None."""
-        count = len(self._snr)
+        count = self._count()
         width = self.width() - 2 * self._margin
         if not count or width <= 0:
             return None
@@ -57,24 +73,32 @@ class SnrStrip(QWidget):
         return index if 0 <= index < count else None
 
     def tooltip_text(self, index: int) -> str:
+        coverage = ("\npoor ring coverage: few lit points near this radius bias the ring mean"
+                    if index < len(self._poor) and self._poor[index] else "")
+        if index >= len(self._snr):
+            return f"r = {self._radii[index]:g}: noise not estimated yet{coverage}"
         value = self._snr[index]
         number = ("undefined (fewer than 2 ring members)" if np.isnan(value) else
                   "inf (standard error 0: the ring members agree exactly)" if np.isinf(value) else f"{value:.3g}")
         verdict = "" if np.isnan(value) else (" >= " if value >= TRUSTED_SNR else " < ") + f"{TRUSTED_SNR:g}"
         return (f"r = {self._radii[index]:g}: {self._description} {number}{verdict}\n"
-                f"colour: {SNR_COLORMAP} over SNR {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g}")
+                f"colour: {SNR_COLORMAP} over SNR {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g}{coverage}")
 
     def paintEvent(self, event) -> None:
-        count = len(self._snr)
+        count = self._count()
         if not count:
             return
         painter = QPainter(self)
         width = self.width() - 2 * self._margin
         colours = snr_rgb(self._snr)
         edges = self._margin + np.round(np.arange(count + 1) * width / count).astype(int)
+        hatch = QBrush(QColor("#e53935"), Qt.BrushStyle.BDiagPattern)
         for index in range(count):
-            painter.fillRect(QRect(edges[index], 0, max(edges[index + 1] - edges[index], 1), self.height()),
-                             QColor(*map(int, colours[index])))
+            cell = QRect(edges[index], 0, max(edges[index + 1] - edges[index], 1), self.height())
+            if index < len(self._snr):
+                painter.fillRect(cell, QColor(*map(int, colours[index])))
+            if index < len(self._poor) and self._poor[index]:
+                painter.fillRect(cell, hatch)
         if 0 <= self._current < count:
             painter.setPen(QPen(QColor("#ffd600"), 2))
             painter.drawRect(QRect(edges[self._current] + 1, 1,

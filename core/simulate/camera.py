@@ -55,6 +55,7 @@ import numba
 import numpy as np
 
 from .streams import uniform
+from .tables import ANISOTROPY, MU_T
 
 OPTICAL_DEPTH_CUTOFF = 40.0
 ROULETTE_DEPTH = 6.0
@@ -116,8 +117,8 @@ def optics(n: float, depth: float, projector=(0.0, 0.0), camera=(0.0, 0.0),
     projector, camera
         ``[zenith, azimuth]`` in degrees, zenith in [0, 90).
     uniform_mu_t
-        ``mu_t`` per grid step when it is the same in every voxel (the traversal is then
-        skipped), else negative.
+        Non-negative when each channel's ``mu_t`` is the same in every voxel (the estimate then
+        takes the scattering voxel's and skips the traversal), else negative.
     """
     values = np.zeros(OPTICS_SIZE)
     values[INDEX], values[DEPTH], values[UNIFORM_MU_T] = n, depth, uniform_mu_t
@@ -142,31 +143,35 @@ def henyey_greenstein(cos_angle, g):
 
 
 def column_optical_depths(volume: np.ndarray, mu_t: np.ndarray, camera=(0.0, 0.0)) -> np.ndarray:
-    """(D, H, W) float64 optical depth from the top of voxel ``[z, y, x]`` straight up to the
-    surface, for a camera straight down in a heterogeneous volume of at most
-    :data:`MAX_COLUMN_VOXELS` voxels (the estimate then needs no traversal); else an empty
-    (0, 0, 0) array."""
+    """(C, D, H, W) float64 optical depth per channel (``mu_t`` (C, materials), or (materials,)
+    for one) from the top of voxel ``[z, y, x]`` straight up to the surface, for a camera
+    straight down in a heterogeneous volume of at most :data:`MAX_COLUMN_VOXELS` voxels per
+    channel (the estimate then needs no traversal); else an empty (0, 0, 0, 0) array."""
     if camera[0] != 0.0 or volume.size > MAX_COLUMN_VOXELS:
-        return np.zeros((0, 0, 0))
-    above = np.cumsum(mu_t[volume], axis=0)
-    return np.concatenate([np.zeros((1,) + volume.shape[1:]), above[:-1]])
+        return np.zeros((0, 0, 0, 0))
+    per_voxel = np.atleast_2d(mu_t)[:, volume]
+    above = np.cumsum(per_voxel, axis=1)
+    return np.concatenate([np.zeros((per_voxel.shape[0], 1) + volume.shape[1:]), above[:, :-1]], axis=1)
 
 
 @numba.njit(cache=True, inline="always")
-def _column_optical_depth(volume, mu_t, columns, z, y, x):
-    """Optical depth straight up from ``(z, y, x)``: the voxels above, then this one's part."""
+def _column_optical_depths(volume, tables, columns, material, z, y, x, out):
+    """Optical depth per channel straight up from ``(z, y, x)`` (in ``material``) into ``out``:
+    the voxels above, then this one's part."""
     layers, height, width = volume.shape
     iz = min(int(z), layers - 1)
     iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
     ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
-    return columns[iz, iy, ix] + mu_t[volume[iz, iy, ix]] * (z - iz)
+    for c in range(out.shape[0]):
+        out[c] = columns[c, iz, iy, ix] + tables[MU_T + c, material] * (z - iz)
 
 
 @numba.njit(cache=True)
-def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit):
-    """Optical depth from ``(z, y, x)`` along ``(vy, vx, vz)`` (``vz < 0``) up to ``z = 0``,
-    exact for the voxel volume (which repeats its edge voxels sideways); stops early, returning
-    a value above ``limit``, once past it."""
+def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit, out):
+    """Optical depth per channel (``mu_t`` (C, materials)) from ``(z, y, x)`` along
+    ``(vy, vx, vz)`` (``vz < 0``) up to ``z = 0``, into ``out`` (C,), exact for the voxel volume
+    (which repeats its edge voxels sideways); stops early, with every channel above ``limit``,
+    once they all are past it."""
     length = z / -vz
     layers, height, width = volume.shape
     iz = min(int(z), layers - 1)
@@ -188,19 +193,23 @@ def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit):
     else:
         next_x, step_x, move_x = math.inf, math.inf, 0
     travelled = 0.0
-    tau = 0.0
+    channels = out.shape[0]
+    out[:] = 0.0
     while True:
         face = min(next_z, next_y, next_x, length)
         material = volume[iz, min(max(iy, 0), height - 1), min(max(ix, 0), width - 1)]
-        tau += mu_t[material] * (face - travelled)
-        if face >= length or tau > limit:
-            return tau
+        least = math.inf
+        for c in range(channels):
+            out[c] += mu_t[c, material] * (face - travelled)
+            least = min(least, out[c])
+        if face >= length or least > limit:
+            return
         travelled = face
         if face == next_z:
             iz -= 1
             next_z += step_z
             if iz < 0:  # rounding: the surface is reached
-                return tau
+                return
         elif face == next_y:
             iy += move_y
             next_y += step_y
@@ -210,38 +219,46 @@ def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit):
 
 
 @numba.njit(cache=True)
-def camera_estimate(state, volume, mu_t, columns, view, weight, g, z, y, x, uy, ux, uz):
-    """Next-event estimate toward the camera from a scattering at ``(z, y, x)`` of a photon of
-    weight ``weight`` (after the albedo) arriving along ``(uy, ux, uz)``; ``view`` is
-    :func:`view_constants` of the optics, ``columns`` :func:`column_optical_depths` (or an
-    empty array), ``state`` the estimator's own random stream (for the roulette).
+def camera_estimate(state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values):
+    """Next-event estimate toward the camera from a scattering at ``(z, y, x)``, in
+    ``material``, of a photon of ``weights`` (C,) (after the collision's factor) arriving along
+    ``(uy, ux, uz)``; ``tables`` is :func:`ringlight.core.simulate.tables.walk_tables`, ``view``
+    :func:`view_constants` of the optics, ``columns`` :func:`column_optical_depths` (or an empty
+    array), ``state`` the estimator's own random stream (for the roulette, played on the least
+    attenuated channel).
 
-    Returns ``(value, exit_y, exit_x, distance)``: the contribution to the reflectance factor
-    of the pixel around ``(exit_y, exit_x)`` where the path to the camera leaves the surface,
-    and that path's length inside, ``z / cos th_i`` (value 0 when none).
+    Writes into ``values`` (C,) the contribution to the reflectance factor of the pixel around
+    the point where the path to the camera leaves the surface, and returns ``(exit_y, exit_x,
+    distance, scored)``: that point, the path's length inside, ``z / cos th_i``, and whether
+    anything was scored.
     """
     vy, vx, vz, factor, uniform_mu_t = view
     distance = z / -vz
     scale = 1.0
+    channels = values.shape[0]
+    mu_t = tables[MU_T:MU_T + channels]
     # A homogeneous volume needs no traversal (nor the call, whose array arguments cost about
     # as much as the rest of the estimate).
     if uniform_mu_t >= 0.0:
-        tau = uniform_mu_t * distance
+        for c in range(channels):
+            values[c] = mu_t[c, material] * distance
     elif columns.shape[0] > 0:
-        tau = _column_optical_depth(volume, mu_t, columns, z, y, x)
+        _column_optical_depths(volume, tables, columns, material, z, y, x, values)
     else:
-        tau = optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, ROULETTE_DEPTH)
-    if tau > ROULETTE_DEPTH:
+        optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, ROULETTE_DEPTH, values)
+    if values.min() > ROULETTE_DEPTH:
         if uniform(state) >= ROULETTE_SURVIVAL:
-            return 0.0, y, x, distance
+            return y, x, distance, False
         scale = 1.0 / ROULETTE_SURVIVAL
         if uniform_mu_t < 0.0 and columns.shape[0] == 0:
-            tau = optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, OPTICAL_DEPTH_CUTOFF)
-        if tau > OPTICAL_DEPTH_CUTOFF:
-            return 0.0, y, x, distance
-    phase = henyey_greenstein(uy * vy + ux * vx + uz * vz, g)
-    value = scale * factor * weight * phase * math.exp(-tau)
-    return value, y + distance * vy, x + distance * vx, distance
+            optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, OPTICAL_DEPTH_CUTOFF, values)
+        if values.min() > OPTICAL_DEPTH_CUTOFF:
+            return y, x, distance, False
+    common = scale * factor * henyey_greenstein(uy * vy + ux * vx + uz * vz, tables[ANISOTROPY, material])
+    for c in range(channels):
+        # values holds each channel's optical depth; past the cutoff a channel adds nothing.
+        values[c] = common * weights[c] * math.exp(-values[c]) if values[c] <= OPTICAL_DEPTH_CUTOFF else 0.0
+    return y + distance * vy, x + distance * vx, distance, True
 
 
 @numba.njit(cache=True, inline="always")

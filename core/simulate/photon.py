@@ -2,32 +2,37 @@
 
 Units: lengths in grid steps, coefficients per grid step. Depth ``z`` grows downward from the
 surface ``z = 0``; lateral position ``(y, x)`` in grid coordinates (pixel centres on integers).
-One photon (scalar weight, one colour channel) enters at a given point; the scene's geometry
-comes in an ``optics`` array (:func:`ringlight.core.simulate.camera.optics`):
+One photon enters at a given point carrying one weight per colour channel of its walk (channels
+that scatter alike share walks: :mod:`ringlight.core.simulate.tables`, whose ``tables`` array
+every kernel takes); the scene's geometry comes in an ``optics`` array
+(:func:`ringlight.core.simulate.camera.optics`):
 
 - Entry: the beam refracts in along the projector's direction; the photon starts with the
   Fresnel transmission at that angle as its weight (the specular part is not simulated).
-- Free paths by delta (Woodcock) tracking against a majorant of mu_t, so heterogeneous voxels
-  need no ray marching; a tentative collision is real with probability mu_t(voxel) / majorant.
-- At a real collision the weight is multiplied by the albedo (implicit capture) and the photon
-  scatters by Henyey-Greenstein; below weight 1e-4 Russian roulette keeps 1 in 10.
+- Free paths by delta (Woodcock) tracking against a majorant, so heterogeneous voxels need no
+  ray marching; a tentative collision is real with probability ``mu_w / majorant``, and each
+  channel's weight takes the factors of :mod:`.tables` (with one channel: implicit capture,
+  the weight times the albedo at a real collision).
+- At a real collision the photon scatters by Henyey-Greenstein; once every channel's weight is
+  below 1e-4, Russian roulette keeps 1 in 10.
 - At the surface, unpolarised Fresnel reflection with total internal reflection, sampled
   (reflect with probability R, else exit with the full weight); through ``z = depth`` it is lost.
 
-What is scored (each score is a value at a surface position with a path length inside):
+What is scored (each score is a value per channel at a surface position with a path length):
 
-- ``camera`` measure: at every real scattering, after the albedo, the next-event estimate of
-  the light leaving toward the camera (:func:`ringlight.core.simulate.camera.camera_estimate`),
-  at the pixel where the path to the camera meets the surface, with path length the length so
-  far plus that path's. The walk itself goes on unchanged, so its analogue exits are not scored.
-- ``exitance`` measure: the weight of each photon that leaves, where it leaves, with its length.
+- ``camera`` measure: at every real scattering, after its weight factor, the next-event
+  estimate of the light leaving toward the camera
+  (:func:`ringlight.core.simulate.camera.camera_estimate`), at the pixel where the path to the
+  camera meets the surface, with path length the length so far plus that path's. The walk
+  itself goes on unchanged, so its analogue exits are not scored.
+- ``exitance`` measure: the weights of each photon that leaves, where it leaves, with its length.
 
-Either way the walk and its random numbers are the same, so further estimators (splitting,
-more next-event targets) attach at the scattering vertex without touching the walk.
+Either way the walk and its random numbers are the same, so further estimators attach at the
+scattering vertex without touching the walk.
 
 Random numbers (:mod:`ringlight.core.simulate.streams`): one stream per lit point and channel
-for the walk and another for the estimator, so results do not depend on the number of threads
-and the walk does not depend on the measure.
+group for the walk and another for the estimator, so results do not depend on the number of
+threads and the walk does not depend on the measure.
 """
 
 from __future__ import annotations
@@ -50,31 +55,39 @@ from .camera import (
     view_constants,
 )
 from .streams import ESTIMATOR_STREAM, fresh_state, seed_state, uniform
+from .tables import ANISOTROPY, MU_T, SCATTER, WALK_MU, channel_count
 
 ROULETTE_WEIGHT = 1e-4
 ROULETTE_SURVIVAL = 0.1
-RECORD_COLUMNS = 7
-"""Columns of an event record: photon, entry y, entry x, surface y, surface x, path length, value."""
-NO_MAP = np.zeros((0, 0), np.bool_)
-"""An empty ``mixed`` map: no column is tracked."""
+RECORD_FIELDS = 6
+"""Leading columns of an event record: photon, entry y, entry x, surface y, surface x, path
+length; then one value per channel."""
+NO_MAP = np.zeros((0, 0, 0), np.bool_)
+"""An empty ``mixed`` map: no voxel is tracked."""
+WEIGHTS = 7
+"""A walker's state: y, x, z, uy, ux, uz, path length, then one weight per channel from here."""
 
 
 @numba.njit(cache=True, inline="always")
 def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x,
-           surface_y, surface_x, length, value):
-    """Add ``value`` to the lit point's window (offsets from ``(centre_y, centre_x)``), to the
-    path-length image of its bin, and as a row of ``records`` while there is room; returns the
-    number of events so far (it may exceed the rows: the caller sees the overflow)."""
+           surface_y, surface_x, length, values, sign):
+    """Add ``sign * values`` (C,) to the lit point's window (offsets from ``(centre_y,
+    centre_x)``), to the path-length image of its bin, and as a row of ``records`` while there
+    is room; returns the number of events so far (it may exceed the rows: the caller sees the
+    overflow)."""
     py = int(math.floor(surface_y + 0.5))
     px = int(math.floor(surface_x + 0.5))
     radius = window.shape[0] // 2
     dy = py - centre_y
     dx = px - centre_x
+    channels = values.shape[0]
     if abs(dy) <= radius and abs(dx) <= radius:
-        window[dy + radius, dx + radius] += value
+        for c in range(channels):
+            window[dy + radius, dx + radius, c] += sign * values[c]
     b = int(length / bin_step)
     if b < truth.shape[0] and 0 <= py < truth.shape[1] and 0 <= px < truth.shape[2]:
-        truth[b, py, px] += value
+        for c in range(channels):
+            truth[b, py, px, c] += sign * values[c]
     if count < records.shape[0]:
         records[count, 0] = photon
         records[count, 1] = entry_y
@@ -82,71 +95,74 @@ def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, 
         records[count, 3] = surface_y
         records[count, 4] = surface_x
         records[count, 5] = length
-        records[count, 6] = value
+        for c in range(channels):
+            records[count, RECORD_FIELDS + c] = sign * values[c]
     return count + 1
 
 
-WALKER_SIZE = 8
-"""A walker's state: y, x, z, uy, ux, uz, weight, path length."""
-
-
 @numba.njit(cache=True)
-def trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, optics, columns,
-                 camera, window, centre_y, centre_x, truth, bin_step, records, count, photon):
+def trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns, camera,
+                 window, centre_y, centre_x, truth, bin_step, records, count, photon, totals):
     """Trace one photon entering at ``(entry_y, entry_x)`` and score it (see the module notes);
     ``state`` drives the walk, ``estimator_state`` the estimator.
 
-    ``columns`` is :func:`ringlight.core.simulate.camera.column_optical_depths` (or empty).
-    ``window`` ((2R+1, 2R+1), offsets from the lit point ``(centre_y, centre_x)``), ``truth``
-    ((bins, H, W), bins of ``bin_step``) and ``records`` ((k, RECORD_COLUMNS), from row
-    ``count``; zero rows to record nothing) receive the scores; ``camera`` picks the measure.
-    Returns ``(count, total)``: the events scored so far and the sum of this photon's values.
+    ``tables`` and ``majorant`` are :func:`ringlight.core.simulate.tables.walk_tables` (C
+    channels); ``columns`` is :func:`ringlight.core.simulate.camera.column_optical_depths` (or
+    empty). ``window`` ((2R+1, 2R+1, C), offsets from the lit point ``(centre_y, centre_x)``),
+    ``truth`` ((bins, H, W, C), bins of ``bin_step``) and ``records`` ((k, RECORD_FIELDS + C),
+    from row ``count``; zero rows to record nothing) receive the scores; ``camera`` picks the
+    measure. ``totals`` (C,) receives the sum of this photon's values. Returns the number of
+    events scored so far.
     """
-    walker = entering_walker(entry_y, entry_x, optics)
-    count, total, _ = walk(state, estimator_state, walker, False, volume, mu_t, albedo, g, majorant, optics, columns,
-                           camera, window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y,
-                           entry_x, 1.0, NO_MAP, walker, state, estimator_state)
-    return count, total
+    walker = entering_walker(entry_y, entry_x, optics, channel_count(tables))
+    count, _ = walk(state, estimator_state, walker, False, volume, tables, majorant, optics, columns, camera, window,
+                    centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, 1.0, NO_MAP,
+                    walker, state, estimator_state, totals)
+    return count
 
 
 @numba.njit(cache=True, inline="always")
-def entering_walker(entry_y, entry_x, optics):
-    """(WALKER_SIZE,) the walker of a photon that has just refracted in at ``(entry_y, entry_x)``."""
-    walker = np.empty(WALKER_SIZE)
+def entering_walker(entry_y, entry_x, optics, channels):
+    """(WEIGHTS + channels,) the walker of a photon that has just refracted in at
+    ``(entry_y, entry_x)``."""
+    walker = np.empty(WEIGHTS + channels)
     walker[0] = entry_y
     walker[1] = entry_x
     walker[2] = 0.0
     walker[3] = optics[BEAM_Y]
     walker[4] = optics[BEAM_X]
     walker[5] = optics[BEAM_Z]
-    walker[6] = optics[ENTRY_WEIGHT]
-    walker[7] = 0.0
+    walker[6] = 0.0
+    walker[WEIGHTS:] = optics[ENTRY_WEIGHT]
     return walker
 
 
 @numba.njit(cache=True)
-def walk(state, estimator_state, walker, pending, volume, mu_t, albedo, g, majorant, optics, columns, camera,
-         window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
-         saved_walker, saved_state, saved_estimator_state):
-    """Walk from ``walker`` (:data:`WALKER_SIZE`) until the light leaves, is lost or absorbed,
-    scoring as :func:`trace_photon` does, times ``sign``; ``pending``: the walker stands at a
-    tentative collision not yet decided (else it is about to fly).
+def walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns, camera, window,
+         centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
+         saved_walker, saved_state, saved_estimator_state, totals):
+    """Walk from ``walker`` (``WEIGHTS + C``) until the light leaves, is lost or absorbed,
+    scoring as :func:`trace_photon` does, times ``sign``, and adding the values scored to
+    ``totals`` (C,); ``pending``: the walker stands at a tentative collision not yet decided
+    (else it is about to fly). ``walker`` itself is not changed.
 
-    ``mixed`` ((H, W) bool, or the empty :data:`NO_MAP`) marks the columns where the volume
-    differs from a reference (:mod:`ringlight.core.simulate.reference`). Given one, nothing is
-    scored before the walk's first tentative collision in a marked column; there the walker
+    ``mixed`` ((D, H, W) bool, or the empty :data:`NO_MAP`) marks the voxels where the walk or
+    its scores can differ from those in a reference volume
+    (:func:`ringlight.core.simulate.reference.mixed_voxels`). Given one, nothing is scored before
+    the walk's first tentative collision in a marked voxel; there the walker
     and both random states are saved (into ``saved_walker``, ``saved_state``,
     ``saved_estimator_state``) and scoring starts. Before that point the same random numbers
     walk the same way, with the same scores, in the reference volume.
-    Returns ``(count, total, touched)``: events scored, the sum of the values scored, and
-    whether the walk reached a marked column.
+    Returns ``(count, touched)``: events scored, and whether the walk reached a marked voxel.
     """
     layers, height, width = volume.shape
+    channels = channel_count(tables)
     n = optics[INDEX]
     depth = optics[DEPTH]
-    y, x, z, uy, ux, uz, weight, length = walker
+    y, x, z, uy, ux, uz, length = walker[0], walker[1], walker[2], walker[3], walker[4], walker[5], walker[6]
+    weights = walker[WEIGHTS:].copy()
+    values = np.empty(channels)
     view = view_constants(optics)
-    total = 0.0
     touched = mixed.shape[0] == 0
     reached = False
     while True:
@@ -165,17 +181,18 @@ def walk(state, estimator_state, walker, pending, volume, mu_t, albedo, g, major
                     continue
                 if not camera and touched:
                     count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                                   entry_y, entry_x, y, x, length, sign * weight)
-                    total += weight
-                return count, total, reached
+                                   entry_y, entry_x, y, x, length, weights, sign)
+                    for c in range(channels):
+                        totals[c] += weights[c]
+                return count, reached
             if uz > 0.0 and z + step * uz >= depth:
-                return count, total, reached
+                return count, reached
             y += step * uy
             x += step * ux
             z += step * uz
             length += step
-            if not touched and mixed[min(max(int(math.floor(y + 0.5)), 0), mixed.shape[0] - 1),
-                                     min(max(int(math.floor(x + 0.5)), 0), mixed.shape[1] - 1)]:
+            if not touched and mixed[min(int(z), layers - 1), min(max(int(math.floor(y + 0.5)), 0), height - 1),
+                                     min(max(int(math.floor(x + 0.5)), 0), width - 1)]:
                 touched = True
                 reached = True
                 saved_walker[0] = y
@@ -184,25 +201,33 @@ def walk(state, estimator_state, walker, pending, volume, mu_t, albedo, g, major
                 saved_walker[3] = uy
                 saved_walker[4] = ux
                 saved_walker[5] = uz
-                saved_walker[6] = weight
-                saved_walker[7] = length
+                saved_walker[6] = length
+                saved_walker[WEIGHTS:] = weights
                 saved_state[:] = state
                 saved_estimator_state[:] = estimator_state
         iz = min(int(z), layers - 1)
         iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
         ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
         material = volume[iz, iy, ix]
-        if uniform(state) * majorant >= mu_t[material]:
-            continue  # null collision: the majorant's fictitious particles
-        weight *= albedo[material]
-        anisotropy = g[material]
+        if uniform(state) * majorant >= tables[WALK_MU, material]:
+            # A null collision: the majorant's fictitious particles (each channel's own share).
+            for c in range(channels):
+                weights[c] *= tables[MU_T + channels + c, material]
+            continue
+        factor = tables[SCATTER, material]
+        heaviest = 0.0
+        for c in range(channels):
+            weights[c] *= factor
+            heaviest = max(heaviest, weights[c])
+        anisotropy = tables[ANISOTROPY, material]
         if camera:
-            value, surface_y, surface_x, distance = camera_estimate(
-                estimator_state, volume, mu_t, columns, view, weight, anisotropy, z, y, x, uy, ux, uz)
-            if value > 0.0 and touched:
+            surface_y, surface_x, distance, scored = camera_estimate(
+                estimator_state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values)
+            if scored and touched:
                 count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                               entry_y, entry_x, surface_y, surface_x, length + distance, sign * value)
-                total += value
+                               entry_y, entry_x, surface_y, surface_x, length + distance, values, sign)
+                for c in range(channels):
+                    totals[c] += values[c]
         if anisotropy == 0.0:
             cos_theta = 2.0 * uniform(state) - 1.0
         else:
@@ -224,41 +249,44 @@ def walk(state, estimator_state, walker, pending, volume, mu_t, albedo, g, major
             uz = -sin_theta * cos_phi * root + uz * cos_theta
             ux = new_ux
             uy = new_uy
-        if weight < ROULETTE_WEIGHT:
+        if heaviest < ROULETTE_WEIGHT:
             if uniform(state) < ROULETTE_SURVIVAL:
-                weight /= ROULETTE_SURVIVAL
+                for c in range(channels):
+                    weights[c] /= ROULETTE_SURVIVAL
             else:
-                return count, total, reached
+                return count, reached
 
 
 @numba.njit(cache=True, nogil=True)
-def total_run(volume, mu_t, albedo, g, majorant, optics, camera, photons, seed, stream):
-    """Trace ``photons`` entering uniformly over the pixel at the origin; returns ``(sum, sum of
-    squares)`` over photons of each photon's total score (everything it scores, wherever; 0 for
-    a photon that scores nothing), for the mean and its standard error: the exitance, or the
-    reflectance factor toward the camera summed over the surface."""
-    window = np.zeros((1, 1))
-    truth = np.zeros((0, 1, 1))
-    records = np.zeros((0, RECORD_COLUMNS))
-    columns = np.zeros((0, 0, 0))
+def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
+    """Trace ``photons`` entering uniformly over the pixel at the origin; returns ``(sums,
+    sums of squares)`` (C,) over photons of each photon's total score (everything it scores,
+    wherever; 0 for a photon that scores nothing), for the mean and its standard error: the
+    exitance, or the reflectance factor toward the camera summed over the surface."""
+    channels = channel_count(tables)
+    window = np.zeros((1, 1, channels))
+    truth = np.zeros((0, 1, 1, channels))
+    records = np.zeros((0, RECORD_FIELDS + channels))
+    columns = np.zeros((0, 0, 0, 0))
     state = seed_state(seed, stream)
     estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
-    total = 0.0
-    total_sq = 0.0
+    sums = np.zeros(channels)
+    squares = np.zeros(channels)
+    totals = np.zeros(channels)
     for _ in range(photons):
-        _, value = trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, mu_t, albedo, g,
-                                majorant, optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0)
-        total += value
-        total_sq += value * value
-    return total, total_sq
+        totals[:] = 0.0
+        trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, tables, majorant,
+                     optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0, totals)
+        sums += totals
+        squares += totals * totals
+    return sums, squares
 
 
 @numba.njit(cache=True, nogil=True)
-def reflectance_run(volume, mu_t, albedo, g, majorant, n, depth, photons, seed, stream):
+def reflectance_run(volume, tables, majorant, n, depth, photons, seed, stream):
     """:func:`total_run` of the exitance for a beam straight down, with weights relative to the
     light that got in (the entry's Fresnel loss is the caller's)."""
-    return total_run(volume, mu_t, albedo, g, majorant, _normal_incidence(n, depth), False, photons, seed,
-                     stream)
+    return total_run(volume, tables, majorant, _normal_incidence(n, depth), False, photons, seed, stream)
 
 
 @numba.njit(cache=True)
@@ -273,70 +301,80 @@ def _normal_incidence(n, depth):
 
 
 @numba.njit(cache=True, nogil=True)
-def trace_events(volume, mu_t, albedo, g, majorant, optics, camera, y, x, photons, seed, stream, capacity):
+def trace_events(volume, tables, majorant, optics, camera, y, x, photons, seed, stream, capacity):
     """Every score of ``photons`` entering pixel ``(y, x)`` (uniformly over it), as
-    (events, RECORD_COLUMNS) float64 rows ``[photon, entry_y, entry_x, surface_y, surface_x,
-    length, value]`` (for tests and inspection). Raises if more than ``capacity`` events."""
+    (events, RECORD_FIELDS + C) float64 rows ``[photon, entry_y, entry_x, surface_y,
+    surface_x, length, value per channel]`` (for tests and inspection). Raises if more than
+    ``capacity`` events."""
+    channels = channel_count(tables)
     state = seed_state(seed, stream)
     estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
-    records = np.zeros((capacity, RECORD_COLUMNS))
-    window = np.zeros((1, 1))
-    truth = np.zeros((0, 1, 1))
-    columns = np.zeros((0, 0, 0))
+    records = np.zeros((capacity, RECORD_FIELDS + channels))
+    window = np.zeros((1, 1, channels))
+    truth = np.zeros((0, 1, 1, channels))
+    columns = np.zeros((0, 0, 0, 0))
+    totals = np.zeros(channels)
     count = 0
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
         entry_x = x + uniform(state) - 0.5
-        count, _ = trace_photon(state, estimator_state, entry_y, entry_x, volume, mu_t, albedo, g, majorant, optics,
-                                columns, camera, window, 0, 0, truth, 1.0, records, count, i)
+        count = trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns,
+                             camera, window, 0, 0, truth, 1.0, records, count, i, totals)
     if count > capacity:
         raise ValueError("trace_events: more events than capacity")
     return records[:count]
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def simulate_points(volume, mu_t, albedo, g, majorant, optics, columns, camera, lit, photons, seed, streams,
-                    bin_step, windows, truth):
+def simulate_points(volume, tables, majorant, optics, columns, camera, lit, photons, seed, streams, bin_step,
+                    windows, truth):
     """Trace ``photons`` from each lit point ``lit[i] = [y, x]`` with random stream ``streams[i]``
-    (``optics``, ``columns``, ``camera`` as in :func:`trace_photon`).
+    (``tables``, ``majorant``, ``optics``, ``columns``, ``camera`` as in :func:`trace_photon`).
 
-    ``windows`` (len(lit), 2R+1, 2R+1) float64 receives the scores around each lit point
-    (offset ``[dy + R, dx + R]``); ``truth`` (blocks, bins, H, W) float64 receives every score
-    inside the grid by path-length bin ``floor(length / bin_step)``, lit point ``i`` into block
-    ``i * blocks // len(lit)``, so that summing blocks in order gives the same result whatever
-    the number of threads. Values are raw (not divided by photons).
+    ``windows`` (len(lit), 2R+1, 2R+1, C) float64 receives the scores around each lit point
+    (offset ``[dy + R, dx + R]``); ``truth`` (blocks, bins, H, W, C) float64 receives every
+    score inside the grid by path-length bin ``floor(length / bin_step)``, lit point ``i`` into
+    block ``i * blocks // len(lit)``, so that summing blocks in order gives the same result
+    whatever the number of threads. Values are raw (not divided by photons).
     """
     count = lit.shape[0]
     blocks = truth.shape[0]
+    channels = channel_count(tables)
     for block in numba.prange(blocks):
-        records = np.zeros((0, RECORD_COLUMNS))
+        records = np.zeros((0, RECORD_FIELDS + channels))
+        totals = np.zeros(channels)
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             state = seed_state(seed, streams[i])
             estimator_state = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
             ly = lit[i, 0]
             lx = lit[i, 1]
             for _ in range(photons):
-                trace_photon(state, estimator_state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5, volume, mu_t,
-                             albedo, g, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
-                             bin_step, records, 0, 0)
-
+                trace_photon(state, estimator_state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5, volume,
+                             tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block], bin_step,
+                             records, 0, 0, totals)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def simulate_differences(volume, reference, mixed, mu_t, albedo, g, majorant, optics, reference_optics, columns,
-                         reference_columns, camera, lit, photons, seed, streams, bin_step, windows, truth):
-    """The correlated differences of :mod:`ringlight.core.simulate.reference`: for each lit point,
-    ``photons`` walks in ``volume`` scored with +1 from their first tentative collision in a
-    ``mixed`` column on, each then walked on from that point with the same random numbers in
-    ``reference`` (the reference volume, its own ``reference_optics`` and
-    ``reference_columns``; the same material tables and majorant) and scored with -1. Before
-    that point, and for walks that never reach a marked column, both volumes give the same
-    scores: their difference is zero. Other arguments and the outputs as in
-    :func:`simulate_points`; values are raw sums of differences."""
+def simulate_differences(volume, reference, mixed, tables, majorant, optics, reference_optics, columns,
+                         reference_columns, camera, lit, photons, direct, seed, streams, bin_step, windows, truth,
+                         touches):
+    """The correlated differences of :mod:`ringlight.core.simulate.reference`: for each lit point
+    ``i`` (but those marked ``direct``), ``photons[i]`` walks in ``volume`` scored with +1 / photons[i] from their first
+    tentative collision in a ``mixed`` voxel on, each then walked on from that point with the
+    same random numbers in ``reference`` (the reference volume, its own ``reference_optics`` and
+    ``reference_columns``; the same material tables and majorant) and scored with
+    -1 / photons[i]. Before that point, and for walks that never reach a marked voxel, both
+    volumes give the same scores: their difference is zero. A ``direct`` point's ``photons[i]``
+    walks are scored whole in ``volume`` instead (its mean response, not a difference; no walk
+    of it counts as reaching). ``touches[i]`` (int64) receives how many of point ``i``'s walks
+    reached a marked voxel. Other arguments and the outputs as in
+    :func:`simulate_points`; values are mean differences per photon (per point, not raw sums)."""
     count = lit.shape[0]
     blocks = truth.shape[0]
+    channels = channel_count(tables)
     for block in numba.prange(blocks):
-        records = np.zeros((0, RECORD_COLUMNS))
+        records = np.zeros((0, RECORD_FIELDS + channels))
+        totals = np.zeros(channels)
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             seeder = seed_state(seed, streams[i])
             estimator_seeder = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
@@ -344,21 +382,24 @@ def simulate_differences(volume, reference, mixed, mu_t, albedo, g, majorant, op
             estimator_state = np.empty(2, np.uint64)
             ly = lit[i, 0]
             lx = lit[i, 1]
-            saved = np.empty(WALKER_SIZE)
+            share = 1.0 / photons[i]
+            saved = np.empty(WEIGHTS + channels)
             saved_state = np.empty(2, np.uint64)
             saved_estimator_state = np.empty(2, np.uint64)
-            for _ in range(photons):
+            for _ in range(photons[i]):
                 # Each photon its own streams, so that the reference walk can take them up where
-                # the scene's walk reached a marked column, and no other photon reuses them.
+                # the scene's walk reached a marked voxel, and no other photon reuses them.
                 fresh_state(seeder, state)
                 fresh_state(estimator_seeder, estimator_state)
                 entry_y = ly + uniform(state) - 0.5
                 entry_x = lx + uniform(state) - 0.5
-                _, _, reached = walk(state, estimator_state, entering_walker(entry_y, entry_x, optics), False, volume,
-                                     mu_t, albedo, g, majorant, optics, columns, camera, windows[i], ly, lx,
-                                     truth[block], bin_step, records, 0, 0, entry_y, entry_x, 1.0, mixed, saved,
-                                     saved_state, saved_estimator_state)
+                _, reached = walk(state, estimator_state, entering_walker(entry_y, entry_x, optics, channels), False,
+                                  volume, tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
+                                  bin_step, records, 0, 0, entry_y, entry_x, share, NO_MAP if direct[i] else mixed,
+                                  saved, saved_state, saved_estimator_state, totals)
                 if reached:
-                    walk(saved_state, saved_estimator_state, saved, True, reference, mu_t, albedo, g, majorant,
+                    touches[i] += 1
+                    walk(saved_state, saved_estimator_state, saved, True, reference, tables, majorant,
                          reference_optics, reference_columns, camera, windows[i], ly, lx, truth[block], bin_step,
-                         records, 0, 0, entry_y, entry_x, -1.0, NO_MAP, saved, saved_state, saved_estimator_state)
+                         records, 0, 0, entry_y, entry_x, -share, NO_MAP, saved, saved_state, saved_estimator_state,
+                         totals)

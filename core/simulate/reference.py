@@ -11,9 +11,10 @@ with ``K`` the reference's response, simulated once at the origin with as many p
 lit points together (and averaged over the symmetries of the square grid when projector and
 camera look straight down, both exact), and the expectation estimated per lit point with the
 *same* random numbers for both walks (common random numbers, :func:`.photon.simulate_differences`).
-A walk that never has a tentative collision in a column that differs from the reference (and,
-for an oblique camera, whose next-event paths cannot cross one) is the same walk in both volumes
-with the same scores, so its difference is exactly zero and the reference walk is skipped. For
+A walk is the same walk in both volumes, with the same scores, until its first tentative
+collision in a voxel that differs from the reference or whose next-event path toward the camera
+crosses one (:func:`mixed_voxels`); the reference walk takes over from there, and a walk that
+never gets there has a difference of exactly zero and no reference walk. For
 a layered scene no column differs: the reference is the scene, and one simulation serves every
 lit point. Far from the shapes, almost every walk cancels, and the noise of a ring light image is
 that of ``K``; the price is one extra walk for each photon that touches a shape. Unbiased for any
@@ -28,9 +29,12 @@ import numpy as np
 
 from .camera import UNIFORM_MU_T, column_optical_depths, optics
 from .photon import simulate_differences, simulate_points
+from .tables import MU_T, channel_count
 
 KERNEL_STREAMS = 64
-"""The reference kernel's photons are split into this many random streams (the parallel blocks)."""
+"""The reference kernel's photons are split into this many random streams."""
+KERNEL_TRUTH_BLOCKS = 16
+"""Parallel blocks of the kernel's path-length images (summed in order: deterministic)."""
 
 
 def reference_volume(volume: np.ndarray) -> np.ndarray:
@@ -60,6 +64,17 @@ def mixed_columns(volume: np.ndarray, reference: np.ndarray, n: float, camera=(0
     return marked
 
 
+def mixed_voxels(volume: np.ndarray, reference: np.ndarray, n: float, camera=(0.0, 0.0)) -> np.ndarray:
+    """(D, H, W) bool: the voxels where a walk, or what it scores, can first differ between
+    ``volume`` and ``reference``. For a camera straight down, a voxel that differs or lies below
+    one in its column (the next-event path goes straight up through it); for an oblique camera,
+    every voxel of :func:`mixed_columns`. A walk is the same walk, with the same scores, in both
+    volumes until its first tentative collision in a marked voxel."""
+    if camera[0] == 0.0:
+        return np.logical_or.accumulate(volume != reference, axis=0)
+    return np.broadcast_to(mixed_columns(volume, reference, n, camera), volume.shape).copy()
+
+
 def _pad_shift(mask: np.ndarray, dy: int, dx: int) -> np.ndarray:
     """``mask`` moved by ``(dy, dx)``, filled with False (no wrap-around)."""
     out = np.zeros_like(mask)
@@ -69,39 +84,42 @@ def _pad_shift(mask: np.ndarray, dy: int, dx: int) -> np.ndarray:
     return out
 
 
-def reference_kernel(reference: np.ndarray, tables, majorant: float, geometry: np.ndarray, camera: bool,
+def reference_kernel(reference: np.ndarray, tables: np.ndarray, majorant: float, geometry: np.ndarray, camera: bool,
                      direction, photons: int, seed: int, stream: int, window_radius: int, grid: tuple[int, int],
                      bin_step: float, bin_count: int, symmetric: bool) -> tuple[np.ndarray, np.ndarray]:
-    """The reference's response to one lit point, ``photons`` photons (one channel).
+    """The reference's response to one lit point, ``photons`` photons, for the C channels of
+    ``tables`` (:func:`.tables.walk_tables`).
 
-    Returns ``(window, truth)``: (2R+1, 2R+1) float64 per photon at offsets ``[dy + R, dx + R]``,
-    and (bins, 2H-1, 2W-1) float64 per photon at offsets ``[dy + H - 1, dx + W - 1]`` by
-    path-length bin (every offset a grid of ``grid = (H, W)`` can hold). ``symmetric``: average
-    over the symmetries of the square grid that keep the shapes (exact when projector and camera
-    look straight down). Random streams ``stream .. stream + KERNEL_STREAMS - 1`` of ``seed``.
+    Returns ``(window, truth)``: (2R+1, 2R+1, C) float64 per photon at offsets
+    ``[dy + R, dx + R]``, and (bins, 2H-1, 2W-1, C) float64 per photon at offsets
+    ``[dy + H - 1, dx + W - 1]`` by path-length bin (every offset a grid of ``grid = (H, W)``
+    can hold). ``symmetric``: average over the symmetries of the square grid that keep the
+    shapes (exact when projector and camera look straight down). Random streams
+    ``stream .. stream + KERNEL_STREAMS - 1`` of ``seed``.
     """
-    mu_t, albedo, g = tables
+    channels = channel_count(tables)
     height, width = grid
     centre = np.array([[height - 1, width - 1]] * KERNEL_STREAMS, np.int64)
     size = 2 * window_radius + 1
-    windows = np.zeros((KERNEL_STREAMS, size, size))
-    truth = np.zeros((KERNEL_STREAMS, bin_count, 2 * height - 1, 2 * width - 1))
+    window = np.zeros((size, size, channels))
+    kernel = np.zeros((bin_count, 2 * height - 1, 2 * width - 1, channels))
     # Spread the photons over the streams; the first ones take the remainder.
     per_stream = np.full(KERNEL_STREAMS, photons // KERNEL_STREAMS)
     per_stream[:photons % KERNEL_STREAMS] += 1
-    columns = _columns(reference, mu_t, camera, direction, geometry)
+    columns = _columns(reference, tables, camera, direction, geometry)
     for count in np.unique(per_stream):
         chosen = np.nonzero(per_stream == count)[0]
         if count == 0:
             continue
-        part_windows = np.zeros((len(chosen), size, size))
-        part_truth = np.zeros((len(chosen), bin_count, 2 * height - 1, 2 * width - 1))
-        simulate_points(reference, mu_t, albedo, g, majorant, geometry, columns, camera, centre[chosen], int(count),
-                        seed, stream + chosen, bin_step, part_windows, part_truth)
-        windows[chosen] = part_windows
-        truth[chosen] = part_truth
-    window = windows.sum(axis=0) / photons
-    kernel = truth.sum(axis=0) / photons
+        part_windows = np.zeros((len(chosen), size, size, channels))
+        part_truth = np.zeros((min(KERNEL_TRUTH_BLOCKS, len(chosen)), bin_count, 2 * height - 1, 2 * width - 1,
+                               channels))
+        simulate_points(reference, tables, majorant, geometry, columns, camera, centre[chosen], int(count), seed,
+                        stream + chosen, bin_step, part_windows, part_truth)
+        window += part_windows.sum(axis=0)
+        kernel += part_truth.sum(axis=0)
+    window /= photons
+    kernel /= photons
     if symmetric:
         window = _symmetrise(window)
         kernel = _symmetrise(kernel)
@@ -109,44 +127,47 @@ def reference_kernel(reference: np.ndarray, tables, majorant: float, geometry: n
 
 
 def _symmetrise(array: np.ndarray) -> np.ndarray:
-    """The mean of ``array`` (..., H, W) over the flips of its last two axes, and over their
+    """The mean of ``array`` (..., H, W, C) over the flips of its axes H and W, and over their
     transposition too when square."""
-    flips = [array, array[..., ::-1, :], array[..., :, ::-1], array[..., ::-1, ::-1]]
-    if array.shape[-1] == array.shape[-2]:
-        flips += [np.swapaxes(a, -1, -2) for a in flips]
+    flips = [array, array[..., ::-1, :, :], array[..., :, ::-1, :], array[..., ::-1, ::-1, :]]
+    if array.shape[-2] == array.shape[-3]:
+        flips += [np.swapaxes(a, -2, -3) for a in flips]
     return sum(flips) / len(flips)
 
 
 def spread_kernel(kernel: np.ndarray, lit: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """(bins, H, W): the sum over lit points ``q`` ((n, 2) ``[y, x]``) of the (bins, 2H-1, 2W-1)
-    ``kernel`` placed at ``q`` (offset ``[dy + H - 1, dx + W - 1]`` lands on ``q + d``)."""
+    """(bins, H, W, C): the sum over lit points ``q`` ((n, 2) ``[y, x]``) of the
+    (bins, 2H-1, 2W-1, C) ``kernel`` placed at ``q`` (offset ``[dy + H - 1, dx + W - 1]`` lands
+    on ``q + d``)."""
     height, width = grid
-    out = np.zeros((kernel.shape[0], height, width))
+    out = np.zeros((kernel.shape[0], height, width) + kernel.shape[3:])
     for qy, qx in lit:
         out += kernel[:, height - 1 - qy:2 * height - 1 - qy, width - 1 - qx:2 * width - 1 - qx]
     return out
 
 
-def _columns(volume, mu_t, camera, direction, geometry) -> np.ndarray:
+def _columns(volume, tables, camera, direction, geometry) -> np.ndarray:
     """The column table of :func:`.camera.column_optical_depths` where the estimate uses one."""
     if camera and geometry[UNIFORM_MU_T] < 0:
-        return column_optical_depths(volume, mu_t, direction)
-    return np.zeros((0, 0, 0))
+        return column_optical_depths(volume, tables[MU_T:MU_T + channel_count(tables)], direction)
+    return np.zeros((0, 0, 0, 0))
 
 
 def simulate_point_differences(volume, reference, mixed, tables, majorant, geometry, reference_geometry, camera,
-                               direction, lit, photons, seed, streams, bin_step, windows, truth) -> None:
-    """:func:`.photon.simulate_differences` with the column tables of both volumes (one channel;
-    ``direction`` the camera's ``[zenith, azimuth]``)."""
-    mu_t, albedo, g = tables
-    columns = _columns(volume, mu_t, camera, direction, geometry)
-    reference_columns = _columns(reference, mu_t, camera, direction, reference_geometry)
-    simulate_differences(volume, reference, mixed, mu_t, albedo, g, majorant, geometry, reference_geometry, columns,
-                         reference_columns, camera, lit, photons, seed, streams, bin_step, windows, truth)
+                               direction, lit, photons, direct, seed, streams, bin_step, windows, truth) -> np.ndarray:
+    """:func:`.photon.simulate_differences` with the column tables of both volumes (the channels
+    of ``tables``; ``direction`` the camera's ``[zenith, azimuth]``; ``photons`` (n,) and
+    ``direct`` (n,) bool per lit point). Returns (n,) int64: how many of each point's walks reached a marked voxel."""
+    columns = _columns(volume, tables, camera, direction, geometry)
+    reference_columns = _columns(reference, tables, camera, direction, reference_geometry)
+    touches = np.zeros(len(lit), np.int64)
+    simulate_differences(volume, reference, mixed, tables, majorant, geometry, reference_geometry, columns,
+                         reference_columns, camera, lit, np.asarray(photons, np.int64), np.asarray(direct, np.bool_),
+                         seed, streams, bin_step, windows, truth, touches)
+    return touches
 
 
-def reference_optics(n: float, depth: float, projector, camera, mu_t: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def reference_optics(n: float, depth: float, projector, camera, reference: np.ndarray) -> np.ndarray:
     """The optics array of the reference volume (uniform ``mu_t`` when it is one material)."""
-    used = np.unique(reference)
-    uniform_mu_t = float(mu_t[used[0]]) if len(used) == 1 else -1.0
-    return optics(n, depth, projector, camera, uniform_mu_t)
+    uniform = len(np.unique(reference)) == 1
+    return optics(n, depth, projector, camera, 0.0 if uniform else -1.0)

@@ -12,6 +12,7 @@ and the measure, as a line ``measure: camera`` (or ``exitance``): see :func:`sim
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import time
@@ -26,11 +27,12 @@ from ..dataset.manifest import Manifest
 from ..dataset.writer import DatasetWriter
 from . import photon
 from .adding_doubling import thick_slab_reflectance
+from .allocation import PILOT_PHOTONS, allocate, reach_fractions
 from .camera import UNIFORM_MU_T, column_optical_depths, optics, specular_reflectance
 from .lattice import lattice_frames
 from .reference import (
     KERNEL_STREAMS,
-    mixed_columns,
+    mixed_voxels,
     reference_kernel,
     reference_optics,
     reference_volume,
@@ -38,6 +40,7 @@ from .reference import (
     spread_kernel,
 )
 from .scene import Material, Scene
+from .tables import MU_T, walk_tables
 
 TRUTH_BLOCKS = 16
 POINTS_PER_CALL = 64
@@ -76,11 +79,13 @@ class Transport:
     estimator: str = "reference"
 
 
-def _channel_tables(materials: tuple[Material, ...], channel: int):
-    mu_t = np.array([m.mus[channel] + m.mua[channel] for m in materials])
-    albedo = np.array([m.mus[channel] / t if t > 0 else 0.0 for m, t in zip(materials, mu_t)])
-    g = np.array([m.g for m in materials])
-    return mu_t, albedo, g
+def channel_groups(scene: Scene) -> list[tuple[int, ...]]:
+    """The scene's channels grouped by what walks they can share (:mod:`.tables`): channels
+    whose materials all scatter alike (the same ``mus``; ``g`` is one per material)."""
+    groups: dict[tuple[float, ...], list[int]] = {}
+    for channel in (0,) if scene.grey else (0, 1, 2):
+        groups.setdefault(tuple(m.mus[channel] for m in scene.materials), []).append(channel)
+    return [tuple(group) for group in groups.values()]
 
 
 ESTIMATORS = ("reference", "analogue")
@@ -96,8 +101,10 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     ``points`` (n, 2) ``[y, x]`` restricts the lit points (their windows alone are filled, and
     the path-length images are then those of lighting just these points). ``estimator`` is one
     of :data:`ESTIMATORS`; both give the same expectations. With ``reference``, the reference
-    kernel gets ``photons`` times the number of lit points, and each lit point ``photons``
-    correlated walks where the scene differs from the reference (none in a layered scene).
+    kernel gets ``photons`` times the number of lit points (a quarter of that when the scene
+    differs from the reference), and the lit points ``photons`` correlated walks each on average,
+    shared by how often their walks reach where the scene differs (:mod:`.allocation`; none in a
+    layered scene).
     Deterministic for a seed whatever the number of threads: each point's random stream depends
     on the seed and its row-major grid index only. ``progress`` gets the fraction done and may
     raise :class:`Cancelled`.
@@ -114,12 +121,12 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     else:
         lit = np.asarray(points, np.int64).reshape(-1, 2)
     streams = lit[:, 0] * width + lit[:, 1]
-    channels = (0,) if scene.grey else (0, 1, 2)
+    groups = channel_groups(scene)
     windows = np.zeros((height * width, size, size, 3), np.float64)
     truth = np.zeros((scene.bin_count, height, width, 3), np.float64)
     started = time.perf_counter()
     work = _reference_work if estimator == "reference" else _analogue_work
-    steps = list(work(scene, photons, seed, lit, streams, channels, windows, truth))
+    steps = list(work(scene, photons, seed, lit, streams, groups, windows, truth))
     for done, step in enumerate(steps):
         step()
         if progress is not None:
@@ -135,90 +142,131 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     )
 
 
-def _channel_setup(scene: Scene, channel: int, volume: np.ndarray):
-    """``(tables, majorant, optics)`` of one channel for the materials used in ``volume``."""
-    tables = _channel_tables(scene.materials, channel)
+def _group_setup(scene: Scene, group: tuple[int, ...], volume: np.ndarray):
+    """``(tables, majorant, optics)`` of a channel group for the materials used in ``volume``."""
     used = np.unique(volume)
-    mu_t = tables[0]
-    majorant = float(mu_t[used].max())
-    uniform_mu_t = majorant if mu_t[used].min() == majorant else -1.0
-    return tables, majorant, optics(scene.n, scene.depth, scene.projector, scene.camera, uniform_mu_t)
+    mus = np.array([m.mus[group[0]] for m in scene.materials])
+    mua = np.array([[m.mua[channel] for m in scene.materials] for channel in group])
+    tables, majorant = walk_tables(mus, mua, np.array([m.g for m in scene.materials]), used)
+    mu_t = (mus + mua)[:, used]
+    uniform = bool(np.all(mu_t == mu_t[:, :1]))
+    return tables, majorant, optics(scene.n, scene.depth, scene.projector, scene.camera, 0.0 if uniform else -1.0)
 
 
-def _analogue_work(scene, photons, seed, lit, streams, channels, windows, truth):
+def _store(windows, truth, rows, group, chunk_windows, chunk_truth, photons, add=False):
+    """Put a channel group's raw chunk sums (per ``photons``) into the transport's arrays."""
+    for k, channel in enumerate(group):
+        if add:
+            windows[rows, :, :, channel] += chunk_windows[..., k] / photons
+        else:
+            windows[rows, :, :, channel] = chunk_windows[..., k] / photons
+        truth[..., channel] += chunk_truth[..., k].sum(axis=0) / photons
+
+
+def _analogue_work(scene, photons, seed, lit, streams, groups, windows, truth):
     """Steps (callables) of the analogue estimator: every lit point's photons on their own."""
     height, width = scene.height, scene.width
     camera = scene.measure == "camera"
     size = windows.shape[1]
 
-    def chunk_step(channel, start):
+    def chunk_step(group, start):
         def step():
-            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
-            columns = (column_optical_depths(scene.volume, tables[0], scene.camera)
-                       if camera and geometry[UNIFORM_MU_T] < 0 else np.zeros((0, 0, 0)))
+            tables, majorant, geometry = _group_setup(scene, group, scene.volume)
+            columns = (column_optical_depths(scene.volume, tables[MU_T:MU_T + len(group)], scene.camera)
+                       if camera and geometry[UNIFORM_MU_T] < 0 else np.zeros((0, 0, 0, 0)))
             chunk = lit[start:start + POINTS_PER_CALL]
-            chunk_windows = np.zeros((len(chunk), size, size))
-            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
+            chunk_windows = np.zeros((len(chunk), size, size, len(group)))
+            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width, len(group)))
             photon.simulate_points(
-                scene.volume, *tables, majorant, geometry, columns, camera, chunk, photons, seed,
-                streams[start:start + POINTS_PER_CALL] + channel * height * width,
+                scene.volume, tables, majorant, geometry, columns, camera, chunk, photons, seed,
+                streams[start:start + POINTS_PER_CALL] + group[0] * height * width,
                 scene.bin_step, chunk_windows, chunk_truth,
             )
-            windows[streams[start:start + len(chunk)], :, :, channel] = chunk_windows / photons
-            truth[..., channel] += chunk_truth.sum(axis=0) / photons
+            _store(windows, truth, streams[start:start + len(chunk)], group, chunk_windows, chunk_truth, photons)
         return step
 
-    for channel in channels:
+    for group in groups:
         for start in range(0, len(lit), POINTS_PER_CALL):
-            yield chunk_step(channel, start)
+            yield chunk_step(group, start)
 
 
-def _reference_work(scene, photons, seed, lit, streams, channels, windows, truth):
-    """Steps (callables) of the reference estimator (:mod:`.reference`): per channel, the
-    reference kernel spread to every lit point, then the correlated differences."""
+def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
+    """Steps (callables) of the reference estimator (:mod:`.reference`): the allocation of the
+    differences' photons (:mod:`.allocation`), then per channel group the reference kernel
+    spread to every lit point and the correlated differences."""
     height, width = scene.height, scene.width
     camera = scene.measure == "camera"
     size = windows.shape[1]
     base = reference_volume(scene.volume)
-    mixed = mixed_columns(scene.volume, base, scene.n, scene.camera)
+    mixed = mixed_voxels(scene.volume, base, scene.n, scene.camera)
     # A walk can reach any column: every lit point needs its differences once one differs.
     differing = np.arange(len(lit)) if mixed.any() else np.zeros(0, np.int64)
     symmetric = scene.camera[0] == 0.0 and scene.projector[0] == 0.0
+    base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, base)
     # Kernel streams sit above every point's walk streams.
     kernel_stream = 3 * height * width
     kernel_photons = photons * len(lit) if len(differing) == 0 else max(1, int(photons * len(lit) * KERNEL_SHARE))
+    # Photons per point of the differences, and the points scored whole (not kernel + difference).
+    allocation = {"direct": np.zeros(len(lit), bool)}
 
-    def kernel_step(channel):
+    def pilot_step():
+        allocation["photons"], allocation["direct"] = allocate(_reach_fractions(scene, lit.tobytes()), photons)
+
+    def kernel_step(group):
         def step():
-            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
-            base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, tables[0], base)
+            # The majorant covers the scene's materials: the differences walk both volumes with it.
+            tables, majorant, _ = _group_setup(scene, group, scene.volume)
             window, kernel = reference_kernel(
                 base, tables, majorant, base_geometry, camera, scene.camera, kernel_photons, seed,
-                kernel_stream + channel * KERNEL_STREAMS, size // 2, (height, width), scene.bin_step,
+                kernel_stream + group[0] * KERNEL_STREAMS, size // 2, (height, width), scene.bin_step,
                 scene.bin_count, symmetric)
-            windows[streams, :, :, channel] += window
-            truth[..., channel] += spread_kernel(kernel, lit, (height, width))
+            kept = ~allocation["direct"]
+            for k, channel in enumerate(group):
+                windows[streams[kept], :, :, channel] += window[..., k]
+                truth[..., channel] += spread_kernel(kernel[..., k:k + 1], lit[kept], (height, width))[..., 0]
         return step
 
-    def difference_step(channel, start):
+    def difference_step(group, start):
         def step():
-            tables, majorant, geometry = _channel_setup(scene, channel, scene.volume)
-            base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, tables[0], base)
+            tables, majorant, geometry = _group_setup(scene, group, scene.volume)
             chosen = differing[start:start + POINTS_PER_CALL]
             chunk = lit[chosen]
-            chunk_windows = np.zeros((len(chunk), size, size))
-            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width))
+            chunk_windows = np.zeros((len(chunk), size, size, len(group)))
+            chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width, len(group)))
             simulate_point_differences(
                 scene.volume, base, mixed, tables, majorant, geometry, base_geometry, camera, scene.camera, chunk,
-                photons, seed, streams[chosen] + channel * height * width, scene.bin_step, chunk_windows, chunk_truth)
-            windows[streams[chosen], :, :, channel] += chunk_windows / photons
-            truth[..., channel] += chunk_truth.sum(axis=0) / photons
+                allocation["photons"][chosen], allocation["direct"][chosen], seed,
+                streams[chosen] + group[0] * height * width, scene.bin_step, chunk_windows, chunk_truth)
+            _store(windows, truth, streams[chosen], group, chunk_windows, chunk_truth, 1, add=True)
         return step
 
-    for channel in channels:
-        yield kernel_step(channel)
+    if len(differing):
+        yield pilot_step
+    for group in groups:
+        yield kernel_step(group)
         for start in range(0, len(differing), POINTS_PER_CALL):
-            yield difference_step(channel, start)
+            yield difference_step(group, start)
+
+
+@functools.lru_cache(maxsize=8)
+def _reach_fractions(scene: Scene, lit_key: bytes) -> np.ndarray:
+    """(n,) :func:`.allocation.reach_fractions` of the lit points (``lit_key``: their (n, 2)
+    int64 ``[y, x]`` as bytes) by a pilot on the scene's own seed, cached per scene: every run of
+    a scene (every batch of a progressive one) shares one allocation."""
+    lit = np.frombuffer(lit_key, np.int64).reshape(-1, 2)
+    height, width = scene.height, scene.width
+    base = reference_volume(scene.volume)
+    group = channel_groups(scene)[0]
+    tables, majorant, geometry = _group_setup(scene, group, scene.volume)
+    # Pilot streams sit above the points' walk streams and the kernel's.
+    streams = 3 * height * width + 4 * KERNEL_STREAMS + lit[:, 0] * width + lit[:, 1]
+    touches = simulate_point_differences(
+        scene.volume, base, mixed_voxels(scene.volume, base, scene.n, scene.camera), tables, majorant, geometry,
+        reference_optics(scene.n, scene.depth, scene.projector, scene.camera, base), scene.measure == "camera",
+        scene.camera, lit, np.full(len(lit), PILOT_PHOTONS), np.zeros(len(lit), bool), scene.seed, streams,
+        scene.bin_step,
+        np.zeros((len(lit), 1, 1, len(group))), np.zeros((min(TRUTH_BLOCKS, len(lit)), 0, height, width, len(group))))
+    return reach_fractions(touches, lit, (height, width), PILOT_PHOTONS)
 
 
 def slab_reflectance(material: Material, n: float) -> np.ndarray:
