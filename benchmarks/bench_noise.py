@@ -3,10 +3,10 @@
 Two runs of a preset with different seeds, a and b; per radius r the relative noise of one run's
 T_r = E_r - E_{r+1}, RMS(T_a - T_b) / sqrt(2) / RMS(T) over the grid and channels
 (:mod:`ringlight.core.simulate.convergence`). Each estimator gets the same simulation time per
-run: photons are set from a timed pilot (at least a tenth of the budget), and the figure is then
-scaled by sqrt(time / budget) (noise falls as 1 / sqrt(time)) so both are compared at exactly the
-budget. Target: <= 0.10 for
-every r <= 8 on red-bead at 32 x 32 within 60 s per run (the default reference estimator).
+run: photons are set from timed pilots (the time per photon and the fixed cost per run), and the
+figure is then also scaled by sqrt(time / budget) (noise falls as 1 / sqrt(time)) so both are
+compared at exactly the budget. Target: <= 0.10 for every r <= 8 on red-bead at 32 x 32 within
+60 s per run (the default reference estimator), as run.
 
     python benchmarks/bench_noise.py [--preset red-bead] [--size 32] [--seconds 60] [--radius 10]
                                      [--estimators reference,analogue]
@@ -29,14 +29,16 @@ TARGET_RADIUS = 8
 def measure(scene, estimator: str, seconds: float, radii) -> tuple[np.ndarray, np.ndarray, float, int]:
     """``(noise as run, noise at the budget, seconds per run, photons)`` of one estimator."""
     simulate_transport(scene, photons=5, seed=0, estimator=estimator)  # compile, and the reference's allocation
-    # Time pilots until one takes a tenth of the budget (fixed costs distort shorter ones).
-    photons = 25
-    while True:
-        pilot = simulate_transport(scene, photons=photons, seed=0, estimator=estimator)
-        if pilot.seconds >= 0.1 * seconds:
-            break
-        photons *= 2
-    photons = max(1, int(photons * 0.95 * seconds / pilot.seconds))
+    # Pilots of doubling photons until one takes a tenth of the budget; the last two give the
+    # time per photon and the fixed cost per run (a line through both).
+    timings = [(25, simulate_transport(scene, photons=25, seed=0, estimator=estimator).seconds)]
+    while timings[-1][1] < 0.1 * seconds or len(timings) < 2:
+        photons = 2 * timings[-1][0]
+        timings.append((photons, simulate_transport(scene, photons=photons, seed=0, estimator=estimator).seconds))
+    (few, short), (many, long) = timings[-2:]
+    per_photon = max(long - short, 1e-9) / (many - few)
+    fixed = max(short - per_photon * few, 0.0)
+    photons = max(1, int(0.97 * (seconds - fixed) / per_photon))
     runs = [simulate_transport(scene, photons=photons, seed=seed, estimator=estimator) for seed in (1, 2)]
     taken = max(run.seconds for run in runs)
     noise = transient_noise(runs[0].windows.astype(np.float64), runs[1].windows.astype(np.float64), radii)

@@ -66,6 +66,15 @@ NO_MAP = np.zeros((0, 0, 0), np.bool_)
 """An empty ``mixed`` map: no voxel is tracked."""
 WEIGHTS = 7
 """A walker's state: y, x, z, uy, ux, uz, path length, then one weight per channel from here."""
+TOTALS = 0
+"""Row of :func:`walk_buffers` that receives the sum of the values a walk scores."""
+
+
+@numba.njit(cache=True, inline="always")
+def walk_buffers(channels):
+    """(3, channels) float64 zeros: row :data:`TOTALS`, then the walk's own scratch rows (its
+    weights and one estimate per channel), allocated once per caller instead of once per walk."""
+    return np.zeros((3, channels))
 
 
 @numba.njit(cache=True, inline="always")
@@ -102,7 +111,7 @@ def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, 
 
 @numba.njit(cache=True)
 def trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns, camera,
-                 window, centre_y, centre_x, truth, bin_step, records, count, photon, totals):
+                 window, centre_y, centre_x, truth, bin_step, records, count, photon, buffers):
     """Trace one photon entering at ``(entry_y, entry_x)`` and score it (see the module notes);
     ``state`` drives the walk, ``estimator_state`` the estimator.
 
@@ -111,13 +120,13 @@ def trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, major
     empty). ``window`` ((2R+1, 2R+1, C), offsets from the lit point ``(centre_y, centre_x)``),
     ``truth`` ((bins, H, W, C), bins of ``bin_step``) and ``records`` ((k, RECORD_FIELDS + C),
     from row ``count``; zero rows to record nothing) receive the scores; ``camera`` picks the
-    measure. ``totals`` (C,) receives the sum of this photon's values. Returns the number of
-    events scored so far.
+    measure. ``buffers`` is :func:`walk_buffers`; its row :data:`TOTALS` receives the sum of this
+    photon's values. Returns the number of events scored so far.
     """
     walker = entering_walker(entry_y, entry_x, optics, channel_count(tables))
     count, _ = walk(state, estimator_state, walker, False, volume, tables, majorant, optics, columns, camera, window,
                     centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, 1.0, NO_MAP,
-                    walker, state, estimator_state, totals)
+                    walker, state, estimator_state, buffers)
     return count
 
 
@@ -140,10 +149,10 @@ def entering_walker(entry_y, entry_x, optics, channels):
 @numba.njit(cache=True)
 def walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns, camera, window,
          centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
-         saved_walker, saved_state, saved_estimator_state, totals):
+         saved_walker, saved_state, saved_estimator_state, buffers):
     """Walk from ``walker`` (``WEIGHTS + C``) until the light leaves, is lost or absorbed,
-    scoring as :func:`trace_photon` does, times ``sign``, and adding the values scored to
-    ``totals`` (C,); ``pending``: the walker stands at a tentative collision not yet decided
+    scoring as :func:`trace_photon` does, times ``sign``, and adding the values scored to row
+    :data:`TOTALS` of ``buffers`` (:func:`walk_buffers`); ``pending``: the walker stands at a tentative collision not yet decided
     (else it is about to fly). ``walker`` itself is not changed.
 
     ``mixed`` ((D, H, W) bool, or the empty :data:`NO_MAP`) marks the voxels where the walk or
@@ -160,8 +169,10 @@ def walk(state, estimator_state, walker, pending, volume, tables, majorant, opti
     n = optics[INDEX]
     depth = optics[DEPTH]
     y, x, z, uy, ux, uz, length = walker[0], walker[1], walker[2], walker[3], walker[4], walker[5], walker[6]
-    weights = walker[WEIGHTS:].copy()
-    values = np.empty(channels)
+    totals = buffers[TOTALS]
+    weights = buffers[TOTALS + 1]
+    weights[:] = walker[WEIGHTS:]
+    values = buffers[TOTALS + 2]
     view = view_constants(optics)
     touched = mixed.shape[0] == 0
     reached = False
@@ -272,11 +283,12 @@ def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
     estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
     sums = np.zeros(channels)
     squares = np.zeros(channels)
-    totals = np.zeros(channels)
+    buffers = walk_buffers(channels)
+    totals = buffers[TOTALS]
     for _ in range(photons):
         totals[:] = 0.0
         trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, tables, majorant,
-                     optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0, totals)
+                     optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0, buffers)
         sums += totals
         squares += totals * totals
     return sums, squares
@@ -313,13 +325,13 @@ def trace_events(volume, tables, majorant, optics, camera, y, x, photons, seed, 
     window = np.zeros((1, 1, channels))
     truth = np.zeros((0, 1, 1, channels))
     columns = np.zeros((0, 0, 0, 0))
-    totals = np.zeros(channels)
+    buffers = walk_buffers(channels)
     count = 0
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
         entry_x = x + uniform(state) - 0.5
         count = trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns,
-                             camera, window, 0, 0, truth, 1.0, records, count, i, totals)
+                             camera, window, 0, 0, truth, 1.0, records, count, i, buffers)
     if count > capacity:
         raise ValueError("trace_events: more events than capacity")
     return records[:count]
@@ -342,7 +354,7 @@ def simulate_points(volume, tables, majorant, optics, columns, camera, lit, phot
     channels = channel_count(tables)
     for block in numba.prange(blocks):
         records = np.zeros((0, RECORD_FIELDS + channels))
-        totals = np.zeros(channels)
+        buffers = walk_buffers(channels)
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             state = seed_state(seed, streams[i])
             estimator_state = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
@@ -351,7 +363,7 @@ def simulate_points(volume, tables, majorant, optics, columns, camera, lit, phot
             for _ in range(photons):
                 trace_photon(state, estimator_state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5, volume,
                              tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block], bin_step,
-                             records, 0, 0, totals)
+                             records, 0, 0, buffers)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -374,7 +386,7 @@ def simulate_differences(volume, reference, mixed, tables, majorant, optics, ref
     channels = channel_count(tables)
     for block in numba.prange(blocks):
         records = np.zeros((0, RECORD_FIELDS + channels))
-        totals = np.zeros(channels)
+        buffers = walk_buffers(channels)
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             seeder = seed_state(seed, streams[i])
             estimator_seeder = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
@@ -396,10 +408,10 @@ def simulate_differences(volume, reference, mixed, tables, majorant, optics, ref
                 _, reached = walk(state, estimator_state, entering_walker(entry_y, entry_x, optics, channels), False,
                                   volume, tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
                                   bin_step, records, 0, 0, entry_y, entry_x, share, NO_MAP if direct[i] else mixed,
-                                  saved, saved_state, saved_estimator_state, totals)
+                                  saved, saved_state, saved_estimator_state, buffers)
                 if reached:
                     touches[i] += 1
                     walk(saved_state, saved_estimator_state, saved, True, reference, tables, majorant,
                          reference_optics, reference_columns, camera, windows[i], ly, lx, truth[block], bin_step,
                          records, 0, 0, entry_y, entry_x, -share, NO_MAP, saved, saved_state, saved_estimator_state,
-                         totals)
+                         buffers)

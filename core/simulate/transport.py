@@ -1,7 +1,8 @@
 """Rendering a scene into an impulse dataset with path-length ground truth.
 
-Every grid point is lit with ``photons_per_point`` photons per colour channel (one pass for grey
-scenes). Impulse frames keep each lit point's light within ``max_radius`` (the part a parallel
+Every grid point is lit with ``photons_per_point`` photons for each group of colour channels
+that scatter alike (:func:`channel_groups`: one group for grey scenes and every preset; each walk
+carries a weight per channel, :mod:`.tables`). Impulse frames keep each lit point's light within ``max_radius`` (the part a parallel
 capture attributes to it: frames are crosstalk-free) and are multiplexed on a lattice of spacing
 ``floor(2 * max_radius) + 1`` when that needs fewer frames than one point per frame. Values are
 the scene's measure (FORMAT.md "What a simulated frame holds"): by default the reflectance
@@ -264,8 +265,8 @@ def _reach_fractions(scene: Scene, lit_key: bytes) -> np.ndarray:
         scene.volume, base, mixed_voxels(scene.volume, base, scene.n, scene.camera), tables, majorant, geometry,
         reference_optics(scene.n, scene.depth, scene.projector, scene.camera, base), scene.measure == "camera",
         scene.camera, lit, np.full(len(lit), PILOT_PHOTONS), np.zeros(len(lit), bool), scene.seed, streams,
-        scene.bin_step,
-        np.zeros((len(lit), 1, 1, len(group))), np.zeros((min(TRUTH_BLOCKS, len(lit)), 0, height, width, len(group))))
+        scene.bin_step, np.zeros((len(lit), 1, 1, len(group))),
+        np.zeros((min(TRUTH_BLOCKS, len(lit)), 0, height, width, len(group))))  # scores discarded
     return reach_fractions(touches, lit, (height, width), PILOT_PHOTONS)
 
 
