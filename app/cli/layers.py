@@ -1,6 +1,9 @@
-"""``ringlight layers``: recover layer colours from transient images at picked radii."""
+"""``ringlight layers``: layer colours, by the paper's methods (transient images at picked radii) or
+by inversion (a layered model fitted to the region's ring-light profiles, with uncertainty)."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from ringlight.core import RinglightError, open_dataset, read_manifest
 from ringlight.core.atomic import check_output_file
@@ -13,6 +16,8 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
+from ringlight.core.inversion.layers import DEFAULT_DEPTH, DEFAULT_PHOTONS, MAX_LAYERS, InversionSettings
+from ringlight.core.inversion.report import invert_region, inversion_json
 
 from .progress import progress_bar
 
@@ -26,7 +31,23 @@ def add_command(subparsers) -> None:
     pick.add_argument("--radii", metavar="R1,R2,...", help="increasing radii of the stack, one per layer")
     pick.add_argument("--auto", type=int, metavar="N", help="propose N radii (default 3 when --radii is absent)")
     layers.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="rectangle region, end exclusive (default: all pixels)")
-    layers.add_argument("--method", choices=METHODS, default="paper")
+    layers.add_argument("--method", choices=(*METHODS, "inverse"), default="paper",
+                        help="paper / radiance: chromaticities of transient images at picked radii; inverse: fit a "
+                             "layered model to the ring-light profiles, with a two-sigma region per layer")
+    inverse = layers.add_argument_group("inverse method")
+    inverse.add_argument("--layers", default="auto", metavar="N|auto",
+                         help=f"number of layers, or auto to compare 1..{MAX_LAYERS} by BIC (default auto)")
+    inverse.add_argument("--boundaries", metavar="B1,B2,...",
+                         help="depths (whole grid steps) where layers meet (default: searched down to 8)")
+    inverse.add_argument("--mus", metavar="MUS|M1,M2,...",
+                         help="scattering coefficient per grid step: one common value, or one per layer with "
+                              "--boundaries (default: a common one chosen by chi-square)")
+    inverse.add_argument("--n", type=float, default=1.4, help="refractive index of the sample (default 1.4)")
+    inverse.add_argument("--g", type=float, default=0.0, help="scattering anisotropy g (default 0)")
+    inverse.add_argument("--depth", type=float, default=DEFAULT_DEPTH,
+                         help=f"modelled thickness in grid steps (default {DEFAULT_DEPTH:g}: a thick sample)")
+    inverse.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
+                         help=f"photons of each white Monte Carlo database (default {DEFAULT_PHOTONS})")
     layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
@@ -48,8 +69,38 @@ def parse_radii(text: str) -> list[float]:
     return radii
 
 
+def parse_inversion(args) -> InversionSettings:
+    """The inverse method's settings, checked before any dataset is loaded."""
+    def numbers(text, kind, name):
+        try:
+            return tuple(kind(part) for part in text.split(","))
+        except ValueError:
+            raise RinglightError(f"--{name} {text!r} must be numbers separated by commas") from None
+
+    if args.layers == "auto":
+        count = None
+    else:
+        try:
+            count = int(args.layers)
+        except ValueError:
+            raise RinglightError(f"--layers {args.layers!r} must be a whole number or auto") from None
+    boundaries = numbers(args.boundaries, int, "boundaries") if args.boundaries else None
+    if boundaries is not None and count is None:
+        count = len(boundaries) + 1
+    mus = None
+    if args.mus:
+        values = numbers(args.mus, float, "mus")
+        mus = values[0] if len(values) == 1 else values
+    if args.photons < 1000:
+        raise RinglightError(f"--photons must be at least 1000, got {args.photons}")
+    settings = InversionSettings(count, boundaries, mus, args.n, args.g, args.depth, args.photons)
+    settings.check()
+    return settings
+
+
 def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
+    settings = parse_inversion(args) if args.method == "inverse" else None
     if args.json:
         check_output_file(args.json, args.force)  # refused before the dataset is opened
     manifest = read_manifest(args.dataset)
@@ -63,6 +114,8 @@ def run_layers(args) -> int:
     else:
         region = full_region(dataset.grid_shape)
         description = "all pixels"
+    if settings is not None:
+        return _run_inverse(args, dataset, region, description, settings)
     request = analysis_stack_request(dataset, args.step, args.dr, args.thickness)
     with progress_bar("computing transient images") as progress:
         analysis = analyse_layers(dataset, region, description, radii=radii, auto=args.auto,
@@ -80,5 +133,33 @@ def run_layers(args) -> int:
         print(f"warning: {warning}")
     if args.json:
         write_text(args.json, analysis_json(analysis, str(dataset.path)), overwrite=args.force)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _run_inverse(args, dataset, region, description: str, settings: InversionSettings) -> int:
+    with progress_bar("fitting layers") as progress:
+        result = invert_region(dataset, region, description, settings, lambda fraction, what: progress(fraction))
+    inversion = result.inversion
+    print(f"{dataset.path}: {description}, method inverse: {inversion.notes}")
+    print(f"fit: chi-square {inversion.chi2:.1f} for {inversion.dof} degrees of freedom, rings used R/G/B "
+          f"{'/'.join(str(int(u)) for u in inversion.used)}, {inversion.seconds:.1f} s")
+    for index, layer in enumerate(inversion.layers):
+        width = np.ptp(layer.region, axis=0).max() if len(layer.region) else float("nan")
+        line = (f"layer {index + 1}  depth {layer.top:g}..{layer.bottom:g}  xy ({layer.xy[0]:.4f}, {layer.xy[1]:.4f})"
+                f"  2-sigma region {width:.3f} wide  sRGB #{'%02x%02x%02x' % layer.swatch}")
+        if not layer.determined:
+            line += "  NOT DETERMINED"
+        if result.errors is not None:
+            line += (f"  truth {result.truth_names[index]} ({result.truth_xy[index][0]:.4f}, "
+                     f"{result.truth_xy[index][1]:.4f})  error {result.errors[index]:.4f}"
+                     f"{'' if result.inside[index] else '  (truth outside the region)'}")
+        print(line)
+        if not layer.determined:
+            print(f"  layer {index + 1}: {layer.reason}")
+    if inversion.warning:
+        print(f"warning: {inversion.warning}")
+    if args.json:
+        write_text(args.json, inversion_json(result, str(dataset.path)), overwrite=args.force)
         print(f"wrote {args.json}")
     return 0

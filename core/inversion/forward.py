@@ -1,0 +1,122 @@
+"""The forward model of a layered slab: region-mean ring-light profiles E_c(r) for any per-layer
+absorption, from a white Monte Carlo database (:mod:`.white_mc`).
+
+A *structure* groups the database's depth bins into layers. With absorption ``mua`` (L,) per layer
+(per grid step, one channel), a record's weight is ``v exp(-sum_k mua_k l_k)`` (``l_k`` its path
+length in layer ``k``); the impulse response at pixel offset ``d`` is the records' mean per photon
+at ``d``, and the ring-light profile is each ring's weighted mean of it (the rings of
+:func:`ringlight.core.rings.geometry.ring_geometry`, as the stacks use them): what the region mean
+of E_r is over a laterally homogeneous region.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from ..rings.geometry import ring_geometry
+from .white_mc import WhiteDatabase
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Layers as runs of depth bins: layer ``k`` covers bins ``[starts[k], starts[k + 1])``, the last
+    one down to the base (``starts[0] == 0``). A bin is one grid step deep but the last."""
+
+    starts: tuple[int, ...]
+
+    @property
+    def layers(self) -> int:
+        return len(self.starts)
+
+    def depth_ranges(self, bins: int, depth: float) -> list[tuple[float, float]]:
+        """Each layer's ``(top, bottom)`` in grid steps; the last one's bottom is ``depth``."""
+        bottoms = list(self.starts[1:]) + [depth]
+        return [(float(top), float(min(bottom, depth))) for top, bottom in zip(self.starts, bottoms)]
+
+
+def ring_matrix(radii, reach: int, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
+    """(R, (2 reach + 1)^2) float64: each ring's member weights over the pixel offsets of a
+    database, normalised to sum 1 per ring (rings must lie within ``reach``)."""
+    side = 2 * reach + 1
+    matrix = np.zeros((len(radii), side * side))
+    for row, radius in enumerate(radii):
+        ring = ring_geometry(float(radius), thickness, antialias)
+        if np.abs(ring.offsets).max(initial=0) > reach:
+            raise ValueError(f"ring of radius {radius} reaches beyond the database's {reach} pixels")
+        index = (ring.offsets[:, 0] + reach) * side + ring.offsets[:, 1] + reach
+        np.add.at(matrix[row], index, ring.weights)
+        matrix[row] /= matrix[row].sum()
+    return matrix
+
+
+class Forward:
+    """E(r) and its derivatives for one database, structure and set of rings (one channel at a time).
+
+    Parameters
+    ----------
+    database
+        The white run.
+    structure
+        How its bins form layers.
+    radii, thickness, antialias
+        The rings, as the stacks take them.
+    """
+
+    def __init__(self, database: WhiteDatabase, structure: Structure, radii, thickness: float = 1.0,
+                 antialias: bool = False):
+        self.database = database
+        self.structure = structure
+        self.radii = np.asarray(radii, np.float64)
+        self.rings = ring_matrix(self.radii, database.optics.reach, thickness, antialias)
+        used = self.rings.any(axis=0)[database.pixel]
+        self.pixel = database.pixel[used]
+        self.value = database.value[used].astype(np.float64)
+        self.photon = database.photon[used]
+        self.lengths = np.add.reduceat(database.lengths[used], np.asarray(structure.starts), axis=1,
+                                       dtype=np.float64)
+        self._pixels = self.rings.shape[1]
+
+    def profile(self, mua: np.ndarray, derivatives: bool = False):
+        """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also
+        dE/dmua (R, L)."""
+        kernel, slopes = _kernel(self.pixel, self.value, self.lengths, np.asarray(mua, np.float64), self._pixels,
+                                 derivatives)
+        scale = 1.0 / self.database.photons
+        profile = self.rings @ kernel * scale
+        if not derivatives:
+            return profile
+        return profile, -(self.rings @ slopes.T) * scale
+
+    def variance(self, mua: np.ndarray) -> np.ndarray:
+        """(R,) variance of :meth:`profile` from the run's own photons (independent photons:
+        the variance of each photon's contribution over the photon count)."""
+        weight = self.value * np.exp(-(self.lengths @ np.asarray(mua, np.float64)))
+        photons = self.database.photons
+        variance = np.empty(len(self.radii))
+        for row in range(len(self.radii)):
+            per_photon = np.bincount(self.photon, weight * self.rings[row, self.pixel], photons)
+            variance[row] = per_photon.var() / photons
+        return variance
+
+
+@numba.njit(cache=True, nogil=True)
+def _kernel(pixel, value, lengths, mua, pixels, derivatives):
+    """Sums per pixel of each record's weight ``value exp(-lengths . mua)`` ((P,)) and, with
+    ``derivatives``, of the weight times each layer's length ((L, P); else (0, P)). Serial: on
+    a busy 2-core machine threads here cost more than they give."""
+    layers = lengths.shape[1]
+    kernel = np.zeros(pixels)
+    slopes = np.zeros((layers if derivatives else 0, pixels))
+    for i in range(pixel.shape[0]):
+        exponent = 0.0
+        for k in range(layers):
+            exponent += lengths[i, k] * mua[k]
+        weight = value[i] * np.exp(-exponent)
+        kernel[pixel[i]] += weight
+        if derivatives:
+            for k in range(layers):
+                slopes[k, pixel[i]] += weight * lengths[i, k]
+    return kernel, slopes

@@ -1,0 +1,311 @@
+"""Layer colours by inversion: fit a layered slab to a region's ring-light profiles.
+
+The model (:mod:`.forward`, :mod:`.white_mc`): layers of a common or given scattering
+coefficient, each with its own absorption per channel, index ``n`` and anisotropy ``g`` given.
+The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
+searched by chi-square; the number of layers is given or chosen by BIC. A common scattering
+coefficient is given or chosen from :data:`MUS_GRID` by chi-square. Each layer's colour is what
+FORMAT.md defines as the truth: the thick-slab reflectance of its fitted material (adding-doubling),
+with a two-sigma region in xy (:mod:`.fit`): the chromaticities of every combination of per-channel
+reflectances within the channels' intervals (a convex polygon: the image of a box in RGB).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from scipy.stats import chi2 as chi2_distribution
+
+from ..colour.chroma import chromaticity, srgb_swatch
+from ..errors import RinglightError
+from ..simulate.adding_doubling import thick_slab_reflectance
+from .fit import MUA_BOUNDS, ChannelFit, fit_channel
+from .forward import Forward, Structure
+from .measured import MeasuredProfile
+from .white_mc import SlabOptics, WhiteDatabase, white_database
+
+SEARCH_BINS = 9
+"""Depth bins of a searched structure: 8 of one grid step, then the base."""
+MUS_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
+"""Common scattering coefficients (per grid step) tried when none is given."""
+MAX_LAYERS = 4
+DEFAULT_PHOTONS = 20_000
+DEFAULT_DEPTH = 64.0
+SEARCH_SHARE = 4
+"""A structure search fits with one in this many of the database's photons; the chosen one is
+fitted again with all."""
+CHANNEL_NAMES = ("R", "G", "B")
+MISFIT_P = 1e-3
+"""A fit whose chi-square is this improbable under the model is reported as not fitting, and none
+of its layers as determined."""
+
+
+class InversionError(RinglightError):
+    """An inversion cannot be set up (bad settings or too little signal)."""
+
+
+@dataclass(frozen=True)
+class InversionSettings:
+    """What the user gives.
+
+    Attributes
+    ----------
+    layers
+        Number of layers, or None to compare 1 .. MAX_LAYERS by BIC.
+    boundaries
+        Depths (whole grid steps, increasing, > 0) where layers meet; None to search them.
+    mus
+        One common scattering coefficient, one per layer (boundaries then needed), or None to
+        choose a common one from :data:`MUS_GRID`; per grid step.
+    n, g
+        Refractive index and Henyey-Greenstein anisotropy.
+    depth
+        Thickness of the modelled slab, grid steps (light below is lost).
+    photons
+        Photons of each white database.
+    """
+
+    layers: int | None = None
+    boundaries: tuple[int, ...] | None = None
+    mus: float | tuple[float, ...] | None = None
+    n: float = 1.4
+    g: float = 0.0
+    depth: float = DEFAULT_DEPTH
+    photons: int = DEFAULT_PHOTONS
+
+    def check(self) -> None:
+        """Raise :class:`InversionError` naming the first setting that cannot work."""
+        if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
+            raise InversionError(f"--layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
+        if self.boundaries is not None:
+            bounds = list(self.boundaries)
+            if any(b <= 0 for b in bounds) or bounds != sorted(set(bounds)) or bounds and bounds[-1] >= self.depth:
+                raise InversionError(f"layer boundaries must increase from above 0 to below the depth "
+                                     f"{self.depth:g}, got {', '.join(map(str, bounds))}")
+            if self.layers is not None and len(bounds) != self.layers - 1:
+                raise InversionError(f"{self.layers} layers need {self.layers - 1} boundaries, got {len(bounds)}")
+        if isinstance(self.mus, tuple):
+            if self.boundaries is None:
+                raise InversionError("a scattering coefficient per layer needs the layer boundaries too")
+            if len(self.mus) != len(self.boundaries) + 1:
+                raise InversionError(f"{len(self.boundaries) + 1} layers need {len(self.boundaries) + 1} "
+                                     f"scattering coefficients, got {len(self.mus)}")
+        if self.mus is not None and min(np.atleast_1d(self.mus)) <= 0:
+            raise InversionError("scattering coefficients must be > 0")
+        if not 1.0 <= self.n <= 3.0:
+            raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
+        if not -1.0 < self.g < 1.0:
+            raise InversionError(f"the anisotropy g must be in (-1, 1), got {self.g:g}")
+
+
+@dataclass(frozen=True)
+class InvertedLayer:
+    """One fitted layer.
+
+    Attributes
+    ----------
+    top, bottom
+        Depth range, grid steps.
+    mus
+        Scattering coefficient, per grid step.
+    mua, mua_interval
+        (3,) fitted absorption and (3, 2) its two-sigma range per channel, per grid step.
+    determined
+        False when some channel's absorption is not bounded by the data; ``reason`` says which.
+    rgb, xy
+        Thick-slab colour (linear, the dataset's colourspace) and its chromaticity.
+    region
+        (K, 2) the two-sigma region in xy, a convex polygon.
+    swatch
+        8-bit sRGB of ``rgb``.
+    """
+
+    top: float
+    bottom: float
+    mus: float
+    mua: np.ndarray
+    mua_interval: np.ndarray
+    determined: bool
+    reason: str
+    rgb: np.ndarray
+    xy: np.ndarray
+    region: np.ndarray
+    swatch: tuple[int, int, int]
+
+
+@dataclass(frozen=True, eq=False)
+class Inversion:
+    """The fit of one region.
+
+    Attributes
+    ----------
+    layers
+        The layers, top first.
+    measured
+        The region's profile that was fitted.
+    model, sigma
+        (R, 3) the fitted E(r) and the standard deviation each ring was weighted by.
+    used
+        (3,) rings fitted per channel (from r = 0).
+    chi2, dof
+        Chi-square of the fit over every channel and its degrees of freedom.
+    warning
+        Why the model may not fit (chi-square too large), or None.
+    notes
+        How the structure and scattering were chosen.
+    seconds
+        Time the fit took (databases included).
+    """
+
+    layers: list[InvertedLayer]
+    measured: MeasuredProfile
+    model: np.ndarray
+    sigma: np.ndarray
+    used: np.ndarray
+    chi2: float
+    dof: int
+    warning: str | None
+    notes: str
+    seconds: float
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof else math.nan
+
+
+Progress = Callable[[float, str], None]
+
+
+def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: str = "sRGB",
+           progress: Progress | None = None) -> Inversion:
+    """Fit ``measured`` (R, 3) as ``settings`` say; ``progress(fraction, what)`` is called along
+    the way (raise from it to cancel)."""
+    settings.check()
+    start = time.perf_counter()
+    report = progress or (lambda fraction, what: None)
+    if not np.isfinite(measured.mean).any():
+        raise InversionError("the region's profile holds no values")
+    mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
+    candidates = []
+    share = 1.0 / (len(mus_choices) + 1)
+    for index, mus in enumerate(mus_choices):
+        what = f"white Monte Carlo for mus {_mus_text(mus)}"
+        report(index * share, what)
+        optics = _optics(settings, mus)
+        database = white_database(optics, settings.photons,
+                                  progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
+        structures = list(_structures(settings, optics.bins))
+        if len(structures) == 1 and len(mus_choices) == 1:
+            candidates.append((0.0, 0.0, mus, structures[0], database))
+            break
+        search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
+        for number, structure in enumerate(structures):
+            report((index + 0.5 + 0.5 * number / len(structures)) * share, f"fitting structures for mus {_mus_text(mus)}")
+            forward = Forward(search, structure, measured.radii)
+            fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c], intervals=False)
+                    for c in range(3)]
+            chi2 = sum(f.chi2 for f in fits)
+            points = sum(f.used for f in fits)
+            bic = chi2 + 3 * structure.layers * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
+            candidates.append((bic, chi2, mus, structure, database))
+    usable = [c for c in candidates if math.isfinite(c[0])]
+    if not usable:
+        raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
+    bic, _, mus, structure, database = min(usable, key=lambda c: c[0])
+    report(len(mus_choices) * share, "fitting the chosen structure")
+    forward = Forward(database, structure, measured.radii)
+    fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
+    layers = _layers(fits, structure, database.optics, colorspace)
+    chi2 = float(sum(f.chi2 for f in fits))
+    dof = int(sum(f.dof for f in fits))
+    warning = None
+    if dof and chi2_distribution.sf(chi2, dof) < MISFIT_P:
+        warning = (f"the model does not fit: chi-square {chi2:.0f} for {dof} degrees of freedom "
+                   f"(check n, g, the scattering, the layer count and whether the region is laterally uniform)")
+        layers = [replace(layer, determined=False, reason="the model does not fit the profile (chi-square), so its "
+                          "uncertainty regions do not hold") for layer in layers]
+    notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
+             f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
+             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ')' if settings.mus is None else ''}, "
+             f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons")
+    report(1.0, "done")
+    return Inversion(layers, measured, np.stack([f.model for f in fits], axis=1),
+                     np.stack([f.sigma for f in fits], axis=1), np.array([f.used for f in fits]), chi2, dof,
+                     warning, notes, time.perf_counter() - start)
+
+
+def _mus_text(mus) -> str:
+    return ", ".join(f"{m:g}" for m in np.atleast_1d(mus))
+
+
+def _optics(settings: InversionSettings, mus) -> SlabOptics:
+    """The white database's optics: per-layer scattering over the given boundaries, or a common
+    one over :data:`SEARCH_BINS` bins."""
+    reach = 13
+    if isinstance(mus, tuple):
+        edges = [0, *settings.boundaries]
+        bins = []
+        for k, top in enumerate(edges):
+            bottom = edges[k + 1] if k + 1 < len(edges) else top + 1
+            bins += [mus[k]] * (bottom - top)
+        return SlabOptics(tuple(float(m) for m in bins), settings.g, settings.n, settings.depth, reach)
+    return SlabOptics((float(mus),) * SEARCH_BINS, settings.g, settings.n, settings.depth, reach)
+
+
+def _structures(settings: InversionSettings, bins: int):
+    """Every structure to try."""
+    if settings.boundaries is not None:
+        yield Structure((0, *settings.boundaries))
+        return
+    counts = [settings.layers] if settings.layers is not None else range(1, MAX_LAYERS + 1)
+    for count in counts:
+        for cut in itertools.combinations(range(1, bins), count - 1):
+            yield Structure((0, *cut))
+
+
+def _thinned(database, share: int):
+    """The records of the first 1/share of the photons, as a database of that many photons."""
+    keep = database.photon < database.photons // share
+    return WhiteDatabase(database.optics, database.photons // share, database.pixel[keep], database.value[keep],
+                         database.lengths[keep], database.photon[keep], database.seconds)
+
+
+def _layers(fits: list[ChannelFit], structure: Structure, optics: SlabOptics, colorspace: str) -> list[InvertedLayer]:
+    ranges = structure.depth_ranges(optics.bins, optics.depth)
+    layers = []
+    for k, (top, bottom) in enumerate(ranges):
+        mus = optics.mus[structure.starts[k]]
+        mua = np.array([f.mua[k] for f in fits])
+        interval = np.array([f.interval[k] for f in fits])
+        open_channels = [CHANNEL_NAMES[c] for c, f in enumerate(fits) if f.unbounded[k] or not np.isfinite(f.mua[k])]
+        reason = ""
+        if open_channels:
+            reason = (f"absorption in {', '.join(open_channels)} is not bounded by the data (the two-sigma range "
+                      f"reaches {MUA_BOUNDS[1]:g} per grid step): the layers above absorb that light, or too "
+                      f"few rings stand out of the noise")
+        filled = np.where(np.isfinite(mua), mua, MUA_BOUNDS[1])
+        rgb = thick_slab_reflectance(np.full(3, mus), filled, optics.g, optics.n)
+        corners = np.array(list(itertools.product(*[interval[c] for c in range(3)])))  # (8, 3) mua
+        corner_rgb = thick_slab_reflectance(np.full(corners.size, mus), corners.ravel(), optics.g,
+                                            optics.n).reshape(corners.shape)
+        corner_xy = chromaticity(corner_rgb, colorspace)
+        corner_xy = corner_xy[np.isfinite(corner_xy).all(axis=1)]
+        region = cv2.convexHull(corner_xy.astype(np.float32)).reshape(-1, 2).astype(np.float64) \
+            if len(corner_xy) else np.zeros((0, 2))
+        layers.append(InvertedLayer(top, bottom, float(mus), mua, interval, not open_channels, reason, rgb,
+                                    chromaticity(rgb, colorspace), region, srgb_swatch(rgb, colorspace)))
+    return layers
+
+
+def region_contains(region: np.ndarray, xy) -> bool:
+    """Whether the polygon ``region`` (K, 2) contains ``xy`` (on the edge counts)."""
+    if len(region) < 3:
+        return False
+    return cv2.pointPolygonTest(region.astype(np.float32).reshape(-1, 1, 2), (float(xy[0]), float(xy[1])),
+                                False) >= 0

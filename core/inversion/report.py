@@ -1,0 +1,95 @@
+"""An inversion of a dataset's region end to end, and its result as JSON (CLI and window share it)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..colour.chroma import chromaticity
+from ..colour.layer_report import truth_layers
+from ..dataset.impulse_dataset import ImpulseDataset
+from .layers import Inversion, InversionSettings, Progress, invert, region_contains
+from .measured import measured_profile
+
+
+@dataclass(frozen=True, eq=False)
+class DatasetInversion:
+    """An inversion with the region it describes and the dataset's ground truth, when it has one.
+
+    ``truth_xy`` is (K, 2) for the truth's K layers (None without); ``errors`` and ``inside`` hold
+    each fitted layer's xy distance to the truth layer of the same index and whether the truth lies
+    in its two-sigma region (None unless the layer counts agree)."""
+
+    inversion: Inversion
+    region_description: str
+    truth_names: tuple[str, ...]
+    truth_xy: np.ndarray | None
+    errors: list[float] | None
+    inside: list[bool] | None
+
+
+def profile_radii(dataset: ImpulseDataset) -> np.ndarray:
+    """Radii 0, 1, ... whose rings (thickness 1) lie within the dataset's max_radius."""
+    return np.arange(0.0, math.floor(dataset.max_radius - 0.5) + 1.0)
+
+
+def invert_region(dataset: ImpulseDataset, region: np.ndarray, region_description: str,
+                  settings: InversionSettings, progress: Progress | None = None) -> DatasetInversion:
+    """Measure ``region``'s profile and invert it (see :func:`ringlight.core.inversion.layers.invert`)."""
+    settings.check()
+    measured = measured_profile(dataset, region, profile_radii(dataset))
+    inversion = invert(measured, settings, dataset.colorspace, progress)
+    names, truth_rgb = truth_layers(dataset)
+    truth_xy = chromaticity(truth_rgb, dataset.colorspace) if truth_rgb is not None else None
+    errors = inside = None
+    if truth_xy is not None and len(truth_xy) == len(inversion.layers):
+        errors = [float(np.hypot(*(layer.xy - xy))) for layer, xy in zip(inversion.layers, truth_xy)]
+        inside = [region_contains(layer.region, xy) for layer, xy in zip(inversion.layers, truth_xy)]
+    return DatasetInversion(inversion, region_description, names, truth_xy, errors, inside)
+
+
+def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
+    """The JSON document of an inversion (NaN written as null)."""
+    inversion = result.inversion
+    layers = []
+    for index, layer in enumerate(inversion.layers):
+        entry = {
+            "depth": [layer.top, layer.bottom], "mus": layer.mus, "mua": _finite(layer.mua),
+            "mua_two_sigma": [_finite(row) for row in layer.mua_interval],
+            "determined": layer.determined, "not_determined_because": layer.reason or None,
+            "rgb": _finite(layer.rgb), "xy": _finite(layer.xy), "srgb8": "#%02x%02x%02x" % layer.swatch,
+            "xy_two_sigma_region": [_finite(point) for point in layer.region],
+        }
+        if result.errors is not None:
+            entry.update(truth=result.truth_names[index], truth_xy=_finite(result.truth_xy[index]),
+                         xy_error=result.errors[index], truth_in_region=result.inside[index])
+        layers.append(entry)
+    return {
+        "format": "ringlight-layers", "version": 1, "dataset": dataset_path, "method": "inverse",
+        "region": result.region_description, "model": inversion.notes,
+        "fit": {"chi2": _number(inversion.chi2), "dof": inversion.dof, "chi2_per_dof": _number(inversion.chi2_per_dof),
+                "rings_used": {"R": int(inversion.used[0]), "G": int(inversion.used[1]), "B": int(inversion.used[2])},
+                "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
+        "uncertainty": "two-sigma (95.4 %) region of the three channels together; see ringlight.core.inversion.fit",
+        "profile": {"radii": _finite(inversion.measured.radii),
+                    "measured": [_finite(row) for row in inversion.measured.mean],
+                    "standard_error": [_finite(row) for row in inversion.measured.standard_error],
+                    "model": [_finite(row) for row in inversion.model],
+                    "sigma": [_finite(row) for row in inversion.sigma]},
+        "layers": layers,
+    }
+
+
+def inversion_json(result: DatasetInversion, dataset_path: str) -> str:
+    return json.dumps(inversion_document(result, dataset_path), indent=1, allow_nan=False) + "\n"
+
+
+def _number(value: float):
+    return float(value) if math.isfinite(value) else None
+
+
+def _finite(values):
+    return [_number(float(value)) for value in values]

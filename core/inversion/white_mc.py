@@ -1,0 +1,318 @@
+"""The white Monte Carlo of a layered slab: one simulation without absorption, reweighted for any
+absorption per depth bin (the scaling or "white" Monte Carlo of biomedical optics; Graaff et al.
+1993, Alerstam et al. 2008).
+
+Geometry and estimator are the simulator's (:mod:`ringlight.core.simulate.photon`,
+:mod:`ringlight.core.simulate.camera`): a laterally homogeneous slab of index ``n`` below a flat
+surface, ``depth`` grid steps deep (light crossing ``z = depth`` is lost), the beam straight down
+entering uniformly over the lit pixel with the Fresnel transmission as its weight, the camera
+straight down (FORMAT.md, "What a simulated frame holds"). Lengths are in grid steps, coefficients
+per grid step.
+
+The scattering coefficient may differ per depth bin (bin ``b < B - 1`` is ``[b, b + 1)``, the last
+one ``[B - 1, depth)``); the walk has no absorption. At every real scattering within
+``reach`` pixels of the lit point the camera's next-event estimate with ``cos th_i = 1``,
+
+    v = T_entry pi T_F(0) / n^2  p_HG(-u_z)  exp(-sum_b mus_b up_b),
+
+is recorded with its pixel and its path length in each bin, ``l_b`` (the walk so far plus the
+leg ``up_b`` straight up to the surface). In the medium with absorption ``mua_b`` per bin and the
+same ``mus``, ``g``, ``n``, the walk's probability changes by ``exp(-sum_b mua_b l_b)``: the same
+estimate is ``v exp(-sum_b mua_b l_b)``, exactly, for any absorption.
+
+Estimates below :data:`THIN_VALUE` (from deep vertices) are kept with probability
+``v / THIN_VALUE`` at value ``THIN_VALUE`` (unbiased), which bounds the number of records.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from ..atomic import atomic_file
+from ..dataset.cache import user_cache_root
+from ..errors import RinglightError
+from ..simulate.camera import exit_fresnel, henyey_greenstein
+from ..simulate.streams import ESTIMATOR_STREAM, seed_state, uniform
+
+THIN_VALUE = 1e-3
+BLOCKS = 32
+"""Photons run in this many blocks, one random stream each (results do not depend on threads)."""
+CHUNK = 4
+"""Blocks run in parallel between progress reports."""
+FORMAT_VERSION = 1
+OPTICAL_DEPTH_CUTOFF = 40.0
+
+
+class DatabaseError(RinglightError):
+    """A white Monte Carlo database cannot be made or read."""
+
+
+@dataclass(frozen=True)
+class SlabOptics:
+    """What a white database depends on.
+
+    Attributes
+    ----------
+    mus
+        (B,) scattering coefficient per depth bin, per grid step; the last bin reaches ``depth``.
+    g, n
+        Henyey-Greenstein anisotropy and refractive index.
+    depth
+        Grid steps below the surface where light is lost (>= B - 1 + a fraction).
+    reach
+        Records are kept for pixels with ``|dy|, |dx| <= reach`` of the lit pixel.
+    """
+
+    mus: tuple[float, ...]
+    g: float
+    n: float
+    depth: float
+    reach: int
+
+    @property
+    def bins(self) -> int:
+        return len(self.mus)
+
+    def key(self, photons: int, seed: int) -> str:
+        text = json.dumps({"mus": self.mus, "g": self.g, "n": self.n, "depth": self.depth, "reach": self.reach,
+                           "photons": photons, "seed": seed, "version": FORMAT_VERSION, "thin": THIN_VALUE})
+        return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+@dataclass(frozen=True, eq=False)
+class WhiteDatabase:
+    """The records of a white run.
+
+    Attributes
+    ----------
+    optics
+        What it was run for.
+    photons
+        Photons traced.
+    pixel
+        (M,) int32 index of each record's pixel, ``(dy + reach) * (2 reach + 1) + dx + reach``.
+    value
+        (M,) float32 next-event estimate without absorption.
+    lengths
+        (M, B) float32 path length in each depth bin, grid steps.
+    photon
+        (M,) int32 the photon each record belongs to (0 .. photons - 1), for the run's own variance.
+    seconds
+        Time the run took.
+    """
+
+    optics: SlabOptics
+    photons: int
+    pixel: np.ndarray
+    value: np.ndarray
+    lengths: np.ndarray
+    photon: np.ndarray
+    seconds: float
+
+    @property
+    def side(self) -> int:
+        return 2 * self.optics.reach + 1
+
+
+@numba.njit(cache=True, inline="always")
+def _bin(z, bins):
+    return min(int(z), bins - 1)
+
+
+@numba.njit(cache=True, inline="always")
+def _add_flight(lengths, z0, z1, step):
+    """Add a flight of ``step`` from depth ``z0`` to ``z1`` to ``lengths`` (B,) bin by bin."""
+    bins = lengths.shape[0]
+    b0 = _bin(z0, bins)
+    b1 = _bin(z1, bins)
+    if b0 == b1:
+        lengths[b0] += step
+        return
+    low = min(z0, z1)
+    high = max(z0, z1)
+    per_depth = step / (high - low)
+    for b in range(min(b0, b1), max(b0, b1) + 1):
+        bottom = b + 1.0 if b < bins - 1 else math.inf
+        overlap = min(high, bottom) - max(low, float(b))
+        if overlap > 0.0:
+            lengths[b] += overlap * per_depth
+
+
+@numba.njit(cache=True)
+def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, pixel, value, lengths_out, photon_out):
+    """Trace ``photons`` photons on stream ``stream`` and write their records from row 0 while there
+    is room; returns how many records they made (more than the rows: the caller retries)."""
+    bins = mus.shape[0]
+    majorant = mus.max()
+    state = seed_state(seed, stream)
+    estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
+    entry_weight = 1.0 - exit_fresnel(n, 1.0)
+    view_factor = math.pi * (1.0 - exit_fresnel(n, 1.0)) / (n * n)
+    side = 2 * reach + 1
+    capacity = pixel.shape[0]
+    lengths = np.zeros(bins)
+    up = np.zeros(bins)
+    count = 0
+    for p in range(photons):
+        y = uniform(state) - 0.5
+        x = uniform(state) - 0.5
+        z = 0.0
+        uy, ux, uz = 0.0, 0.0, 1.0
+        lengths[:] = 0.0
+        while True:
+            step = -math.log(1.0 - uniform(state)) / majorant
+            if uz < 0.0 and z + step * uz <= 0.0:
+                travel = -z / uz
+                _add_flight(lengths, z, 0.0, travel)
+                y += travel * uy
+                x += travel * ux
+                z = 0.0
+                if uniform(state) < exit_fresnel(n, -uz):
+                    uz = -uz
+                    continue
+                break
+            if uz > 0.0 and z + step * uz >= depth:
+                break
+            z_next = z + step * uz
+            _add_flight(lengths, z, z_next, step)
+            y += step * uy
+            x += step * ux
+            z = z_next
+            if uniform(state) * majorant >= mus[_bin(z, bins)]:
+                continue
+            dy = int(math.floor(y + 0.5))
+            dx = int(math.floor(x + 0.5))
+            if abs(dy) <= reach and abs(dx) <= reach:
+                tau = 0.0
+                for b in range(bins):
+                    top = float(b)
+                    if top >= z:
+                        up[b] = 0.0
+                        continue
+                    bottom = b + 1.0 if b < bins - 1 else math.inf
+                    up[b] = min(z, bottom) - top
+                    tau += mus[b] * up[b]
+                if tau < OPTICAL_DEPTH_CUTOFF:
+                    estimate = entry_weight * view_factor * henyey_greenstein(-uz, g) * math.exp(-tau)
+                    keep = True
+                    if estimate < THIN_VALUE:
+                        keep = uniform(estimator_state) * THIN_VALUE < estimate
+                        estimate = THIN_VALUE
+                    if keep:
+                        if count < capacity:
+                            pixel[count] = (dy + reach) * side + dx + reach
+                            value[count] = estimate
+                            for b in range(bins):
+                                lengths_out[count, b] = lengths[b] + up[b]
+                            photon_out[count] = first_photon + p
+                        count += 1
+            if g == 0.0:
+                cos_theta = 2.0 * uniform(state) - 1.0
+            else:
+                ratio = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(state))
+                cos_theta = min(1.0, max(-1.0, (1.0 + g * g - ratio * ratio) / (2.0 * g)))
+            sin_theta = math.sqrt(1.0 - cos_theta * cos_theta)
+            phi = 2.0 * math.pi * uniform(state)
+            cos_phi = math.cos(phi)
+            sin_phi = math.sin(phi)
+            if abs(uz) > 0.99999:
+                uy = sin_theta * sin_phi
+                ux = sin_theta * cos_phi
+                uz = cos_theta if uz > 0.0 else -cos_theta
+            else:
+                root = math.sqrt(1.0 - uz * uz)
+                new_ux = sin_theta * (ux * uz * cos_phi - uy * sin_phi) / root + ux * cos_theta
+                new_uy = sin_theta * (uy * uz * cos_phi + ux * sin_phi) / root + uy * cos_theta
+                uz = -sin_theta * cos_phi * root + uz * cos_theta
+                ux = new_ux
+                uy = new_uy
+    return count
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _white_blocks(mus, g, n, depth, reach, per_block, seed, first, pixel, value, lengths, photon, counts):
+    """:func:`_white_block` for blocks ``first, first + 1, ...`` (rows ``pixel[i]`` etc. for block
+    ``first + i``) in parallel; ``counts[i]``."""
+    for i in numba.prange(counts.shape[0]):
+        b = first + i
+        counts[i] = _white_block(mus, g, n, depth, reach, per_block, b * per_block, seed, b, pixel[i], value[i],
+                                 lengths[i], photon[i])
+
+
+def run_white(optics: SlabOptics, photons: int, seed: int = 0, progress=None) -> WhiteDatabase:
+    """Trace ``photons`` (rounded up to a multiple of :data:`BLOCKS`) without absorption;
+    ``progress(fraction)`` after each :data:`CHUNK` blocks (raise from it to cancel)."""
+    start = time.perf_counter()
+    mus = np.asarray(optics.mus, np.float64)
+    per_block = -(-photons // BLOCKS)
+    bins = optics.bins
+    # A pilot of one block's first photons sizes the buffers; a block that overflows runs again.
+    probe = max(1, min(per_block, 64))
+    pilot = _white_block(mus, optics.g, optics.n, optics.depth, optics.reach, probe, 0, seed, 0,
+                         np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros((0, bins), np.float32),
+                         np.zeros(0, np.int32))
+    capacity = int(1.3 * pilot * per_block / probe) + 1024
+    parts = []
+    for first in range(0, BLOCKS, CHUNK):
+        pixel = np.zeros((CHUNK, capacity), np.int32)
+        value = np.zeros((CHUNK, capacity), np.float32)
+        lengths = np.zeros((CHUNK, capacity, bins), np.float32)
+        photon = np.zeros((CHUNK, capacity), np.int32)
+        counts = np.zeros(CHUNK, np.int64)
+        _white_blocks(mus, optics.g, optics.n, optics.depth, optics.reach, per_block, seed, first, pixel, value,
+                      lengths, photon, counts)
+        for i in range(CHUNK):
+            if counts[i] <= capacity:
+                parts.append((pixel[i, :counts[i]].copy(), value[i, :counts[i]].copy(), lengths[i, :counts[i]].copy(),
+                              photon[i, :counts[i]].copy()))
+                continue
+            size = int(counts[i])
+            again = (np.zeros(size, np.int32), np.zeros(size, np.float32), np.zeros((size, bins), np.float32),
+                     np.zeros(size, np.int32))
+            b = first + i
+            _white_block(mus, optics.g, optics.n, optics.depth, optics.reach, per_block, b * per_block, seed, b,
+                         *again)
+            parts.append(again)
+        if progress is not None:
+            progress((first + CHUNK) / BLOCKS)
+    return WhiteDatabase(optics, per_block * BLOCKS, np.concatenate([p[0] for p in parts]),
+                         np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]),
+                         np.concatenate([p[3] for p in parts]), time.perf_counter() - start)
+
+
+def database_path(optics: SlabOptics, photons: int, seed: int) -> Path:
+    """Where the database of these optics lives in the user cache."""
+    return user_cache_root() / "white" / f"{optics.key(photons, seed)}.npz"
+
+
+def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: bool = True,
+                   progress=None) -> WhiteDatabase:
+    """The database of ``optics`` from the user cache, or run (and cached atomically);
+    ``progress`` as :func:`run_white` takes it."""
+    path = database_path(optics, photons, seed)
+    if use_cache and path.exists():
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"], data["lengths"],
+                                     data["photon"], float(data["seconds"]))
+        except (OSError, ValueError, KeyError) as error:
+            raise DatabaseError(f"{path}: unreadable white Monte Carlo database ({error}); delete it to rerun") \
+                from None
+    database = run_white(optics, photons, seed, progress)
+    if use_cache:
+        try:
+            with atomic_file(path, overwrite=True) as temporary:
+                with open(temporary, "wb") as handle:
+                    np.savez(handle, photons=database.photons, pixel=database.pixel, value=database.value,
+                             lengths=database.lengths, photon=database.photon, seconds=database.seconds)
+        except OSError:
+            pass  # an unwritable cache only costs the next run its time
+    return database

@@ -1,0 +1,183 @@
+"""The layer inversion (ringlight.core.inversion): the white Monte Carlo forward model against the
+direct simulator, recovery of known layers with honest uncertainty, and misfit detection."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from ringlight.app.main import main
+from ringlight.core.colour.chroma import chromaticity
+from ringlight.core.dataset.impulse_dataset import open_dataset
+from ringlight.core.inversion.forward import Forward, Structure, ring_matrix
+from ringlight.core.inversion.layers import InversionSettings, invert, region_contains
+from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
+from ringlight.core.inversion.report import invert_region
+from ringlight.core.inversion.white_mc import SlabOptics, run_white
+from ringlight.core.rings.geometry import ring_geometry
+from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
+from ringlight.core.simulate.camera import optics as scene_optics
+from ringlight.core.simulate.photon import trace_events
+from ringlight.core.simulate.samples import sample_dataset
+from ringlight.core.simulate.tables import walk_tables
+
+RADII = np.arange(0.0, 10.0)
+REACH = 13
+
+
+def direct_profile(mus_layers, mua_layers, tops, g, n, depth, photons, seed):
+    """Mean and standard error (R, 3) of the ring profile of a layered slab by the direct simulator
+    (its own walks with absorption, three channels), from each photon's contribution."""
+    volume = np.zeros((int(depth), 1, 1), np.uint8)
+    for index, top in enumerate(tops):
+        volume[top:] = index
+    tables, majorant = walk_tables(np.array(mus_layers), np.array(mua_layers).T, np.full(len(tops), g))
+    events = trace_events(volume, tables, majorant, scene_optics(n, depth), True, 0, 0, photons, seed, 3, 30_000_000)
+    py = np.floor(events[:, 3] + 0.5).astype(int)
+    px = np.floor(events[:, 4] + 0.5).astype(int)
+    inside = (np.abs(py) <= REACH) & (np.abs(px) <= REACH)
+    pixel = (py[inside] + REACH) * (2 * REACH + 1) + px[inside] + REACH
+    photon = events[inside, 0].astype(int)
+    rings = ring_matrix(RADII, REACH)
+    mean = np.empty((len(RADII), 3))
+    error = np.empty((len(RADII), 3))
+    for c in range(3):
+        for row in range(len(RADII)):
+            per_photon = np.bincount(photon, events[inside, 6 + c] * rings[row, pixel], photons)
+            mean[row, c] = per_photon.mean()
+            error[row, c] = per_photon.std() / np.sqrt(photons)
+    return mean, error
+
+
+# Three layers of different scattering, forward-peaked, a Fresnel surface: every part of the model.
+MUS = [0.8, 0.8, 2.0]
+MUA = [[0.2, 0.02, 0.005], [0.01, 0.25, 0.03], [0.05, 0.01, 0.15]]
+TOPS = [0, 2, 4]
+
+
+def test_white_forward_model_equals_the_direct_simulator_within_three_standard_errors():
+    optics = SlabOptics((0.8, 0.8, 0.8, 0.8, 2.0), 0.5, 1.4, 24.0, REACH)
+    database = run_white(optics, 16_000, seed=3)
+    forward = Forward(database, Structure((0, 2, 4)), RADII)
+    direct, direct_error = direct_profile(MUS, MUA, TOPS, 0.5, 1.4, 24.0, 16_000, seed=11)
+    for c in range(3):
+        mua = np.array([layer[c] for layer in MUA])
+        model = forward.profile(mua)
+        z = (model - direct[:, c]) / np.sqrt(forward.variance(mua) + direct_error[:, c] ** 2)
+        assert np.abs(z).max() < 3.0, (c, z)
+        # and the profile is far from flat: the comparison has teeth
+        assert model[0] / model[-1] > 100
+
+
+def test_white_derivatives_match_finite_differences():
+    optics = SlabOptics((1.0,) * 5, 0.0, 1.3, 16.0, REACH)
+    forward = Forward(run_white(optics, 2_000, seed=1), Structure((0, 2)), RADII)
+    mua = np.array([0.1, 0.03])
+    _, slopes = forward.profile(mua, derivatives=True)
+    for k in range(2):
+        step = np.zeros(2)
+        step[k] = 1e-6
+        numeric = (forward.profile(mua + step) - forward.profile(mua - step)) / 2e-6
+        np.testing.assert_allclose(slopes[:, k], numeric, rtol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def shared_cache(tmp_path_factory):
+    """One user cache for this module's dataset tests, so the white database is run once."""
+    return tmp_path_factory.mktemp("inversion-cache")
+
+
+@pytest.fixture(scope="module")
+def layers3_sample(shared_cache):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+        return sample_dataset("layers3")
+
+
+LAYERS3 = InversionSettings(boundaries=(2, 5), mus=(0.5, 0.5, 1.5), n=1.3, g=0.0, depth=24.0, photons=20_000)
+
+
+def test_layers3_sample_top_and_middle_recovered_base_honestly_undetermined(layers3_sample, shared_cache, monkeypatch):
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    dataset = open_dataset(layers3_sample)
+    result = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", LAYERS3)
+    inversion = result.inversion
+    assert inversion.warning is None and inversion.chi2 < 2 * inversion.dof
+    top, middle, base = inversion.layers
+    # Measured here: top 0.041, middle 0.038 xy (the thin, weakly scattering top layers' albedo
+    # is close to 1, so a 1 % profile pins their colour only to a few hundredths).
+    assert top.determined and middle.determined
+    assert result.errors[0] < 0.05 and result.errors[1] < 0.05
+    # The base's green is absorbed by the magenta layer above: no bound from the data.
+    assert not base.determined and "G" in base.reason
+    assert all(result.inside), result.errors
+    # The region is what the thick-slab colours of the interval's corners span.
+    corner = thick_slab_reflectance(np.full(3, 0.5), top.mua_interval[:, 0], 0.0, 1.3)
+    assert region_contains(top.region, chromaticity(corner, dataset.colorspace) + 0.0)
+
+
+def test_a_wrong_scattering_coefficient_is_caught_by_chi_square(layers3_sample, shared_cache, monkeypatch):
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    dataset = open_dataset(layers3_sample)
+    wrong = InversionSettings(boundaries=(2, 5), mus=1.0, n=1.3, g=0.0, depth=24.0, photons=20_000)
+    inversion = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", wrong).inversion
+    assert inversion.chi2 > 20 * inversion.dof
+    assert "does not fit" in inversion.warning
+    assert not any(layer.determined for layer in inversion.layers)
+
+
+def test_structure_search_finds_the_boundary_of_a_two_layer_slab():
+    """A profile made by the direct simulator (independent walks with absorption) of two layers of
+    common scattering; the search over boundaries 1..8 must find 3, and the colours must lie in
+    their regions."""
+    mua = [[0.3, 0.05, 0.01], [0.01, 0.02, 0.2]]
+    mean, error = direct_profile([1.0, 1.0], mua, [0, 3], 0.0, 1.4, 24.0, 30_000, seed=5)
+    measured = MeasuredProfile(RADII, mean, error, 1)
+    settings = InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=20_000)
+    inversion = invert(measured, settings)
+    assert "boundaries [3] (searched)" in inversion.notes
+    assert inversion.warning is None
+    for layer, truth in zip(inversion.layers, mua):
+        truth_xy = chromaticity(thick_slab_reflectance(np.ones(3), np.array(truth), 0.0, 1.4), "sRGB")
+        assert region_contains(layer.region, truth_xy)
+        if layer.determined:
+            assert np.hypot(*(layer.xy - truth_xy)) < 0.03
+
+
+def test_measured_profile_is_the_mean_of_each_lit_points_ring(layers3_sample):
+    dataset = open_dataset(layers3_sample)
+    region = np.zeros(dataset.grid_shape, bool)
+    region[20:23, 20:23] = True
+    profile = measured_profile(dataset, region, [0.0, 3.0])
+    # brute force: the impulse image of each lit point, averaged over its ring
+    expected = np.zeros((2, 3))
+    for y in range(20, 23):
+        for x in range(20, 23):
+            image = dataset.impulse_image(y, x)
+            for row, radius in enumerate((0.0, 3.0)):
+                members, weights = ring_geometry(radius).around((y, x), dataset.grid_shape)
+                expected[row] += (image[members[:, 0], members[:, 1]] * weights[:, None]).sum(0) / weights.sum()
+    np.testing.assert_allclose(profile.mean, expected / 9, rtol=1e-5)
+
+
+def test_cli_inverse_writes_json_with_uncertainty_and_refuses_bad_settings_before_loading(
+        layers3_sample, shared_cache, monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    out = tmp_path / "layers.json"
+    assert main(["layers", str(layers3_sample), "--method", "inverse", "--boundaries", "2,5", "--mus", "0.5,0.5,1.5",
+                 "--n", "1.3", "--depth", "24", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "NOT DETERMINED" in printed and "absorption in G" in printed
+    document = json.loads(out.read_text())
+    assert document["method"] == "inverse"
+    assert [layer["determined"] for layer in document["layers"]] == [True, True, False]
+    assert all(layer["truth_in_region"] for layer in document["layers"])
+    assert len(document["layers"][0]["xy_two_sigma_region"]) >= 3
+    assert document["fit"]["dof"] == 27
+    # Bad settings: one line, before the dataset is opened (a missing dataset would say otherwise).
+    assert main(["layers", str(tmp_path / "missing"), "--method", "inverse", "--boundaries", "5,2"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "boundaries must increase" in error[0]
+    assert main(["layers", str(tmp_path / "missing"), "--method", "inverse", "--mus", "1,2"]) == 2
+    assert "needs the layer boundaries" in capsys.readouterr().err
