@@ -157,7 +157,7 @@ class ExploreView:
         return text
 
     def cancel_all(self) -> None:
-        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs):
             slot.cancel()
         self.scrub_bar.play_button.setChecked(False)
 

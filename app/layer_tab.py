@@ -1,7 +1,10 @@
-"""The Layers tab's logic: region -> trajectory -> picked radii -> recovered layer colours.
+"""The Layers tab's logic: region -> trajectory -> picked radii -> recovered layer colours, or, with
+the inverse method, region -> fitted layered model.
 
-Everything here is cheap (region means of a computed stack and its noise), so it runs in the GUI
-thread on each change; exports run in the window's export worker. The trusted flags come from the
+The paper's methods are cheap (region means of a computed stack and its noise), so they run in
+the GUI thread on each change; the inverse method's fit runs in its own worker slot when asked
+(Fit, F) and its result stays shown while dataset, region and settings are those it was fitted
+for; exports run in the window's export worker. The trusted flags come from the
 stack's noise (ring-member spread, :data:`~ringlight.core.colour.layer_report.TRUST_RULE`), which
 the window estimates in a worker after each stack: until it arrives the tab shows the trajectory
 and waits with the layers.
@@ -28,10 +31,12 @@ from ringlight.core.colour.layer_report import (
     with_ring_noise,
 )
 from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
+from ringlight.core.inversion.layers import settings_from_text
+from ringlight.core.inversion.report import DatasetInversion, invert_region, inversion_json
 from ringlight.core.rings.noise import StackNoise
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.jobs import JobSlot
-from ringlight.widgets.layer_panel import LayerPanel
+from ringlight.widgets.layer_panel import INVERSE, LayerPanel
 from ringlight.widgets.scrub_bar import ScrubBar
 
 
@@ -45,12 +50,15 @@ class LayerTab(QObject):
     region_changed = Signal()
 
     def __init__(self, panel: LayerPanel, image_panel: ImagePanel, scrub_bar: ScrubBar, exports: JobSlot,
-                 parent: QObject | None = None):
+                 fits: JobSlot, parent: QObject | None = None):
         super().__init__(parent)
         self.panel = panel
         self.image_panel = image_panel
         self.scrub_bar = scrub_bar
         self.exports = exports
+        self.fits = fits
+        self.inversion: DatasetInversion | None = None
+        self._inversion_key: tuple | None = None
         self.dataset: ImpulseDataset | None = None
         self.stack: Stack | None = None
         self.noise: StackNoise | None = None
@@ -65,6 +73,10 @@ class LayerTab(QObject):
         panel.method_changed.connect(lambda _: self.refresh())
         panel.region_mode_changed.connect(image_panel.set_region_mode)
         panel.radius_clicked.connect(self._on_radius_clicked)
+        panel.fit_requested.connect(self.fit)
+        fits.finished.connect(self._on_fitted)
+        fits.failed.connect(lambda message: self.panel.show_message(f"The fit failed: {message}"))
+        fits.cancelled.connect(lambda: self.panel.show_message("Fit cancelled."))
         panel.set_trust_rule(TRUST_RULE)
         image_panel.region_changed.connect(self.update_region)
 
@@ -161,6 +173,10 @@ class LayerTab(QObject):
             self.analysis_changed.emit()
             return
         self.panel.diagram.set_trajectory(path.radii, path.xy)
+        if self.panel.method() == INVERSE:
+            self._show_inversion()
+            self.analysis_changed.emit()
+            return
         self.panel.set_picked(self.picked)
         if not self.picked:
             self.panel.show_result(None)
@@ -189,6 +205,57 @@ class LayerTab(QObject):
         self.panel.show_message(" ".join([summary, *notes]))
         self.analysis_changed.emit()
 
+    def _key(self) -> tuple:
+        """What an inversion depends on: dataset, region and the settings typed."""
+        return (id(self.dataset), self.region_description, self.region.tobytes(),
+                tuple(sorted(self.panel.inversion_inputs().items())))
+
+    def _show_inversion(self) -> None:
+        current = self.inversion is not None and self._inversion_key == self._key()
+        self.panel.show_inversion(self.inversion if current else None)
+        if not current:
+            self.panel.show_message(f"Region: {self.region_description}. Press Fit (F) to fit a layered model to "
+                                    f"the region's ring-light profile (the first fit runs a white Monte Carlo, "
+                                    f"about 10-20 s; later ones reuse it).")
+            return
+        inversion = self.inversion.inversion
+        text = (f"Region: {self.region_description}. Chi-square {inversion.chi2:.1f} for {inversion.dof} degrees "
+                f"of freedom; {inversion.seconds:.1f} s.")
+        if inversion.warning:
+            text += f" Warning: {inversion.warning}."
+        undetermined = [str(i + 1) for i, layer in enumerate(inversion.layers) if not layer.determined]
+        if undetermined and not inversion.warning:
+            text += f" Not determined: layer {', '.join(undetermined)} (hover its row for why)."
+        self.panel.show_message(text)
+        self.panel.message_label.setToolTip(inversion.notes)
+
+    def fit(self) -> None:
+        """Fit the layered model to the current region in the worker (the inverse method)."""
+        if self.dataset is None or self.panel.method() != INVERSE:
+            return
+        if (grey := colour_unavailable(self.dataset.channels)) is not None:
+            self.panel.show_message(f"No layer colours: {grey}.")
+            return
+        inputs = self.panel.inversion_inputs()
+        try:
+            settings = settings_from_text(inputs["layers"], inputs["boundaries"], inputs["mus"], inputs["n"],
+                                          inputs["g"], inputs["depth"])
+        except RinglightError as error:
+            self.panel.show_message(str(error))
+            return
+        dataset, region, description, key = self.dataset, self.region.copy(), self.region_description, self._key()
+
+        def work(progress):
+            return key, invert_region(dataset, region, description, settings,
+                                      lambda fraction, what: progress(fraction))
+        self.panel.show_message("Fitting… (progress in the status bar; Esc cancels)")
+        self.fits.start("Fitting layers", work)
+
+    def _on_fitted(self, result) -> None:
+        key, inversion = result
+        self.inversion, self._inversion_key = inversion, key
+        self.refresh()
+
     def on_shown(self) -> None:
         """The tab became visible: bring it up to date."""
         if self._stale and self.panel.isVisible():
@@ -207,6 +274,19 @@ class LayerTab(QObject):
                 with atomic_file(path, overwrite=True) as temporary:  # the save dialog asked
                     if not image.save(str(temporary), "PNG"):
                         raise ExportError(f"{path}: could not write the PNG")
+                progress(1.0)
+                return path
+        elif self.panel.method() == INVERSE:
+            if self.inversion is None or self._inversion_key != self._key():
+                self.panel.show_message("Nothing to export yet: press Fit first.")
+                return
+            if kind == "csv":
+                self.panel.show_message("The inverse method exports JSON (each layer with its two-sigma region).")
+                return
+            text = inversion_json(self.inversion, str(self.dataset.path))
+
+            def work(progress):
+                write_text(path, text, overwrite=True)
                 progress(1.0)
                 return path
         else:

@@ -84,13 +84,15 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.stack_jobs = JobSlot(self.pool, self)
         self.noise_jobs = JobSlot(self.pool, self)
         self.export_jobs = JobSlot(self.export_pool, self)
+        self.fit_jobs = JobSlot(self.pool, self)
         self.capture_pool = QThreadPool(self)
         self.capture_pool.setMaxThreadCount(1)
 
         # Numba's one-time set-up holds the GIL for ~0.1 s: pay it now, in the worker, not mid-use.
         self.pool.start(warm_up_kernels)
         self._build_widgets()
-        self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs, self)
+        self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs,
+                                  self.fit_jobs, self)
         self.capture_tab = CaptureTab(self.capture_wizard, self.capture_pool, self)
         self.statusBar().addPermanentWidget(JobIndicator(self.capture_tab.jobs))
         self._build_menus()
@@ -144,7 +146,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.statusBar().addWidget(self.hover_label, 1)
         self.region_label = QLabel()
         self.statusBar().addPermanentWidget(self.region_label)
-        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
         self.statusBar().addPermanentWidget(self.dataset_label)
@@ -199,6 +201,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self._action(view_menu, "Previous radius", lambda: self.scrub_bar.step(-1), "[")
         self._action(view_menu, "Play / pause", self.scrub_bar.toggle_play, "Space")
         self._action(view_menu, "Pick radius for layers", self.layer_panel.pick_requested.emit, "P")
+        self._action(view_menu, "Fit layers (inverse method)", self._fit_layers, "F")
         self._action(view_menu, "Layers tab", lambda: self.analysis_tabs.setCurrentWidget(self.layer_panel), "Ctrl+L")
         self._action(view_menu, "Reset zoom", self._reset_zoom, "Ctrl+0")
         self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
@@ -242,6 +245,13 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.analysis_tabs.currentChanged.connect(lambda _: self.layer_tab.on_shown())
         self.profile_dock.visibilityChanged.connect(lambda _: self.layer_tab.on_shown())
 
+    def _fit_layers(self) -> None:
+        """F: show the Layers tab with the inverse method and fit the current region."""
+        self.analysis_tabs.setCurrentWidget(self.layer_panel)
+        self.profile_dock.show()
+        self.layer_panel.method_box.setCurrentIndex(self.layer_panel.method_box.findData("inverse"))
+        self.layer_tab.fit()
+
     # ----------------------------------------------------------------- opening
     def choose_dataset(self) -> None:
         start = self.settings.value("last_folder", str(Path.home()))
@@ -255,12 +265,14 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         request = self.saved_request(path)
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
+        self.fit_jobs.cancel()
         self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
 
     def open_sample(self, name: str) -> None:
         """Open the bundled sample ``name`` (written into the user cache the first time)."""
         request = self.saved_request(sample_folder(name))
         self.stack_jobs.cancel()
+        self.fit_jobs.cancel()
         self.load_jobs.start(f"Opening the {name} sample",
                              lambda progress: load_for_viewing(None, request, progress, sample=name))
 

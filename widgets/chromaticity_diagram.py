@@ -12,6 +12,9 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QWidget
 from ringlight.core.colourspaces import colour_module
 
+PICKS_KEY = ("dots: trajectory, dark to light = small to large r\n"
+             "rings: picked radii   stars: recovered   squares: truth   +: white")
+FIT_KEY = "stars: fitted   squares: truth\noutlines: two-sigma (grey dashed: not determined)"
 _PICK_DISTANCE = 0.02
 """Largest xy distance from a trajectory point at which a click picks it."""
 
@@ -56,11 +59,10 @@ class ChromaticityDiagram(pg.PlotWidget):
         self.addItem(self.layers)
         self.truth = pg.ScatterPlotItem(size=14, symbol="s", pen=pg.mkPen("w", width=1.5))
         self.addItem(self.truth)
-        key = pg.TextItem("dots: trajectory, dark to light = small to large r\n"
-                          "rings: picked radii   stars: recovered   squares: truth   +: white",
-                          color="#bbbbbb", anchor=(1, 0))
-        key.setParentItem(self.getPlotItem().vb)
-        self.getPlotItem().vb.sigResized.connect(lambda vb: key.setPos(vb.width() - 4, 4))
+        self._regions: list = []
+        self.key = pg.TextItem(PICKS_KEY, color="#bbbbbb", anchor=(1, 0))
+        self.key.setParentItem(self.getPlotItem().vb)
+        self.getPlotItem().vb.sigResized.connect(lambda vb: self.key.setPos(vb.width() - 4, 4))
         self.scene().sigMouseClicked.connect(self._on_scene_clicked)
         self._radii = np.zeros(0)
         self._xy = np.zeros((0, 2))
@@ -89,6 +91,33 @@ class ChromaticityDiagram(pg.PlotWidget):
         """Recovered layers as stars and true layers as squares, filled with their swatch colours."""
         self._set_marks(self.layers, layer_xy, layer_rgb8)
         self._set_marks(self.truth, truth_xy or [], truth_rgb8 or [])
+
+    def set_regions(self, polygons, rgb8, determined) -> None:
+        """Uncertainty regions: closed (K, 2) xy polygons, outlined in each layer's colour, or grey
+        and dashed where the layer is not determined (an empty list clears them)."""
+        for item in self._regions:
+            self.removeItem(item)
+        self._regions = []
+        for polygon, colour, sure in zip(polygons, rgb8, determined):
+            polygon = np.asarray(polygon, np.float64).reshape(-1, 2)
+            if len(polygon) < 2:
+                continue
+            closed = np.vstack([polygon, polygon[:1]])
+            pen = pg.mkPen(colour, width=2) if sure else pg.mkPen("#8a8a8a", width=1.5, style=Qt.PenStyle.DashLine)
+            item = pg.PlotCurveItem(closed[:, 0], closed[:, 1], pen=pen)
+            self.addItem(item)
+            self._regions.append(item)
+
+    def show_around(self, points, margin: float = 0.04) -> None:
+        """Zoom to the (K, 2) xy ``points`` (NaN ignored) with ``margin`` around them; the whole
+        diagram when there are none."""
+        points = np.asarray(points, np.float64).reshape(-1, 2)
+        points = points[np.isfinite(points).all(axis=1)]
+        if not len(points):
+            self.reset_view()
+            return
+        low, high = points.min(axis=0) - margin, points.max(axis=0) + margin
+        self.setRange(xRange=(low[0], high[0]), yRange=(low[1], high[1]), padding=0)
 
     def trajectory_xy(self) -> np.ndarray:
         return self._xy

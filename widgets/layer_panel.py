@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (
     QComboBox,
+    QDoubleSpinBox,
     QHBoxLayout,
     QLabel,
+    QLineEdit,
     QPushButton,
     QSpinBox,
     QTableWidget,
@@ -16,11 +19,23 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from ringlight.core.colour.chroma import METHODS, LayerResult
+from ringlight.core.inversion.layers import DEFAULT_DEPTH
+from ringlight.core.inversion.report import DatasetInversion
 
-from .chromaticity_diagram import ChromaticityDiagram
+from .chromaticity_diagram import FIT_KEY, PICKS_KEY, ChromaticityDiagram
+from .inversion_fit_plot import InversionFitPlot
 
 REGION_MODES = {"all": "All pixels", "rectangle": "Rectangle", "polygon": "Polygon"}
 _COLUMNS = ["layer", "r", "x", "y", "recovered", "truth", "true x, y", "xy error", "SNR", "trusted"]
+_INVERSE_COLUMNS = ["layer", "depth", "x", "y", "recovered", "truth", "true x, y", "xy error", "2-sigma width",
+                    "determined"]
+INVERSE = "inverse"
+METHOD_TIPS = {
+    "paper": "paper: white + chromaticity differences of transient images at picked radii",
+    "radiance": "radiance: unit-luminance RGB mixing of transient images at picked radii",
+    INVERSE: "inverse: fit a layered model to the region's ring-light profile (F); each layer's colour "
+             "comes with a two-sigma region, and layers the data do not bound are greyed",
+}
 
 
 class LayerPanel(QWidget):
@@ -38,6 +53,8 @@ class LayerPanel(QWidget):
         A trajectory point was clicked.
     export_requested(str)
         ``"json"``, ``"csv"`` or ``"png"`` (the diagram).
+    fit_requested()
+        Fit the layered model (the inverse method) with :meth:`inversion_inputs`.
     """
 
     pick_requested = Signal()
@@ -47,6 +64,7 @@ class LayerPanel(QWidget):
     region_mode_changed = Signal(str)
     radius_clicked = Signal(float)
     export_requested = Signal(str)
+    fit_requested = Signal()
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
@@ -55,9 +73,10 @@ class LayerPanel(QWidget):
             self.region_box.addItem(label, key)
         self.region_box.setToolTip("Region averaged for the trajectory; drag the ROI on the image to move it")
         self.method_box = QComboBox()
-        for key in METHODS:
+        for key in (*METHODS, INVERSE):
             self.method_box.addItem(key, key)
-        self.method_box.setToolTip("paper: white + chromaticity differences; radiance: unit-luminance RGB mixing")
+            self.method_box.setItemData(self.method_box.count() - 1, METHOD_TIPS[key], Qt.ItemDataRole.ToolTipRole)
+        self.method_box.setToolTip("\n".join(METHOD_TIPS.values()))
         pick = QPushButton("Pick radius (P)")
         pick.setToolTip("Add the current radius to the picks, or remove it")
         pick.clicked.connect(self.pick_requested)
@@ -69,11 +88,41 @@ class LayerPanel(QWidget):
         auto = QPushButton("Auto")
         auto.setToolTip("Propose this many radii, equally spaced up to where the signal fades")
         auto.clicked.connect(lambda: self.auto_requested.emit(self.auto_box.value()))
+        self.layers_box = QComboBox()
+        for text in ("auto", "1", "2", "3", "4"):
+            self.layers_box.addItem(text)
+        self.layers_box.setToolTip("Number of layers, or auto: 1 to 4 compared by BIC")
+        self.boundaries_edit = QLineEdit()
+        self.boundaries_edit.setPlaceholderText("searched")
+        self.boundaries_edit.setToolTip("Depths (whole grid steps) where layers meet, e.g. 2,5; empty: searched")
+        self.mus_edit = QLineEdit()
+        self.mus_edit.setPlaceholderText("auto")
+        self.mus_edit.setToolTip("Scattering coefficient per grid step: one common value, or one per layer "
+                                 "(with boundaries); empty: a common one chosen by chi-square")
+        self.n_box = QDoubleSpinBox()
+        self.n_box.setRange(1.0, 3.0)
+        self.n_box.setSingleStep(0.05)
+        self.n_box.setValue(1.4)
+        self.n_box.setToolTip("Refractive index of the sample")
+        self.g_box = QDoubleSpinBox()
+        self.g_box.setRange(-0.95, 0.95)
+        self.g_box.setSingleStep(0.05)
+        self.g_box.setToolTip("Henyey-Greenstein anisotropy of the scattering")
+        self.depth_box = QDoubleSpinBox()
+        self.depth_box.setRange(4.0, 256.0)
+        self.depth_box.setDecimals(0)
+        self.depth_box.setValue(DEFAULT_DEPTH)
+        self.depth_box.setToolTip("Thickness of the modelled sample, grid steps (light below it is lost)")
+        fit = QPushButton("Fit (F)")
+        fit.setToolTip("Fit the layered model to the region's profile in the background (Esc cancels)")
+        fit.clicked.connect(self.fit_requested)
         self.picked_label = QLabel("Picked radii: none")
         self.message_label = QLabel()
         self.message_label.setWordWrap(True)
         self.diagram = ChromaticityDiagram()
         self.diagram.radius_clicked.connect(self.radius_clicked)
+        self.fit_plot = InversionFitPlot()
+        self.fit_plot.setVisible(False)
         self.table = QTableWidget(0, len(_COLUMNS))
         self.table.setHorizontalHeaderLabels(_COLUMNS)
         self._trust_rule = ""
@@ -93,19 +142,103 @@ class LayerPanel(QWidget):
             picking.addWidget(widget)
         choices.addStretch(1)
         picking.addStretch(1)
+        self.picking_row = QWidget()
+        self.picking_row.setLayout(picking)
+        picking.setContentsMargins(0, 0, 0, 0)
+        model, optics = QHBoxLayout(), QHBoxLayout()
+        for widget in (QLabel("Layers"), self.layers_box, QLabel("Boundaries"), self.boundaries_edit,
+                       QLabel("mus"), self.mus_edit):
+            model.addWidget(widget)
+        for widget in (QLabel("n"), self.n_box, QLabel("g"), self.g_box, QLabel("depth"), self.depth_box, fit):
+            optics.addWidget(widget)
+        optics.addStretch(1)
+        self.inverse_rows = QWidget()
+        rows = QVBoxLayout(self.inverse_rows)
+        rows.setContentsMargins(0, 0, 0, 0)
+        rows.addLayout(model)
+        rows.addLayout(optics)
+        self.inverse_rows.setVisible(False)
         layout = QVBoxLayout(self)
         layout.addLayout(choices)
-        layout.addLayout(picking)
+        layout.addWidget(self.picking_row)
+        layout.addWidget(self.inverse_rows)
         layout.addWidget(self.picked_label)
         layout.addWidget(self.diagram, 1)
+        layout.addWidget(self.fit_plot, 1)
         layout.addWidget(self.table)
         layout.addWidget(self.message_label)
         layout.addLayout(exports)
+        self.method_box.currentIndexChanged.connect(lambda _: self._show_mode())
         self.method_box.currentIndexChanged.connect(lambda _: self.method_changed.emit(self.method()))
         self.region_box.currentIndexChanged.connect(lambda _: self.region_mode_changed.emit(self.region_mode()))
 
     def method(self) -> str:
         return self.method_box.currentData()
+
+    def inversion_inputs(self) -> dict:
+        """The inverse method's settings as typed: ``layers`` ("auto" or "1".."4"), ``boundaries``
+        and ``mus`` (text, empty for the defaults), ``n``, ``g`` and ``depth`` (grid steps)."""
+        return {"layers": self.layers_box.currentText(), "boundaries": self.boundaries_edit.text().strip(),
+                "mus": self.mus_edit.text().strip(), "n": self.n_box.value(), "g": self.g_box.value(),
+                "depth": self.depth_box.value()}
+
+    def _show_mode(self) -> None:
+        inverse = self.method() == INVERSE
+        self.picking_row.setVisible(not inverse)
+        self.picked_label.setVisible(not inverse)
+        self.inverse_rows.setVisible(inverse)
+        self.fit_plot.setVisible(inverse)
+        self.table.setRowCount(0)
+        columns = _INVERSE_COLUMNS if inverse else _COLUMNS
+        self.table.setColumnCount(len(columns))
+        self.table.setHorizontalHeaderLabels(columns)
+        if not inverse:
+            self.set_trust_rule(self._trust_rule)
+        self.diagram.set_regions([], [], [])
+        self.diagram.key.setText(FIT_KEY if inverse else PICKS_KEY)
+        self.table.setMaximumHeight(125 if inverse else 150)
+
+    def show_inversion(self, result: DatasetInversion | None) -> None:
+        """Fill the table, the diagram and the fit plot with an inversion (None clears them)."""
+        self.table.setRowCount(0)
+        self.diagram.set_regions([], [], [])
+        self.fit_plot.clear_fit()
+        if result is None:
+            self.diagram.set_layers([], [])
+            return
+        inversion = result.inversion
+        self.table.setRowCount(len(inversion.layers))
+        for row, layer in enumerate(inversion.layers):
+            truth_xy = result.truth_xy[row] if result.errors is not None else None
+            width = float(np.ptp(layer.region, axis=0).max()) if len(layer.region) else float("nan")
+            cells = [str(row + 1), f"{layer.top:g}..{layer.bottom:g}", f"{layer.xy[0]:.4f}", f"{layer.xy[1]:.4f}",
+                     "#%02x%02x%02x" % layer.swatch, result.truth_names[row] if truth_xy is not None else "",
+                     "" if truth_xy is None else f"{truth_xy[0]:.4f}, {truth_xy[1]:.4f}",
+                     "" if truth_xy is None else f"{result.errors[row]:.4f}"
+                     + ("" if result.inside[row] else " (outside)"),
+                     f"{width:.3f}", "yes" if layer.determined else "no"]
+            for column, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                item.setFlags(item.flags() & ~Qt.ItemFlag.ItemIsEditable)
+                if not layer.determined:
+                    item.setToolTip(layer.reason)
+                    item.setForeground(QColor("#8a8a8a"))
+                self.table.setItem(row, column, item)
+            self.table.item(row, 4).setBackground(QColor(*layer.swatch))
+        self.table.resizeColumnsToContents()
+        grey = (138, 138, 138)
+        stars = [layer.swatch if layer.determined else grey for layer in inversion.layers]
+        truth_xy = list(result.truth_xy) if result.truth_xy is not None else None
+        self.diagram.set_layers([layer.xy for layer in inversion.layers], stars, truth_xy,
+                                [(255, 255, 255)] * len(truth_xy) if truth_xy else None)
+        self.diagram.set_regions([layer.region for layer in inversion.layers],
+                                 [layer.swatch for layer in inversion.layers],
+                                 [layer.determined for layer in inversion.layers])
+        outlines = [layer.region for layer in inversion.layers if len(layer.region)]
+        self.diagram.show_around(np.vstack([*outlines, *(truth_xy or []),
+                                            *[layer.xy[None] for layer in inversion.layers]]))
+        self.fit_plot.show_fit(inversion.measured.radii, inversion.measured.mean, inversion.model, inversion.sigma,
+                               inversion.used)
 
     def region_mode(self) -> str:
         return self.region_box.currentData()

@@ -16,7 +16,13 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
-from ringlight.core.inversion.layers import DEFAULT_DEPTH, DEFAULT_PHOTONS, MAX_LAYERS, InversionSettings
+from ringlight.core.inversion.layers import (
+    DEFAULT_DEPTH,
+    DEFAULT_PHOTONS,
+    MAX_LAYERS,
+    InversionSettings,
+    settings_from_text,
+)
 from ringlight.core.inversion.report import invert_region, inversion_json
 
 from .progress import progress_bar
@@ -71,31 +77,8 @@ def parse_radii(text: str) -> list[float]:
 
 def parse_inversion(args) -> InversionSettings:
     """The inverse method's settings, checked before any dataset is loaded."""
-    def numbers(text, kind, name):
-        try:
-            return tuple(kind(part) for part in text.split(","))
-        except ValueError:
-            raise RinglightError(f"--{name} {text!r} must be numbers separated by commas") from None
-
-    if args.layers == "auto":
-        count = None
-    else:
-        try:
-            count = int(args.layers)
-        except ValueError:
-            raise RinglightError(f"--layers {args.layers!r} must be a whole number or auto") from None
-    boundaries = numbers(args.boundaries, int, "boundaries") if args.boundaries else None
-    if boundaries is not None and count is None:
-        count = len(boundaries) + 1
-    mus = None
-    if args.mus:
-        values = numbers(args.mus, float, "mus")
-        mus = values[0] if len(values) == 1 else values
-    if args.photons < 1000:
-        raise RinglightError(f"--photons must be at least 1000, got {args.photons}")
-    settings = InversionSettings(count, boundaries, mus, args.n, args.g, args.depth, args.photons)
-    settings.check()
-    return settings
+    return settings_from_text(args.layers, args.boundaries or "", args.mus or "", args.n, args.g, args.depth,
+                              args.photons)
 
 
 def run_layers(args) -> int:

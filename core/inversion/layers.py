@@ -82,7 +82,7 @@ class InversionSettings:
     def check(self) -> None:
         """Raise :class:`InversionError` naming the first setting that cannot work."""
         if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
-            raise InversionError(f"--layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
+            raise InversionError(f"layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
         if self.boundaries is not None:
             bounds = list(self.boundaries)
             if any(b <= 0 for b in bounds) or bounds != sorted(set(bounds)) or bounds and bounds[-1] >= self.depth:
@@ -102,6 +102,37 @@ class InversionSettings:
             raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
         if not -1.0 < self.g < 1.0:
             raise InversionError(f"the anisotropy g must be in (-1, 1), got {self.g:g}")
+
+
+def settings_from_text(layers: str, boundaries: str, mus: str, n: float, g: float, depth: float = DEFAULT_DEPTH,
+                       photons: int = DEFAULT_PHOTONS) -> InversionSettings:
+    """Settings from what a user typed (the CLI's options, the Layers tab's fields): ``layers``
+    "auto" or a count, ``boundaries`` and ``mus`` comma-separated numbers or empty for the
+    defaults; checked (:class:`InversionError` naming the setting)."""
+    def numbers(text, kind, name):
+        try:
+            return tuple(kind(part) for part in text.split(","))
+        except ValueError:
+            raise InversionError(f"{name} {text!r} must be numbers separated by commas") from None
+
+    count = None
+    if layers.strip() != "auto":
+        try:
+            count = int(layers)
+        except ValueError:
+            raise InversionError(f"layers {layers!r} must be a whole number or auto") from None
+    cuts = numbers(boundaries, int, "boundaries") if boundaries.strip() else None
+    if cuts is not None and count is None:
+        count = len(cuts) + 1
+    scattering = None
+    if mus.strip():
+        values = numbers(mus, float, "mus")
+        scattering = values[0] if len(values) == 1 else values
+    if photons < 1000:
+        raise InversionError(f"photons must be at least 1000, got {photons}")
+    settings = InversionSettings(count, cuts, scattering, n, g, depth, photons)
+    settings.check()
+    return settings
 
 
 @dataclass(frozen=True)

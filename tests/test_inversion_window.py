@@ -1,0 +1,85 @@
+"""The Layers tab's inverse method in the window: fit in a worker with progress and cancel, the
+table, the uncertainty regions on the diagram, the fit plot, and the JSON export."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QSettings, Qt
+from ringlight.app.window import MainWindow
+from ringlight.core.dataset.impulse_dataset import open_dataset
+from ringlight.core.inversion.layers import InversionSettings
+from ringlight.core.inversion.report import invert_region
+from ringlight.core.simulate.samples import sample_folder
+
+TIMEOUT_MS = 240_000
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(window)
+    window.resize(1366, 768)
+    window.show()
+    qtbot.waitExposed(window)
+    window.activateWindow()
+    yield window
+    window.shutdown()
+
+
+def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, window, tmp_path):
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.open_sample("layers3")
+    panel = window.layer_panel
+    window.analysis_tabs.setCurrentWidget(panel)
+    panel.method_box.setCurrentIndex(panel.method_box.findData("inverse"))
+    assert panel.inverse_rows.isVisible() and not panel.picking_row.isVisible()
+    assert "Press Fit" in panel.message_label.text()
+    panel.boundaries_edit.setText("2,5")
+    panel.mus_edit.setText("0.5,0.5,1.5")
+    panel.n_box.setValue(1.3)
+    panel.depth_box.setValue(24)
+
+    # Esc cancels a running fit and says so.
+    qtbot.keyClick(window, Qt.Key.Key_F)
+    assert window.fit_jobs.busy
+    with qtbot.waitSignal(window.fit_jobs.cancelled, timeout=TIMEOUT_MS):
+        qtbot.keyClick(window, Qt.Key.Key_Escape)
+    assert "cancelled" in panel.message_label.text()
+
+    with qtbot.waitSignal(window.fit_jobs.finished, timeout=TIMEOUT_MS):
+        qtbot.keyClick(window, Qt.Key.Key_F)
+    shown = window.layer_tab.inversion
+    # The same numbers as core computes for the same region and settings.
+    dataset = open_dataset(sample_folder("layers3"))
+    settings = InversionSettings(3, (2, 5), (0.5, 0.5, 1.5), 1.3, 0.0, 24.0)
+    expected = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", settings).inversion
+    np.testing.assert_allclose([l.xy for l in shown.inversion.layers], [l.xy for l in expected.layers], atol=1e-9)
+    assert [panel.table.item(row, 9).text() for row in range(3)] == ["yes", "yes", "no"]
+    assert "absorption in G" in panel.table.item(2, 9).toolTip()
+    assert panel.table.item(0, 4).text() == "#%02x%02x%02x" % expected.layers[0].swatch
+    # Three regions on the diagram; the undetermined base dashed and grey.
+    regions = panel.diagram._regions
+    assert len(regions) == 3
+    assert regions[2].opts["pen"].style() == Qt.PenStyle.DashLine
+    assert regions[0].opts["pen"].style() == Qt.PenStyle.SolidLine
+    np.testing.assert_allclose(regions[0].getData()[0][:-1], shown.inversion.layers[0].region[:, 0])
+    # The fit plot: measured points and a model line per channel, residuals below.
+    model_lines = [item for _, item in panel.fit_plot._items if hasattr(item, "opts") and item.opts.get("name", "")
+                   and item.opts["name"].endswith("model")]
+    assert len(model_lines) == 3
+    np.testing.assert_allclose(10 ** model_lines[2].getData()[1], expected.model[:, 2], rtol=1e-9)  # log y
+    assert "Chi-square" in panel.message_label.text() and "Not determined: layer 3" in panel.message_label.text()
+
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=TIMEOUT_MS):
+        window.layer_tab.export("json", tmp_path / "inverse.json")
+    document = json.loads((tmp_path / "inverse.json").read_text())
+    assert document["method"] == "inverse" and [l["determined"] for l in document["layers"]] == [True, True, False]
+
+    # Changing a setting makes the shown fit stale: the table empties until the next fit.
+    panel.n_box.setValue(1.4)
+    window.layer_tab.refresh()
+    assert panel.table.rowCount() == 0 and "Press Fit" in panel.message_label.text()
+    window.grab().save(str(tmp_path / "inverse.png"))
