@@ -82,4 +82,8 @@ def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, 
     panel.n_box.setValue(1.4)
     window.layer_tab.refresh()
     assert panel.table.rowCount() == 0 and "Press Fit" in panel.message_label.text()
-    window.grab().save(str(tmp_path / "inverse.png"))
+    # A setting that cannot work is refused in the tab, in one line, and nothing starts.
+    panel.boundaries_edit.setText("5,two")
+    qtbot.keyClick(window, Qt.Key.Key_F)
+    assert not window.fit_jobs.busy
+    assert panel.message_label.text() == "boundaries '5,two' must be numbers separated by commas"

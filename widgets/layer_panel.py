@@ -109,7 +109,7 @@ class LayerPanel(QWidget):
         self.g_box.setSingleStep(0.05)
         self.g_box.setToolTip("Henyey-Greenstein anisotropy of the scattering")
         self.depth_box = QDoubleSpinBox()
-        self.depth_box.setRange(4.0, 256.0)
+        self.depth_box.setRange(10.0, 256.0)
         self.depth_box.setDecimals(0)
         self.depth_box.setValue(DEFAULT_DEPTH)
         self.depth_box.setToolTip("Thickness of the modelled sample, grid steps (light below it is lost)")

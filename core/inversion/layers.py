@@ -98,6 +98,8 @@ class InversionSettings:
                                      f"scattering coefficients, got {len(self.mus)}")
         if self.mus is not None and min(np.atleast_1d(self.mus)) <= 0:
             raise InversionError("scattering coefficients must be > 0")
+        if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
+            raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
         if not 1.0 <= self.n <= 3.0:
             raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
         if not -1.0 < self.g < 1.0:
@@ -228,7 +230,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     for index, mus in enumerate(mus_choices):
         what = f"white Monte Carlo for mus {_mus_text(mus)}"
         report(index * share, what)
-        optics = _optics(settings, mus)
+        optics = database_optics(settings, mus)
         database = white_database(optics, settings.photons,
                                   progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
         structures = list(_structures(settings, optics.bins))
@@ -275,7 +277,7 @@ def _mus_text(mus) -> str:
     return ", ".join(f"{m:g}" for m in np.atleast_1d(mus))
 
 
-def _optics(settings: InversionSettings, mus) -> SlabOptics:
+def database_optics(settings: InversionSettings, mus) -> SlabOptics:
     """The white database's optics: per-layer scattering over the given boundaries, or a common
     one over :data:`SEARCH_BINS` bins."""
     reach = 13
