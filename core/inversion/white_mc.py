@@ -40,6 +40,7 @@ from ..atomic import atomic_file
 from ..dataset.cache import user_cache_root
 from ..errors import RinglightError
 from ..simulate.camera import exit_fresnel, henyey_greenstein
+from ..simulate.photon import scatter_direction
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state, uniform
 
 THIN_VALUE = 1e-3
@@ -214,26 +215,7 @@ def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, p
                                 lengths_out[count, b] = lengths[b] + up[b]
                             photon_out[count] = first_photon + p
                         count += 1
-            if g == 0.0:
-                cos_theta = 2.0 * uniform(state) - 1.0
-            else:
-                ratio = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(state))
-                cos_theta = min(1.0, max(-1.0, (1.0 + g * g - ratio * ratio) / (2.0 * g)))
-            sin_theta = math.sqrt(1.0 - cos_theta * cos_theta)
-            phi = 2.0 * math.pi * uniform(state)
-            cos_phi = math.cos(phi)
-            sin_phi = math.sin(phi)
-            if abs(uz) > 0.99999:
-                uy = sin_theta * sin_phi
-                ux = sin_theta * cos_phi
-                uz = cos_theta if uz > 0.0 else -cos_theta
-            else:
-                root = math.sqrt(1.0 - uz * uz)
-                new_ux = sin_theta * (ux * uz * cos_phi - uy * sin_phi) / root + ux * cos_theta
-                new_uy = sin_theta * (uy * uz * cos_phi + ux * sin_phi) / root + uy * cos_theta
-                uz = -sin_theta * cos_phi * root + uz * cos_theta
-                ux = new_ux
-                uy = new_uy
+            uy, ux, uz = scatter_direction(state, uy, ux, uz, g)
     return count
 
 

@@ -109,6 +109,27 @@ def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, 
     return count + 1
 
 
+@numba.njit(cache=True, inline="always")
+def scatter_direction(state, uy, ux, uz, g):
+    """The direction ``(uy, ux, uz)`` after a Henyey-Greenstein scattering of anisotropy ``g``,
+    from two uniforms of ``state`` (the polar angle's, then the azimuth's)."""
+    if g == 0.0:
+        cos_theta = 2.0 * uniform(state) - 1.0
+    else:
+        ratio = (1.0 - g * g) / (1.0 - g + 2.0 * g * uniform(state))
+        cos_theta = min(1.0, max(-1.0, (1.0 + g * g - ratio * ratio) / (2.0 * g)))
+    sin_theta = math.sqrt(1.0 - cos_theta * cos_theta)
+    phi = 2.0 * math.pi * uniform(state)
+    cos_phi = math.cos(phi)
+    sin_phi = math.sin(phi)
+    if abs(uz) > 0.99999:
+        return sin_theta * sin_phi, sin_theta * cos_phi, (cos_theta if uz > 0.0 else -cos_theta)
+    root = math.sqrt(1.0 - uz * uz)
+    new_ux = sin_theta * (ux * uz * cos_phi - uy * sin_phi) / root + ux * cos_theta
+    new_uy = sin_theta * (uy * uz * cos_phi + ux * sin_phi) / root + uy * cos_theta
+    return new_uy, new_ux, -sin_theta * cos_phi * root + uz * cos_theta
+
+
 @numba.njit(cache=True)
 def trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns, camera,
                  window, centre_y, centre_x, truth, bin_step, records, count, photon, buffers):
@@ -239,27 +260,7 @@ def walk(state, estimator_state, walker, pending, volume, tables, majorant, opti
                                entry_y, entry_x, surface_y, surface_x, length + distance, values, sign)
                 for c in range(channels):
                     totals[c] += values[c]
-        if anisotropy == 0.0:
-            cos_theta = 2.0 * uniform(state) - 1.0
-        else:
-            ratio = (1.0 - anisotropy * anisotropy) / (1.0 - anisotropy + 2.0 * anisotropy * uniform(state))
-            cos_theta = (1.0 + anisotropy * anisotropy - ratio * ratio) / (2.0 * anisotropy)
-            cos_theta = min(1.0, max(-1.0, cos_theta))
-        sin_theta = math.sqrt(1.0 - cos_theta * cos_theta)
-        phi = 2.0 * math.pi * uniform(state)
-        cos_phi = math.cos(phi)
-        sin_phi = math.sin(phi)
-        if abs(uz) > 0.99999:
-            uy = sin_theta * sin_phi
-            ux = sin_theta * cos_phi
-            uz = cos_theta if uz > 0.0 else -cos_theta
-        else:
-            root = math.sqrt(1.0 - uz * uz)
-            new_ux = sin_theta * (ux * uz * cos_phi - uy * sin_phi) / root + ux * cos_theta
-            new_uy = sin_theta * (uy * uz * cos_phi + ux * sin_phi) / root + uy * cos_theta
-            uz = -sin_theta * cos_phi * root + uz * cos_theta
-            ux = new_ux
-            uy = new_uy
+        uy, ux, uz = scatter_direction(state, uy, ux, uz, anisotropy)
         if heaviest < ROULETTE_WEIGHT:
             if uniform(state) < ROULETTE_SURVIVAL:
                 for c in range(channels):
