@@ -25,7 +25,7 @@ from scipy.stats import chi2 as chi2_distribution
 from ..colour.chroma import chromaticity, srgb_swatch
 from ..errors import RinglightError
 from ..simulate.adding_doubling import thick_slab_reflectance
-from .fit import MUA_BOUNDS, ChannelFit, fit_channel
+from .fit import JOINT_CHI2, MUA_BOUNDS, ChannelFit, fit_channel
 from .forward import Forward, Structure
 from .measured import MeasuredProfile
 from .white_mc import SlabOptics, WhiteDatabase, white_database
@@ -41,6 +41,11 @@ SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
 CHANNEL_NAMES = ("R", "G", "B")
+PLAUSIBLE_CHI2 = JOINT_CHI2
+"""Structures (and common scatterings) whose search chi-square is within this of the chosen one's
+are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
+MAX_RIVALS = 4
+"""At most this many of them (the best-fitting), to bound the time."""
 MISFIT_P = 1e-3
 """A fit whose chi-square is this improbable under the model is reported as not fitting, and none
 of its layers as determined."""
@@ -250,11 +255,22 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     usable = [c for c in candidates if math.isfinite(c[0])]
     if not usable:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
-    bic, _, mus, structure, database = min(usable, key=lambda c: c[0])
+    bic, best_chi2, mus, structure, database = min(usable, key=lambda c: c[0])
+    # Structures and scatterings that fit about as well are as plausible as the best: each layer's
+    # region spans theirs too, so the choice of model is part of its uncertainty.
+    rivals = sorted((c for c in usable if c[3].layers == structure.layers and (c[3] != structure or c[2] != mus)),
+                    key=lambda c: c[1])
+    rivals = [c for c in rivals if c[1] - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     report(len(mus_choices) * share, "fitting the chosen structure")
     forward = Forward(database, structure, measured.radii)
     fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
     layers = _layers(fits, structure, database.optics, colorspace)
+    for number, (_, _, _, rival_structure, rival_database) in enumerate(rivals):
+        report((len(mus_choices) + (number + 1) / (len(rivals) + 1)) * share, "fitting the structures that fit as well")
+        rival_forward = Forward(rival_database, rival_structure, measured.radii)
+        rival_fits = [fit_channel(rival_forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
+        layers = [_widened(layer, other) for layer, other in
+                  zip(layers, _layers(rival_fits, rival_structure, rival_database.optics, colorspace))]
     chi2 = float(sum(f.chi2 for f in fits))
     dof = int(sum(f.dof for f in fits))
     warning = None
@@ -265,12 +281,30 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                           "uncertainty regions do not hold") for layer in layers]
     notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
              f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
-             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ')' if settings.mus is None else ''}, "
-             f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons")
+             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ')' if settings.mus is None else ''}"
+             f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
+             f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
+             + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
+                if rivals else ""))
     report(1.0, "done")
     return Inversion(layers, measured, np.stack([f.model for f in fits], axis=1),
                      np.stack([f.sigma for f in fits], axis=1), np.array([f.used for f in fits]), chi2, dof,
                      warning, notes, time.perf_counter() - start)
+
+
+def _widened(layer: InvertedLayer, other: InvertedLayer) -> InvertedLayer:
+    """``layer`` with its region and absorption ranges grown to cover ``other`` (the same layer in
+    a rival structure); determined only if both are."""
+    points = np.vstack([layer.region, other.region, layer.xy[None], other.xy[None]]).astype(np.float32)
+    points = points[np.isfinite(points).all(axis=1)]
+    region = cv2.convexHull(points).reshape(-1, 2).astype(np.float64) if len(points) else layer.region
+    interval = np.stack([np.minimum(layer.mua_interval[:, 0], other.mua_interval[:, 0]),
+                         np.maximum(layer.mua_interval[:, 1], other.mua_interval[:, 1])], axis=1)
+    determined = layer.determined and other.determined
+    reason = layer.reason or other.reason
+    if not determined and not reason:
+        reason = "not determined under a structure that fits as well"
+    return replace(layer, region=region, mua_interval=interval, determined=determined, reason=reason)
 
 
 def _mus_text(mus) -> str:
