@@ -181,3 +181,21 @@ def test_cli_inverse_writes_json_with_uncertainty_and_refuses_bad_settings_befor
     assert len(error) == 1 and "boundaries must increase" in error[0]
     assert main(["layers", str(tmp_path / "missing"), "--method", "inverse", "--mus", "1,2"]) == 2
     assert "needs the layer boundaries" in capsys.readouterr().err
+
+
+def test_the_fit_finds_a_strongly_absorbing_top_over_a_clear_base_not_the_mirror_minimum():
+    """layers-mus's blue channel: an absorbing skin (0.25) over a clear, strongly scattering base
+    (0.005). A fit started only from equal absorptions settled in a false minimum (top 0.05, base
+    opaque; chi-square 1900 against 70 at the truth); the start grid must find the truth."""
+    mua = [[0.005, 0.2, 0.25], [0.1, 0.03, 0.005]]
+    mean, error = direct_profile([0.5, 2.0], mua, [0, 2], 0.0, 1.4, 24.0, 20_000, seed=5)
+    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000)
+    inversion = invert(MeasuredProfile(RADII, mean, error, 1), settings)
+    top, base = inversion.layers
+    np.testing.assert_allclose(top.mua, mua[0], rtol=0.1, atol=0.005)
+    assert base.mua[2] < 0.02
+    assert inversion.warning is None
+    for layer, truth in zip(inversion.layers, mua):
+        for c in range(3):
+            low, high = layer.mua_interval[c]
+            assert low <= truth[c] <= high, (layer.mua_interval, truth)

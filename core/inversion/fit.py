@@ -22,6 +22,7 @@ within that region is *not determined*: the data do not bound that channel's col
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -41,8 +42,12 @@ WALD_LIMIT = 1.0
 followed instead (the quadratic approximation no longer holds)."""
 PROFILE_TOLERANCE = 0.05
 """Log absorption to which an interval's end is found (5 %)."""
-STARTS = (0.01, 0.3)
-"""Absorption every fit starts from (the best of these wins)."""
+START_GRID = (0.005, 0.05, 0.5)
+"""Absorption per layer of the start grid: from every combination a short fit, the best few are
+fitted fully (the fit has local minima, e.g. a deep layer absorbing what an upper one should)."""
+COARSE_GRID = (0.01, 0.3)
+SHORT_STEPS = 6
+FITTED_STARTS = 2
 
 
 @dataclass(frozen=True)
@@ -100,7 +105,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         target = np.log(measured[:used])
         relative = sigma[:used] / measured[:used]
         residuals, jacobian = _objective(forward, used, target, relative)
-        starts = [np.full(layers, math.log(start)) for start in STARTS] if best is None else [best.x]
+        starts = _starts(residuals, jacobian, layers, low, high) if best is None else [best.x]
         best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf")
                     for start in starts), key=lambda result: result.cost)
         model_variance = forward.variance(np.exp(best.x))
@@ -124,6 +129,16 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
     else:
         interval[:] = np.nan
     return ChannelFit(np.exp(theta), interval, unbounded, used, chi2, forward.profile(np.exp(theta)), sigma)
+
+
+def _starts(residuals, jacobian, layers: int, low: float, high: float) -> list[np.ndarray]:
+    """Where the full fits start: a few steps of least squares from every combination of
+    :data:`START_GRID` (:data:`COARSE_GRID` beyond two layers), the :data:`FITTED_STARTS` best."""
+    values = START_GRID if layers <= 2 else COARSE_GRID
+    short = [least_squares(residuals, np.log(np.array(combination)), jac=jacobian, bounds=(low, high),
+                           method="trf", max_nfev=SHORT_STEPS)
+             for combination in itertools.product(values, repeat=layers)]
+    return [result.x for result in sorted(short, key=lambda result: result.cost)[:FITTED_STARTS]]
 
 
 def _objective(forward: Forward, used: int, target: np.ndarray, relative: np.ndarray):
