@@ -46,7 +46,7 @@ START_GRID = (0.005, 0.05, 0.5)
 """Absorption per layer of the start grid: from every combination a short fit, the best few are
 fitted fully (the fit has local minima, e.g. a deep layer absorbing what an upper one should)."""
 COARSE_GRID = (0.01, 0.3)
-SHORT_STEPS = 6
+SHORT_STEPS = 4
 FITTED_STARTS = 2
 
 
@@ -91,7 +91,8 @@ def used_rings(measured: np.ndarray, sigma: np.ndarray) -> int:
 
 def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> ChannelFit:
     """Fit one channel: ``measured`` and ``error`` (R,) are the region's E(r) and its standard
-    error at ``forward.radii``."""
+    error at ``forward.radii``. Without ``intervals`` (a structure search's quick fit) the fit
+    starts from equal absorptions only and no intervals are computed."""
     layers = forward.structure.layers
     low, high = math.log(MUA_BOUNDS[0]), math.log(MUA_BOUNDS[1])
     sigma = np.hypot(error, RELATIVE_FLOOR * np.abs(measured))
@@ -105,7 +106,12 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         target = np.log(measured[:used])
         relative = sigma[:used] / measured[:used]
         residuals, jacobian = _objective(forward, used, target, relative)
-        starts = _starts(residuals, jacobian, layers, low, high) if best is None else [best.x]
+        if best is not None:
+            starts = [best.x]
+        elif intervals:
+            starts = _starts(residuals, jacobian, layers, low, high)
+        else:  # a structure search's quick fit: equal starting absorptions only
+            starts = [np.full(layers, math.log(value)) for value in COARSE_GRID]
         best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf")
                     for start in starts), key=lambda result: result.cost)
         model_variance = forward.variance(np.exp(best.x))
@@ -120,9 +126,13 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         for k in range(layers):
             lower = max(theta[k] - spread[k], low)
             upper = min(theta[k] + spread[k], high)
-            if spread[k] > WALD_LIMIT or upper >= high:
+            if theta[k] >= high - 1e-9:
+                upper = high
+            elif spread[k] > WALD_LIMIT or upper >= high:
                 upper = _profile_end(residuals, jacobian, theta, k, high, chi2, low, high)
-            if spread[k] > WALD_LIMIT or lower <= low:
+            if theta[k] <= low + 1e-9:
+                lower = low
+            elif spread[k] > WALD_LIMIT or lower <= low:
                 lower = _profile_end(residuals, jacobian, theta, k, low, chi2, low, high)
             interval[k] = np.exp([lower, upper])
             unbounded[k] = upper >= high - 1e-9
