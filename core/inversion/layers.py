@@ -231,20 +231,12 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         raise InversionError("the region's profile holds no values")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
-    share = 1.0 / (len(mus_choices) + 1)
-    for index, mus in enumerate(mus_choices):
-        what = f"white Monte Carlo for mus {_mus_text(mus)}"
-        report(index * share, what)
-        optics = database_optics(settings, mus)
-        database = white_database(optics, settings.photons,
-                                  progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
-        structures = list(_structures(settings, optics.bins))
-        if len(structures) == 1 and len(mus_choices) == 1:
-            candidates.append((0.0, 0.0, mus, structures[0], database))
-            break
+    share = 1.0 / (len(mus_choices) + 2)
+
+    def try_structures(structures, database, mus, first: float, what: str) -> None:
         search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
         for number, structure in enumerate(structures):
-            report((index + 0.5 + 0.5 * number / len(structures)) * share, f"fitting structures for mus {_mus_text(mus)}")
+            report(first + share * number / len(structures), what)
             forward = Forward(search, structure, measured.radii)
             fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c], intervals=False)
                     for c in range(3)]
@@ -252,6 +244,31 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             points = sum(f.used for f in fits)
             bic = chi2 + 3 * structure.layers * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
             candidates.append((bic, chi2, mus, structure, database))
+
+    databases = {}
+    structures = []
+    for index, mus in enumerate(mus_choices):
+        what = f"white Monte Carlo for mus {_mus_text(mus)}"
+        report(index * share, what)
+        optics = database_optics(settings, mus)
+        databases[index] = white_database(optics, settings.photons,
+                                          progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
+        structures = list(_structures(settings, optics.bins))
+        if len(structures) == 1 and len(mus_choices) == 1:
+            candidates.append((0.0, 0.0, mus, structures[0], databases[index]))
+            break
+        # With several scatterings to try, each is scouted on the structures with even boundaries;
+        # the others are tried for the best scattering only.
+        scouts = _scouts(structures) if len(mus_choices) > 1 else structures
+        try_structures(scouts, databases[index], mus, (index + 0.5) * share,
+                       f"fitting structures for mus {_mus_text(mus)}")
+    if len(mus_choices) > 1:
+        scouted = [c for c in candidates if math.isfinite(c[0])]
+        if scouted:
+            _, _, mus, _, database = min(scouted, key=lambda c: c[0])
+            rest = [structure for structure in structures if structure not in _scouts(structures)]
+            try_structures(rest, database, mus, len(mus_choices) * share,
+                           f"fitting every structure for mus {_mus_text(mus)}")
     usable = [c for c in candidates if math.isfinite(c[0])]
     if not usable:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
@@ -261,12 +278,13 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     rivals = sorted((c for c in usable if c[3].layers == structure.layers and (c[3] != structure or c[2] != mus)),
                     key=lambda c: c[1])
     rivals = [c for c in rivals if c[1] - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
-    report(len(mus_choices) * share, "fitting the chosen structure")
+    report((len(mus_choices) + 1) * share, "fitting the chosen structure")
     forward = Forward(database, structure, measured.radii)
     fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
     layers = _layers(fits, structure, database.optics, colorspace)
     for number, (_, _, _, rival_structure, rival_database) in enumerate(rivals):
-        report((len(mus_choices) + (number + 1) / (len(rivals) + 1)) * share, "fitting the structures that fit as well")
+        report((len(mus_choices) + 1 + (number + 1) / (len(rivals) + 1)) * share,
+               "fitting the structures that fit as well")
         rival_forward = Forward(rival_database, rival_structure, measured.radii)
         rival_fits = [fit_channel(rival_forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
         layers = [_widened(layer, other) for layer, other in
@@ -334,6 +352,12 @@ def _structures(settings: InversionSettings, bins: int):
     for count in counts:
         for cut in itertools.combinations(range(1, bins), count - 1):
             yield Structure((0, *cut))
+
+
+def _scouts(structures: list[Structure]) -> list[Structure]:
+    """The structures whose boundaries all lie at even depths (all of them if none does)."""
+    even = [structure for structure in structures if all(b % 2 == 0 for b in structure.starts[1:])]
+    return even or structures
 
 
 def _thinned(database, share: int):
