@@ -31,7 +31,7 @@ from ringlight.core.colour.layer_report import (
     with_ring_noise,
 )
 from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
-from ringlight.core.inversion.layers import settings_from_text
+from ringlight.core.inversion.settings import settings_from_text
 from ringlight.core.inversion.report import DatasetInversion, invert_region, inversion_json
 from ringlight.core.rings.noise import StackNoise
 from ringlight.widgets.image_panel import ImagePanel

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import QSettings, QSize, Qt, QThreadPool, Signal
+from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (
     QDockWidget,
@@ -47,7 +47,7 @@ from .export_actions import ExportActions
 from .help_dialogs import EXITANCE_NOTICE, HelpDialogs
 from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
-from .window_settings import WindowSettings
+from .window_settings import WindowSettings, first_size
 
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
@@ -150,7 +150,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
         self.statusBar().addPermanentWidget(self.dataset_label)
-        self.resize(_first_size(self))
+        self.resize(first_size(self))
 
     def _dock(self, title: str, widget: QWidget, area) -> QDockWidget:
         dock = QDockWidget(title, self)
@@ -400,17 +400,6 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         if path is not None:
             event.acceptProposedAction()
             self.open_dataset(path)
-
-
-def _first_size(window: QWidget) -> QSize:
-    """1400 x 860 pixels, or less where the screen is smaller (a 1366 x 768 laptop), leaving
-    room for the window frame and title bar: saved geometry replaces it on later runs."""
-    size = QSize(1400, 860)
-    screen = window.screen()
-    if screen is None:
-        return size
-    free = screen.availableGeometry().size()
-    return size.boundedTo(QSize(free.width() - 16, free.height() - 48))
 
 
 def _dropped_dataset(mime) -> Path | None:

@@ -9,6 +9,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+from PySide6.QtCore import QSize
+from PySide6.QtWidgets import QWidget
 from ringlight.core.colour.display import DisplaySettings
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.widgets.display_controls import VIEWS
@@ -102,3 +104,14 @@ class WindowSettings:
         self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
         self._remember_request()
         self.settings.sync()
+
+
+def first_size(window: QWidget) -> QSize:
+    """1400 x 860 pixels, or less where the screen is smaller (a 1366 x 768 laptop), leaving
+    room for the window frame and title bar: saved geometry replaces it on later runs."""
+    size = QSize(1400, 860)
+    screen = window.screen()
+    if screen is None:
+        return size
+    free = screen.availableGeometry().size()
+    return size.boundedTo(QSize(free.width() - 16, free.height() - 48))

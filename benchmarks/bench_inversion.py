@@ -16,7 +16,8 @@ import time
 
 import numpy as np
 from ringlight.core.dataset.impulse_dataset import open_dataset
-from ringlight.core.inversion.layers import MUS_GRID, SEARCH_BINS, InversionSettings, database_optics
+from ringlight.core.inversion.layers import database_optics
+from ringlight.core.inversion.settings import MUS_GRID, SEARCH_BINS, InversionSettings
 from ringlight.core.inversion.report import invert_region
 from ringlight.core.inversion.white_mc import white_database
 from ringlight.core.simulate.samples import sample_dataset

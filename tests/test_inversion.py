@@ -11,9 +11,10 @@ from ringlight.app.main import main
 from ringlight.core.colour.chroma import chromaticity
 from ringlight.core.dataset.impulse_dataset import open_dataset
 from ringlight.core.inversion.forward import Forward, Structure, ring_matrix
-from ringlight.core.inversion.layers import InversionSettings, invert, region_contains
+from ringlight.core.inversion.layers import invert, region_contains
 from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
 from ringlight.core.inversion.report import invert_region
+from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.white_mc import SlabOptics, run_white
 from ringlight.core.rings.geometry import ring_geometry
 from ringlight.core.simulate.adding_doubling import thick_slab_reflectance

@@ -10,7 +10,7 @@ import pytest
 from PySide6.QtCore import QSettings, Qt
 from ringlight.app.window import MainWindow
 from ringlight.core.dataset.impulse_dataset import open_dataset
-from ringlight.core.inversion.layers import InversionSettings
+from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.report import invert_region
 from ringlight.core.simulate.samples import sample_folder
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ringlight.core.colour.layer_report import analyse_layers
 from ringlight.core.dataset.impulse_dataset import open_dataset
-from ringlight.core.inversion.layers import InversionSettings
+from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.report import invert_region
 from ringlight.core.simulate.presets import load_scene
 from ringlight.core.simulate.transport import simulate_transport, write_transport

@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from ringlight.core.colour.chroma import METHODS, LayerResult
-from ringlight.core.inversion.layers import DEFAULT_DEPTH
+from ringlight.core.inversion.settings import DEFAULT_DEPTH
 from ringlight.core.inversion.report import DatasetInversion
 
 from .chromaticity_diagram import FIT_KEY, PICKS_KEY, ChromaticityDiagram
@@ -210,13 +210,12 @@ class LayerPanel(QWidget):
         self.table.setRowCount(len(inversion.layers))
         for row, layer in enumerate(inversion.layers):
             truth_xy = result.truth_xy[row] if result.errors is not None else None
-            width = float(np.ptp(layer.region, axis=0).max()) if len(layer.region) else float("nan")
             cells = [str(row + 1), f"{layer.top:g}..{layer.bottom:g}", f"{layer.xy[0]:.4f}", f"{layer.xy[1]:.4f}",
                      "#%02x%02x%02x" % layer.swatch, result.truth_names[row] if truth_xy is not None else "",
                      "" if truth_xy is None else f"{truth_xy[0]:.4f}, {truth_xy[1]:.4f}",
                      "" if truth_xy is None else f"{result.errors[row]:.4f}"
                      + ("" if result.inside[row] else " (outside)"),
-                     f"{width:.3f}", "yes" if layer.determined else "no"]
+                     f"{layer.region_width:.3f}", "yes" if layer.determined else "no"]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setFlags(item.flags() & ~Qt.ItemFlag.ItemIsEditable)

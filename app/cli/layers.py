@@ -3,8 +3,6 @@ by inversion (a layered model fitted to the region's ring-light profiles, with u
 
 from __future__ import annotations
 
-import numpy as np
-
 from ringlight.core import RinglightError, open_dataset, read_manifest
 from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.chroma import METHODS, require_colour
@@ -16,7 +14,7 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
-from ringlight.core.inversion.layers import (
+from ringlight.core.inversion.settings import (
     DEFAULT_DEPTH,
     DEFAULT_PHOTONS,
     MAX_LAYERS,
@@ -128,9 +126,8 @@ def _run_inverse(args, dataset, region, description: str, settings: InversionSet
     print(f"fit: chi-square {inversion.chi2:.1f} for {inversion.dof} degrees of freedom, rings used R/G/B "
           f"{'/'.join(str(int(u)) for u in inversion.used)}, {inversion.seconds:.1f} s")
     for index, layer in enumerate(inversion.layers):
-        width = np.ptp(layer.region, axis=0).max() if len(layer.region) else float("nan")
         line = (f"layer {index + 1}  depth {layer.top:g}..{layer.bottom:g}  xy ({layer.xy[0]:.4f}, {layer.xy[1]:.4f})"
-                f"  2-sigma region {width:.3f} wide  sRGB #{'%02x%02x%02x' % layer.swatch}")
+                f"  2-sigma region {layer.region_width:.3f} wide  sRGB #{'%02x%02x%02x' % layer.swatch}")
         if not layer.determined:
             line += "  NOT DETERMINED"
         if result.errors is not None:

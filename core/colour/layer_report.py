@@ -94,19 +94,19 @@ def analysis_document(analysis: LayerAnalysis, dataset_path: str) -> dict:
         "dataset": dataset_path, "region": analysis.region_description, "method": result.method,
         "colorspace": path.colorspace, "radii": list(result.radii), "trust": TRUST_RULE,
         "layers": [
-            {"radius": layer.radius, "xy": _finite(layer.xy), "rgb": _finite(layer.rgb),
-             "srgb8": list(layer.srgb8), "snr": _finite([snr])[0], "trusted": layer.trusted, "note": layer.note}
+            {"radius": layer.radius, "xy": finite_or_none(layer.xy), "rgb": finite_or_none(layer.rgb),
+             "srgb8": list(layer.srgb8), "snr": finite_or_none([snr])[0], "trusted": layer.trusted, "note": layer.note}
             for layer, snr in zip(result.layers, layer_snr(analysis))
         ],
         "warnings": list(result.warnings),
         "trajectory": {
-            "radii": path.radii.tolist(), "xy": [_finite(xy) for xy in path.xy],
-            "luminance": _finite(path.luminance), "snr": _finite(path.snr),
+            "radii": path.radii.tolist(), "xy": [finite_or_none(xy) for xy in path.xy],
+            "luminance": finite_or_none(path.luminance), "snr": finite_or_none(path.snr),
         },
     }
     if result.truth_xy is not None:
         document["truth"] = [{"name": name, "xy": list(xy)} for name, xy in zip(analysis.truth_names, result.truth_xy)]
-        document["xy_errors"] = _finite(result.errors)
+        document["xy_errors"] = finite_or_none(result.errors)
     return document
 
 
@@ -131,6 +131,6 @@ def analysis_csv(analysis: LayerAnalysis) -> str:
     return buffer.getvalue()
 
 
-def _finite(values):
+def finite_or_none(values):
     """JSON has no NaN: None in its place."""
     return [None if not np.isfinite(value) else float(value) for value in values]

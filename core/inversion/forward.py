@@ -31,7 +31,7 @@ class Structure:
     def layers(self) -> int:
         return len(self.starts)
 
-    def depth_ranges(self, bins: int, depth: float) -> list[tuple[float, float]]:
+    def depth_ranges(self, depth: float) -> list[tuple[float, float]]:
         """Each layer's ``(top, bottom)`` in grid steps; the last one's bottom is ``depth``."""
         bottoms = list(self.starts[1:]) + [depth]
         return [(float(top), float(min(bottom, depth))) for top, bottom in zip(self.starts, bottoms)]

@@ -17,26 +17,20 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
 from ..colour.chroma import chromaticity, srgb_swatch
-from ..errors import RinglightError
 from ..simulate.adding_doubling import thick_slab_reflectance
 from .fit import JOINT_CHI2, MUA_BOUNDS, ChannelFit, fit_channel
 from .forward import Forward, Structure
 from .measured import MeasuredProfile
+from .settings import MAX_LAYERS, MUS_GRID, SEARCH_BINS, InversionError, InversionSettings
 from .white_mc import SlabOptics, WhiteDatabase, white_database
 
-SEARCH_BINS = 9
-"""Depth bins of a searched structure: 8 of one grid step, then the base."""
-MUS_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
-"""Common scattering coefficients (per grid step) tried when none is given."""
-MAX_LAYERS = 4
-DEFAULT_PHOTONS = 20_000
-DEFAULT_DEPTH = 64.0
 SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
@@ -49,97 +43,6 @@ MAX_RIVALS = 4
 MISFIT_P = 1e-3
 """A fit whose chi-square is this improbable under the model is reported as not fitting, and none
 of its layers as determined."""
-
-
-class InversionError(RinglightError):
-    """An inversion cannot be set up (bad settings or too little signal)."""
-
-
-@dataclass(frozen=True)
-class InversionSettings:
-    """What the user gives.
-
-    Attributes
-    ----------
-    layers
-        Number of layers, or None to compare 1 .. MAX_LAYERS by BIC.
-    boundaries
-        Depths (whole grid steps, increasing, > 0) where layers meet; None to search them.
-    mus
-        One common scattering coefficient, one per layer (boundaries then needed), or None to
-        choose a common one from :data:`MUS_GRID`; per grid step.
-    n, g
-        Refractive index and Henyey-Greenstein anisotropy.
-    depth
-        Thickness of the modelled slab, grid steps (light below is lost).
-    photons
-        Photons of each white database.
-    """
-
-    layers: int | None = None
-    boundaries: tuple[int, ...] | None = None
-    mus: float | tuple[float, ...] | None = None
-    n: float = 1.4
-    g: float = 0.0
-    depth: float = DEFAULT_DEPTH
-    photons: int = DEFAULT_PHOTONS
-
-    def check(self) -> None:
-        """Raise :class:`InversionError` naming the first setting that cannot work."""
-        if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
-            raise InversionError(f"layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
-        if self.boundaries is not None:
-            bounds = list(self.boundaries)
-            if any(b <= 0 for b in bounds) or bounds != sorted(set(bounds)) or bounds and bounds[-1] >= self.depth:
-                raise InversionError(f"layer boundaries must increase from above 0 to below the depth "
-                                     f"{self.depth:g}, got {', '.join(map(str, bounds))}")
-            if self.layers is not None and len(bounds) != self.layers - 1:
-                raise InversionError(f"{self.layers} layers need {self.layers - 1} boundaries, got {len(bounds)}")
-        if isinstance(self.mus, tuple):
-            if self.boundaries is None:
-                raise InversionError("a scattering coefficient per layer needs the layer boundaries too")
-            if len(self.mus) != len(self.boundaries) + 1:
-                raise InversionError(f"{len(self.boundaries) + 1} layers need {len(self.boundaries) + 1} "
-                                     f"scattering coefficients, got {len(self.mus)}")
-        if self.mus is not None and min(np.atleast_1d(self.mus)) <= 0:
-            raise InversionError("scattering coefficients must be > 0")
-        if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
-            raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
-        if not 1.0 <= self.n <= 3.0:
-            raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
-        if not -1.0 < self.g < 1.0:
-            raise InversionError(f"the anisotropy g must be in (-1, 1), got {self.g:g}")
-
-
-def settings_from_text(layers: str, boundaries: str, mus: str, n: float, g: float, depth: float = DEFAULT_DEPTH,
-                       photons: int = DEFAULT_PHOTONS) -> InversionSettings:
-    """Settings from what a user typed (the CLI's options, the Layers tab's fields): ``layers``
-    "auto" or a count, ``boundaries`` and ``mus`` comma-separated numbers or empty for the
-    defaults; checked (:class:`InversionError` naming the setting)."""
-    def numbers(text, kind, name):
-        try:
-            return tuple(kind(part) for part in text.split(","))
-        except ValueError:
-            raise InversionError(f"{name} {text!r} must be numbers separated by commas") from None
-
-    count = None
-    if layers.strip() != "auto":
-        try:
-            count = int(layers)
-        except ValueError:
-            raise InversionError(f"layers {layers!r} must be a whole number or auto") from None
-    cuts = numbers(boundaries, int, "boundaries") if boundaries.strip() else None
-    if cuts is not None and count is None:
-        count = len(cuts) + 1
-    scattering = None
-    if mus.strip():
-        values = numbers(mus, float, "mus")
-        scattering = values[0] if len(values) == 1 else values
-    if photons < 1000:
-        raise InversionError(f"photons must be at least 1000, got {photons}")
-    settings = InversionSettings(count, cuts, scattering, n, g, depth, photons)
-    settings.check()
-    return settings
 
 
 @dataclass(frozen=True)
@@ -175,6 +78,11 @@ class InvertedLayer:
     xy: np.ndarray
     region: np.ndarray
     swatch: tuple[int, int, int]
+
+    @property
+    def region_width(self) -> float:
+        """The two-sigma region's larger extent in x or y (NaN without a region)."""
+        return float(np.ptp(self.region, axis=0).max()) if len(self.region) else float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,6 +128,16 @@ class Inversion:
 Progress = Callable[[float, str], None]
 
 
+class Candidate(NamedTuple):
+    """One structure tried in a search: its BIC and chi-square (quick fit), scattering, database."""
+
+    bic: float
+    chi2: float
+    mus: float | tuple[float, ...]
+    structure: Structure
+    database: WhiteDatabase
+
+
 def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: str = "sRGB",
            progress: Progress | None = None) -> Inversion:
     """Fit ``measured`` (R, 3) as ``settings`` say; ``progress(fraction, what)`` is called along
@@ -243,7 +161,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             chi2 = sum(f.chi2 for f in fits)
             points = sum(f.used for f in fits)
             bic = chi2 + 3 * structure.layers * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
-            candidates.append((bic, chi2, mus, structure, database))
+            candidates.append(Candidate(bic, chi2, mus, structure, database))
 
     databases = {}
     structures = []
@@ -255,7 +173,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                                           progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
         structures = list(_structures(settings, optics.bins))
         if len(structures) == 1 and len(mus_choices) == 1:
-            candidates.append((0.0, 0.0, mus, structures[0], databases[index]))
+            candidates.append(Candidate(0.0, 0.0, mus, structures[0], databases[index]))
             break
         # With several scatterings to try, each is scouted on the structures with even boundaries;
         # the others are tried for the best scattering only.
@@ -263,32 +181,32 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         try_structures(scouts, databases[index], mus, (index + 0.5) * share,
                        f"fitting structures for mus {_mus_text(mus)}")
     if len(mus_choices) > 1:
-        scouted = [c for c in candidates if math.isfinite(c[0])]
+        scouted = [c for c in candidates if math.isfinite(c.bic)]
         if scouted:
-            _, _, mus, _, database = min(scouted, key=lambda c: c[0])
+            _, _, mus, _, database = min(scouted, key=lambda c: c.bic)
             rest = [structure for structure in structures if structure not in _scouts(structures)]
             try_structures(rest, database, mus, len(mus_choices) * share,
                            f"fitting every structure for mus {_mus_text(mus)}")
-    usable = [c for c in candidates if math.isfinite(c[0])]
+    usable = [c for c in candidates if math.isfinite(c.bic)]
     if not usable:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
-    bic, best_chi2, mus, structure, database = min(usable, key=lambda c: c[0])
+    _, best_chi2, mus, structure, database = min(usable, key=lambda c: c.bic)
     # Structures and scatterings that fit about as well are as plausible as the best: each layer's
     # region spans theirs too, so the choice of model is part of its uncertainty.
-    rivals = sorted((c for c in usable if c[3].layers == structure.layers and (c[3] != structure or c[2] != mus)),
-                    key=lambda c: c[1])
-    rivals = [c for c in rivals if c[1] - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
+    rivals = sorted((c for c in usable if c.structure.layers == structure.layers
+                     and (c.structure != structure or c.mus != mus)), key=lambda c: c.chi2)
+    rivals = [c for c in rivals if c.chi2 - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     report((len(mus_choices) + 1) * share, "fitting the chosen structure")
     forward = Forward(database, structure, measured.radii)
     fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
     layers = _layers(fits, structure, database.optics, colorspace)
-    for number, (_, _, _, rival_structure, rival_database) in enumerate(rivals):
+    for number, rival in enumerate(rivals):
         report((len(mus_choices) + 1 + (number + 1) / (len(rivals) + 1)) * share,
                "fitting the structures that fit as well")
-        rival_forward = Forward(rival_database, rival_structure, measured.radii)
+        rival_forward = Forward(rival.database, rival.structure, measured.radii)
         rival_fits = [fit_channel(rival_forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
         layers = [_widened(layer, other) for layer, other in
-                  zip(layers, _layers(rival_fits, rival_structure, rival_database.optics, colorspace))]
+                  zip(layers, _layers(rival_fits, rival.structure, rival.database.optics, colorspace))]
     chi2 = float(sum(f.chi2 for f in fits))
     dof = int(sum(f.dof for f in fits))
     warning = None
@@ -368,7 +286,7 @@ def _thinned(database, share: int):
 
 
 def _layers(fits: list[ChannelFit], structure: Structure, optics: SlabOptics, colorspace: str) -> list[InvertedLayer]:
-    ranges = structure.depth_ranges(optics.bins, optics.depth)
+    ranges = structure.depth_ranges(optics.depth)
     layers = []
     for k, (top, bottom) in enumerate(ranges):
         mus = optics.mus[structure.starts[k]]

@@ -9,9 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..colour.chroma import chromaticity
-from ..colour.layer_report import truth_layers
+from ..colour.layer_report import finite_or_none, truth_layers
 from ..dataset.impulse_dataset import ImpulseDataset
-from .layers import Inversion, InversionSettings, Progress, invert, region_contains
+from .layers import Inversion, Progress, invert, region_contains
+from .settings import InversionSettings
 from .measured import measured_profile
 
 
@@ -57,14 +58,14 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
     layers = []
     for index, layer in enumerate(inversion.layers):
         entry = {
-            "depth": [layer.top, layer.bottom], "mus": layer.mus, "mua": _finite(layer.mua),
-            "mua_two_sigma": [_finite(row) for row in layer.mua_interval],
+            "depth": [layer.top, layer.bottom], "mus": layer.mus, "mua": finite_or_none(layer.mua),
+            "mua_two_sigma": [finite_or_none(row) for row in layer.mua_interval],
             "determined": layer.determined, "not_determined_because": layer.reason or None,
-            "rgb": _finite(layer.rgb), "xy": _finite(layer.xy), "srgb8": "#%02x%02x%02x" % layer.swatch,
-            "xy_two_sigma_region": [_finite(point) for point in layer.region],
+            "rgb": finite_or_none(layer.rgb), "xy": finite_or_none(layer.xy), "srgb8": "#%02x%02x%02x" % layer.swatch,
+            "xy_two_sigma_region": [finite_or_none(point) for point in layer.region],
         }
         if result.errors is not None:
-            entry.update(truth=result.truth_names[index], truth_xy=_finite(result.truth_xy[index]),
+            entry.update(truth=result.truth_names[index], truth_xy=finite_or_none(result.truth_xy[index]),
                          xy_error=result.errors[index], truth_in_region=result.inside[index])
         layers.append(entry)
     return {
@@ -74,11 +75,11 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
                 "rings_used": {"R": int(inversion.used[0]), "G": int(inversion.used[1]), "B": int(inversion.used[2])},
                 "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
         "uncertainty": "two-sigma (95.4 %) region of the three channels together; see ringlight.core.inversion.fit",
-        "profile": {"radii": _finite(inversion.measured.radii),
-                    "measured": [_finite(row) for row in inversion.measured.mean],
-                    "standard_error": [_finite(row) for row in inversion.measured.standard_error],
-                    "model": [_finite(row) for row in inversion.model],
-                    "sigma": [_finite(row) for row in inversion.sigma]},
+        "profile": {"radii": finite_or_none(inversion.measured.radii),
+                    "measured": [finite_or_none(row) for row in inversion.measured.mean],
+                    "standard_error": [finite_or_none(row) for row in inversion.measured.standard_error],
+                    "model": [finite_or_none(row) for row in inversion.model],
+                    "sigma": [finite_or_none(row) for row in inversion.sigma]},
         "layers": layers,
     }
 
@@ -89,7 +90,3 @@ def inversion_json(result: DatasetInversion, dataset_path: str) -> str:
 
 def _number(value: float):
     return float(value) if math.isfinite(value) else None
-
-
-def _finite(values):
-    return [_number(float(value)) for value in values]

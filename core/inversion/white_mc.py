@@ -40,7 +40,7 @@ from ..atomic import atomic_file
 from ..dataset.cache import user_cache_root
 from ..errors import RinglightError
 from ..simulate.camera import exit_fresnel, henyey_greenstein
-from ..simulate.photon import scatter_direction
+from ..simulate.phase import scatter_direction
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state, uniform
 
 THIN_VALUE = 1e-3
@@ -118,9 +118,6 @@ class WhiteDatabase:
     photon: np.ndarray
     seconds: float
 
-    @property
-    def side(self) -> int:
-        return 2 * self.optics.reach + 1
 
 
 @numba.njit(cache=True, inline="always")

@@ -1,0 +1,110 @@
+"""What a user gives a layer inversion: :class:`InversionSettings`, checked, and read from typed text
+(the CLI's options, the Layers tab's fields)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RinglightError
+
+SEARCH_BINS = 9
+"""Depth bins of a searched structure: 8 of one grid step, then the base."""
+MUS_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
+"""Common scattering coefficients (per grid step) tried when none is given."""
+MAX_LAYERS = 4
+DEFAULT_PHOTONS = 20_000
+DEFAULT_DEPTH = 64.0
+
+
+class InversionError(RinglightError):
+    """An inversion cannot be set up (bad settings or too little signal)."""
+
+
+@dataclass(frozen=True)
+class InversionSettings:
+    """What the user gives.
+
+    Attributes
+    ----------
+    layers
+        Number of layers, or None to compare 1 .. MAX_LAYERS by BIC.
+    boundaries
+        Depths (whole grid steps, increasing, > 0) where layers meet; None to search them.
+    mus
+        One common scattering coefficient, one per layer (boundaries then needed), or None to
+        choose a common one from :data:`MUS_GRID`; per grid step.
+    n, g
+        Refractive index and Henyey-Greenstein anisotropy.
+    depth
+        Thickness of the modelled slab, grid steps (light below is lost).
+    photons
+        Photons of each white database.
+    """
+
+    layers: int | None = None
+    boundaries: tuple[int, ...] | None = None
+    mus: float | tuple[float, ...] | None = None
+    n: float = 1.4
+    g: float = 0.0
+    depth: float = DEFAULT_DEPTH
+    photons: int = DEFAULT_PHOTONS
+
+    def check(self) -> None:
+        """Raise :class:`InversionError` naming the first setting that cannot work."""
+        if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
+            raise InversionError(f"layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
+        if self.boundaries is not None:
+            bounds = list(self.boundaries)
+            if any(b <= 0 for b in bounds) or bounds != sorted(set(bounds)) or bounds and bounds[-1] >= self.depth:
+                raise InversionError(f"layer boundaries must increase from above 0 to below the depth "
+                                     f"{self.depth:g}, got {', '.join(map(str, bounds))}")
+            if self.layers is not None and len(bounds) != self.layers - 1:
+                raise InversionError(f"{self.layers} layers need {self.layers - 1} boundaries, got {len(bounds)}")
+        if isinstance(self.mus, tuple):
+            if self.boundaries is None:
+                raise InversionError("a scattering coefficient per layer needs the layer boundaries too")
+            if len(self.mus) != len(self.boundaries) + 1:
+                raise InversionError(f"{len(self.boundaries) + 1} layers need {len(self.boundaries) + 1} "
+                                     f"scattering coefficients, got {len(self.mus)}")
+        if self.mus is not None and min(np.atleast_1d(self.mus)) <= 0:
+            raise InversionError("scattering coefficients must be > 0")
+        if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
+            raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
+        if not 1.0 <= self.n <= 3.0:
+            raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
+        if not -1.0 < self.g < 1.0:
+            raise InversionError(f"the anisotropy g must be in (-1, 1), got {self.g:g}")
+
+
+def settings_from_text(layers: str, boundaries: str, mus: str, n: float, g: float, depth: float = DEFAULT_DEPTH,
+                       photons: int = DEFAULT_PHOTONS) -> InversionSettings:
+    """Settings from what a user typed (the CLI's options, the Layers tab's fields): ``layers``
+    "auto" or a count, ``boundaries`` and ``mus`` comma-separated numbers or empty for the
+    defaults; checked (:class:`InversionError` naming the setting)."""
+    def numbers(text, kind, name):
+        try:
+            return tuple(kind(part) for part in text.split(","))
+        except ValueError:
+            raise InversionError(f"{name} {text!r} must be numbers separated by commas") from None
+
+    count = None
+    if layers.strip() != "auto":
+        try:
+            count = int(layers)
+        except ValueError:
+            raise InversionError(f"layers {layers!r} must be a whole number or auto") from None
+    cuts = numbers(boundaries, int, "boundaries") if boundaries.strip() else None
+    if cuts is not None and count is None:
+        count = len(cuts) + 1
+    scattering = None
+    if mus.strip():
+        values = numbers(mus, float, "mus")
+        scattering = values[0] if len(values) == 1 else values
+    if photons < 1000:
+        raise InversionError(f"photons must be at least 1000, got {photons}")
+    settings = InversionSettings(count, cuts, scattering, n, g, depth, photons)
+    settings.check()
+    return settings
