@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,11 +44,17 @@ WALD_LIMIT = 1.0
 followed instead (the quadratic approximation no longer holds)."""
 PROFILE_TOLERANCE = 0.05
 """Log absorption to which an interval's end is found (5 %)."""
+LOOSE_TOLERANCE = 1e-5
+"""Relative tolerance (ftol, xtol, gtol) of the refits along a profile and of a structure search's
+quick fits, where the chi-square is only compared with thresholds (:data:`JOINT_CHI2`, BIC
+differences) far coarser than the 1e-4 or so of itself this leaves; the reported fits keep
+least squares' defaults."""
 START_GRID = (0.005, 0.05, 0.5)
 """Absorption per layer of the start grid: from every combination a short fit, the best few are
 fitted fully (the fit has local minima, e.g. a deep layer absorbing what an upper one should)."""
 COARSE_GRID = (0.01, 0.3)
 SHORT_STEPS = 4
+_LOOSE = {"ftol": LOOSE_TOLERANCE, "xtol": LOOSE_TOLERANCE, "gtol": LOOSE_TOLERANCE}
 FITTED_STARTS = 2
 
 
@@ -89,6 +97,14 @@ def used_rings(measured: np.ndarray, sigma: np.ndarray) -> int:
     return int(np.argmin(good)) if not good.all() else len(good)
 
 
+def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> list[ChannelFit]:
+    """:func:`fit_channel` for each channel of ``measured`` and ``error`` (R, C), the channels in
+    threads (the forward model's kernel releases the GIL, and it is most of a fit's time)."""
+    channels = measured.shape[1]
+    with ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1))) as pool:
+        return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals), range(channels)))
+
+
 def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> ChannelFit:
     """Fit one channel: ``measured`` and ``error`` (R,) are the region's E(r) and its standard
     error at ``forward.radii``. Without ``intervals`` (a structure search's quick fit) the fit
@@ -112,7 +128,8 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
             starts = _starts(residuals, jacobian, layers, low, high)
         else:  # a structure search's quick fit: equal starting absorptions only
             starts = [np.full(layers, math.log(value)) for value in COARSE_GRID]
-        best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf")
+        loose = {} if intervals else _LOOSE
+        best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
                     for start in starts), key=lambda result: result.cost)
         model_variance = forward.variance(np.exp(best.x))
         sigma = np.sqrt(error ** 2 + model_variance + (RELATIVE_FLOOR * measured) ** 2)
@@ -192,5 +209,6 @@ def _profile_chi2(residuals, jacobian, theta: np.ndarray, k: int, value: float, 
         return values
 
     result = least_squares(lambda free: residuals(full(free)), theta[others],
-                           jac=lambda free: jacobian(full(free))[:, others], bounds=(low, high), method="trf")
+                           jac=lambda free: jacobian(full(free))[:, others], bounds=(low, high), method="trf",
+                           **_LOOSE)
     return 2.0 * result.cost

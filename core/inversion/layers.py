@@ -25,7 +25,7 @@ from scipy.stats import chi2 as chi2_distribution
 
 from ..colour.chroma import chromaticity, srgb_swatch
 from ..simulate.adding_doubling import thick_slab_reflectance
-from .fit import JOINT_CHI2, MUA_BOUNDS, ChannelFit, fit_channel
+from .fit import JOINT_CHI2, MUA_BOUNDS, ChannelFit, fit_channels
 from .forward import Forward, Structure
 from .measured import MeasuredProfile
 from .settings import MAX_LAYERS, MUS_GRID, SEARCH_BINS, InversionError, InversionSettings
@@ -156,8 +156,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         for number, structure in enumerate(structures):
             report(first + share * number / len(structures), what)
             forward = Forward(search, structure, measured.radii)
-            fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c], intervals=False)
-                    for c in range(3)]
+            fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
             chi2 = sum(f.chi2 for f in fits)
             points = sum(f.used for f in fits)
             bic = chi2 + 3 * structure.layers * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
@@ -198,13 +197,13 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     rivals = [c for c in rivals if c.chi2 - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     report((len(mus_choices) + 1) * share, "fitting the chosen structure")
     forward = Forward(database, structure, measured.radii)
-    fits = [fit_channel(forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
+    fits = fit_channels(forward, measured.mean, measured.standard_error)
     layers = _layers(fits, structure, database.optics, colorspace)
     for number, rival in enumerate(rivals):
         report((len(mus_choices) + 1 + (number + 1) / (len(rivals) + 1)) * share,
                "fitting the structures that fit as well")
         rival_forward = Forward(rival.database, rival.structure, measured.radii)
-        rival_fits = [fit_channel(rival_forward, measured.mean[:, c], measured.standard_error[:, c]) for c in range(3)]
+        rival_fits = fit_channels(rival_forward, measured.mean, measured.standard_error)
         layers = [_widened(layer, other) for layer, other in
                   zip(layers, _layers(rival_fits, rival.structure, rival.database.optics, colorspace))]
     chi2 = float(sum(f.chi2 for f in fits))
