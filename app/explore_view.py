@@ -24,7 +24,7 @@ from ringlight.core.colour.display import (
 from ringlight.core.colour.regions import region_statistics
 from ringlight.core.dataset.ground_truth import normalised_cross_correlation
 from ringlight.core.rings.noise import StackNoise, median_snr, smoothed, stack_noise, transient_snr
-from ringlight.core.rings.profiles import pixel_profile
+from ringlight.core.rings.profiles import pixel_profile, stack_profile
 from ringlight.core.rings.stack_request import StackPair
 from ringlight.widgets.snr_colours import SNR_COLORMAP, SNR_LEVELS, snr_colormap, snr_rgb
 
@@ -157,7 +157,8 @@ class ExploreView:
         return text
 
     def cancel_all(self) -> None:
-        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
+                     self.impulse_jobs):
             slot.cancel()
         self.scrub_bar.play_button.setChecked(False)
 
@@ -175,12 +176,34 @@ class ExploreView:
             return self.loaded.steady_state
         if view == "impulse":
             if self._impulse_cache is None or self._impulse_cache[0] != self.picked:
-                self._impulse_cache = (self.picked, self.loaded.dataset.impulse_image(*self.picked))
+                dataset = self.loaded.dataset
+                if not dataset.in_memory:  # read from the store: in a worker, the view waits for it
+                    self._request_impulse(dataset, self.picked)
+                    return None
+                self._impulse_cache = (self.picked, dataset.impulse_image(*self.picked))
             return self._impulse_cache[1]
         if view == "snr":
             return None if self.noise is None else self.noise.snr[self.radius_index()]
         stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
         return stack.images[self.radius_index()]
+
+    def _request_impulse(self, dataset: ImpulseDataset, point: tuple[int, int]) -> None:
+        """Read the impulse image of ``point`` from the store in a worker (one at a time; the
+        newest pick wins), showing that it is under way."""
+        if self._impulse_wanted == point and self.impulse_jobs.busy:
+            return
+        self._impulse_wanted = point
+        self.image_panel.set_title(f"reading the impulse image of y {point[0]} x {point[1]} from the store ...")
+        self.impulse_jobs.start(f"Reading the impulse image at y {point[0]} x {point[1]}",
+                                lambda progress: (point, dataset.impulse_image(*point)))
+
+    def _on_impulse_ready(self, result) -> None:
+        point, image = result
+        if self.loaded is None or point != self.picked:
+            return  # picked elsewhere, or another dataset, meanwhile
+        self._impulse_cache = (point, image)
+        if self.view() == "impulse":
+            self._refresh_image()
 
     def current_levels(self) -> tuple[float, float]:
         return self._levels
@@ -321,7 +344,10 @@ class ExploreView:
     def _refresh_profiles(self) -> None:
         if self.loaded is None or self.stacks is None or self.picked is None:
             return
-        self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
+        if self.loaded.dataset.in_memory:
+            self.profile = pixel_profile(self.loaded.dataset, self.stacks.rings, self.picked)
+        else:  # read from its store: the stacks on screen hold the profile, and a click reads nothing
+            self.profile = stack_profile(self.stacks.pair.ring, self.stacks.pair.transient, self.picked)
         ring_se = transient_se = None
         if self.noise is not None:
             y, x = self.picked

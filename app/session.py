@@ -107,7 +107,8 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     manifest = read_manifest(path)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
     dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5))  # parsed once
-    dataset.validity  # made here, in the worker, not on the first click
+    if dataset.in_memory:
+        dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
     steady_state = dataset.steady_state()
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))

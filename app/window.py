@@ -85,6 +85,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.noise_jobs = JobSlot(self.pool, self)
         self.export_jobs = JobSlot(self.export_pool, self)
         self.fit_jobs = JobSlot(self.pool, self)
+        self.impulse_jobs = JobSlot(self.pool, self)
+        self._impulse_wanted: tuple[int, int] | None = None
         self.capture_pool = QThreadPool(self)
         self.capture_pool.setMaxThreadCount(1)
 
@@ -146,7 +148,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.statusBar().addWidget(self.hover_label, 1)
         self.region_label = QLabel()
         self.statusBar().addPermanentWidget(self.region_label)
-        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs):
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
+                     self.impulse_jobs):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
         self.dataset_label = QLabel("No dataset")
         self.statusBar().addPermanentWidget(self.dataset_label)
@@ -221,6 +224,8 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
         self.noise_jobs.finished.connect(self._on_noise_ready)
         self.noise_jobs.failed.connect(self._on_noise_failed)
+        self.impulse_jobs.finished.connect(self._on_impulse_ready)
+        self.impulse_jobs.failed.connect(lambda message: self.show_error("Could not read the impulse image", message))
         for slot in (self.load_jobs, self.stack_jobs):  # new stacks come: free the worker for them
             slot.started.connect(lambda _: self.noise_jobs.cancel())
         self.export_jobs.finished.connect(lambda path: self.statusBar().showMessage(f"Exported {path}", 8000))
@@ -321,7 +326,7 @@ class MainWindow(ExploreView, ExportActions, WindowSettings, HelpDialogs, QMainW
         self.dataset_label.setText(
             f"{dataset.path.name}: grid {width}x{height}, {len(manifest.frames)} frames, "
             f"{dataset.missing_count} missing, max_radius {dataset.max_radius:g}, "
-            f"r {radii[0]:g}..{radii[-1]:g}"
+            f"r {radii[0]:g}..{radii[-1]:g}" + ("" if dataset.in_memory else ", read from its store (out of core)")
         )
 
     # ----------------------------------------------------------------- stacks

@@ -6,6 +6,7 @@ test module has imported it, so tests that never touch Qt do not import it.
 """
 
 import gc
+import re
 import os
 import sys
 import threading
@@ -50,12 +51,18 @@ def settings_in_private_folder(private_settings):
             QSettings.setPath(QSettings.Format.IniFormat, scope, str(private_settings))
 
 
+_LIBRARY_THREADS = re.compile(r"zarr_io|asyncio_\d+")
+"""zarr's event loop and its executor: started on first use, kept for the process by design."""
+
+
 def _threads() -> set:
-    """Python threads now, except the dummies Python makes for foreign (Qt pool) threads.
+    """Python threads now, except the dummies Python makes for foreign (Qt pool) threads and the
+    process-wide threads of :data:`_LIBRARY_THREADS`.
 
     Those are covered by the pool check, and a dummy can be neither joined nor retired.
     """
-    return {thread for thread in threading.enumerate() if not isinstance(thread, threading._DummyThread)}
+    return {thread for thread in threading.enumerate()
+            if not isinstance(thread, threading._DummyThread) and not _LIBRARY_THREADS.fullmatch(thread.name)}
 
 
 def _qt_state():

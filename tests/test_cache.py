@@ -1,4 +1,4 @@
-"""The packed cache: used on reopen, rebuilt when anything changes or it is damaged."""
+"""The dataset's store: used on reopen, rebuilt when anything changes or it is damaged."""
 
 import json
 import os
@@ -40,8 +40,9 @@ def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):
     assert reads.count == 42
     second = open_dataset(dataset, radius=4)
     assert reads.count == 42
-    assert isinstance(second.responses, np.memmap)
+    assert second.store is not None
     assert_array_equal(first.responses, second.responses)
+    assert_array_equal(first.steady_state(), second.steady_state())
     assert_array_equal(first.lit_counts, second.lit_counts)
 
 
@@ -81,25 +82,60 @@ def test_a_different_radius_does_not_reuse_the_cache(dataset, monkeypatch):
     assert reads.count == 42
 
 
-@pytest.mark.parametrize("damage", ["truncate", "flip", "garbage-meta", "delete"])
-def test_a_corrupt_cache_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
+def chunk_files(cache):
+    return sorted(p for p in (cache / "responses" / "c").rglob("*") if p.is_file())
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage-meta", "delete-chunk", "delete-array"])
+def test_a_damaged_store_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
+    """Damage that a walk of the names shows (a file count, a missing array) or the metadata
+    shows rebuilds at open; no chunk is read to find it."""
     truth = np.array(open_dataset(dataset, radius=4).responses)
     cache = dataset / CACHE_FOLDER_NAME
-    target = cache / "responses.npy"
+    target = chunk_files(cache)[0]
     if damage == "truncate":
-        target.write_bytes(target.read_bytes()[:-100])
-    elif damage == "flip":
-        data = bytearray(target.read_bytes())
-        data[-5] ^= 0xFF
-        target.write_bytes(bytes(data))
+        (cache / "responses" / "zarr.json").write_text("{")
     elif damage == "garbage-meta":
         (cache / "meta.json").write_text("{")
+    elif damage == "delete-chunk":
+        target.unlink()  # zarr would read a missing chunk as zeros
     else:
-        (cache / "lit_counts.npy").unlink()
+        (cache / "lit_counts" / "zarr.json").unlink()
     reads = CountingReads(monkeypatch)
     reopened = open_dataset(dataset, radius=4)
     assert reads.count == 42
     assert_array_equal(reopened.responses, truth)
+
+
+def test_a_flipped_byte_in_a_chunk_fails_its_checksum_and_the_store_is_rebuilt(dataset, monkeypatch):
+    truth = np.array(open_dataset(dataset, radius=4).responses)
+    cache = dataset / CACHE_FOLDER_NAME
+    target = chunk_files(cache)[0]
+    data = bytearray(target.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    target.write_bytes(bytes(data))
+    # Small datasets are read whole at open, so the checksum fails there and the store is rebuilt.
+    reads = CountingReads(monkeypatch)
+    assert_array_equal(open_dataset(dataset, radius=4).responses, truth)
+    assert reads.count == 42
+
+
+def test_a_checksum_failure_while_reading_out_of_core_names_the_store_and_marks_it(dataset, monkeypatch):
+    from ringlight.core.errors import DatasetError
+
+    open_dataset(dataset, radius=4, memory_budget_bytes=1)
+    cache = dataset / CACHE_FOLDER_NAME
+    for target in chunk_files(cache):
+        data = bytearray(target.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        target.write_bytes(bytes(data))
+    lazy = open_dataset(dataset, radius=4, memory_budget_bytes=1)
+    assert not lazy.in_memory
+    with pytest.raises(DatasetError, match=f"{CACHE_FOLDER_NAME}: damaged cache chunk in rows 0"):
+        ring_stack(lazy, [0])
+    reads = CountingReads(monkeypatch)
+    open_dataset(dataset, radius=4)
+    assert reads.count == 42
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root ignores folder permissions")
@@ -120,7 +156,7 @@ def test_unwritable_dataset_folder_caches_in_the_user_folder(dataset, private_ca
     open_dataset(dataset, radius=4)
     assert not (dataset / CACHE_FOLDER_NAME).exists()
     (entry,) = private_cache.iterdir()
-    assert (entry / "responses.npy").is_file()
+    assert (entry / "meta.json").is_file() and chunk_files(entry)
     reads = CountingReads(monkeypatch)
     open_dataset(dataset, radius=4)
     assert reads.count == 0

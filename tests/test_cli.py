@@ -1,12 +1,13 @@
 """The command line: info figures and stack exports checked against brute force."""
 
 import json
+import re
 
 import numpy as np
 import pytest
 from reference import brute_ring_image, random_impulses, write_dataset, write_rgb
 from ringlight.app.main import main
-from ringlight.core import read_exr_rgb, read_stack
+from ringlight.core import open_dataset, read_exr_rgb, read_stack
 
 
 @pytest.fixture
@@ -68,8 +69,13 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
     assert f"lit points   {len(impulses)}" in out
     assert f"missing      {missing} point(s)" in out
     assert "max radius   2.5 grid steps" in out
-    # 21 offsets within 2.5 steps: 88 * 21 * 3 * 4 bytes.
-    assert f"memory       {88 * 21 * 12 / 2**20:.1f} MiB" in out
+    # 21 offsets within 2.5 steps: 88 * 21 * 3 * 4 bytes = 21.7 KiB; no store until the first open.
+    assert f"responses    {88 * 21 * 12 / 2**10:.1f} KiB at radius 2.5 (21 offsets x 3 channels, float32)" in out
+    assert "store        not built yet" in out
+    assert f"open memory  about {88 * 21 * 13 / 2**10:.1f} KiB (in memory; memory budget" in out
+    open_dataset(tmp_path / "ds")
+    assert main(["info", str(tmp_path / "ds")]) == 0
+    assert re.search(r"store        \d+(\.\d)? KiB on disk in .*\.ringlight-cache", capsys.readouterr().out)
     assert "ground truth 1 path-length images over [0, 2)" in out
     assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
 

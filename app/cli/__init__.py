@@ -11,6 +11,7 @@ import sys
 from ringlight.core import RinglightError
 
 from . import capture, demo, info, layers, simulate, stack
+from .progress import configure_logging
 
 EXIT_USER_ERROR = 2
 
@@ -34,6 +35,7 @@ class _Described:
 
 def run_handler(handler, args) -> int:
     """Run a subcommand, turning user errors into one line on stderr and exit status 2."""
+    configure_logging()
     try:
         return handler(args)
     except RinglightError as error:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from ringlight.core import DatasetError, effective_max_radius, read_manifest, response_memory_bytes
+from ringlight.core import DatasetError, effective_max_radius, read_manifest
+from ringlight.core.dataset.open_plan import plan_open
 from ringlight.core.colourspaces import CUSTOM_PREFIX
 from ringlight.core.dataset.checks import check_files
 from ringlight.core.dataset.frames import dataset_channels
@@ -66,8 +67,7 @@ def run_info(args) -> int:
             f"max radius   not set (one point per frame): up to the grid diagonal {radius:.1f}, "
             "or the largest radius a stack asks for"
         )
-    memory = response_memory_bytes((manifest.height, manifest.width), radius)
-    lines.append(f"memory       {memory / 2**20:.1f} MiB of responses at radius {radius:.4g}")
+    lines += plan_open(manifest).lines()
     truth = manifest.ground_truth
     if truth is None:
         lines.append("ground truth none")

@@ -39,7 +39,12 @@ def add_command(subparsers) -> None:
                        help="estimate each ring mean by interpolating every pixel's responses in distance "
                             "(for sparsely lit datasets; not the FORMAT.md default)")
     stack.add_argument("--out", required=True, help="output folder (new, empty, or an earlier stack)")
-    stack.add_argument("--no-cache", action="store_true", help="neither read nor write the packed cache")
+    stack.add_argument("--no-cache", action="store_true",
+                       help="neither read nor write the dataset's store (the responses must then fit in memory)")
+    stack.add_argument("--scheduler", metavar="ADDRESS",
+                       help="compute the rings on a running dask.distributed cluster (e.g. tcp://host:8786), one "
+                            "task per band of the dataset's store; the dataset folder must be on a file system "
+                            "every worker sees at the same path")
     stack.add_argument("--allow-outside", action="store_true",
                        help="read frames that resolve (through symbolic links) outside the dataset folder")
     stack.set_defaults(handler=run_stack)
@@ -55,17 +60,22 @@ def run_stack(args) -> int:
     reach = needed_radius(radii, args.thickness, step if args.kind == "transient" else 0.0, args.antialias)
     if args.interpolate and args.antialias:
         raise StackError("--interpolate estimates the default ring mean; it cannot be combined with --antialias")
+    if args.scheduler and (args.no_cache or args.interpolate):
+        raise StackError("--scheduler reads the dataset's store band by band: it cannot be combined with "
+                         + ("--no-cache" if args.no_cache else "--interpolate"))
     check_stack_target(args.out)  # refused before anything is computed
-    with progress_bar("reading frames") as progress:
+    with progress_bar("opening the dataset (frames, then its store)") as progress:
         dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress,
                                allow_outside=args.allow_outside)
     with progress_bar("computing rings") as progress:
         if args.interpolate:
             stack = interpolated_stack(dataset, radii, args.kind, step, args.thickness)
         elif args.kind == "ring":
-            stack = ring_stack(dataset, radii, args.thickness, args.antialias, progress=progress)
+            stack = ring_stack(dataset, radii, args.thickness, args.antialias, progress=progress,
+                               scheduler=args.scheduler)
         else:
-            stack = transient_stack(dataset, radii, step, args.thickness, args.antialias, progress=progress)
+            stack = transient_stack(dataset, radii, step, args.thickness, args.antialias, progress=progress,
+                                    scheduler=args.scheduler)
     coverage = ring_coverage(dataset, radii, args.thickness)
     with progress_bar("writing EXR") as progress:
         folder = write_stack(stack, args.out, progress=progress, coverage=coverage)

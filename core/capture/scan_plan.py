@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.memory import format_bytes
 from ..errors import RinglightError
 from ..simulate.lattice import lattice_frames
 from ..validation import read_json
@@ -122,15 +123,6 @@ def read_plan(out: Path) -> tuple[ScanPlan, str, str | dict]:
     notes = document.get("camera_notes", "")
     colorspace = document.get("colorspace", "sRGB")
     return plan, notes if isinstance(notes, str) else "", colorspace if isinstance(colorspace, str | dict) else "sRGB"
-
-
-def format_bytes(count: float) -> str:
-    """``count`` bytes in the largest binary unit that keeps it at least 1, e.g. ``"3.2 MiB"``."""
-    for unit in ("B", "KiB", "MiB"):
-        if abs(count) < 1024:
-            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
-        count /= 1024
-    return f"{count:.1f} GiB"
 
 
 def check_plan(plan: ScanPlan, projector_size: tuple[int, int]) -> None:

@@ -110,7 +110,7 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
 def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                       expected_shape: tuple[int, int] | None = None, what: str = "image",
                       size_of: str | None = None, part: str | None = None,
-                      colorspace: str | None = None) -> np.ndarray:
+                      colorspace: str | None = None, rows: tuple[int, int] | None = None) -> np.ndarray:
     """Read the named channels of an EXR file.
 
     Parameters
@@ -125,11 +125,14 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         What the file is and what ``expected_shape`` is the size of, for messages.
     part, colorspace
         See :func:`check_exr`.
+    rows
+        ``(first, stop)``: read only these rows of the image (a single-part file decodes only
+        the chunks holding them; a multi-part file is decoded whole).
 
     Returns
     -------
-    (H, W, len(names)) float32 array: HALF and FLOAT values exactly, UINT values rounded to
-    float32.
+    (H, W, len(names)) float32 array (H: the rows read): HALF and FLOAT values exactly, UINT
+    values rounded to float32.
 
     Raises
     ------
@@ -139,20 +142,25 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
     """
     path = Path(path)
     header = check_exr(path, names, expected_shape, what, size_of, part, colorspace)
-    image = np.empty((header.height, header.width, len(names)), np.float32)
+    first, stop = rows if rows is not None else (0, header.height)
+    if not 0 <= first < stop <= header.height:
+        raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
+    height = stop - first
+    image = np.empty((height, header.width, len(names)), np.float32)
     try:
         with quiet_library():
             if header.parts == 1:
                 # The library's channel-selecting reader: other channels are never converted or stored.
                 exr = OpenEXR.InputFile(str(path))
                 try:
-                    planes = exr.channels(list(names), _FLOAT)
+                    top = exr.header()["dataWindow"].min.y
+                    planes = exr.channels(list(names), _FLOAT, top + first, top + stop - 1)
                 finally:
                     exr.close()
                 for index, plane in enumerate(planes):
-                    if len(plane) != 4 * header.height * header.width:
+                    if len(plane) != 4 * height * header.width:
                         raise DatasetError(f"{path}: channel {names[index]} differs in size from the header's data window")
-                    image[..., index] = np.frombuffer(plane, np.float32).reshape(header.height, header.width)
+                    image[..., index] = np.frombuffer(plane, np.float32).reshape(height, header.width)
             else:
                 with OpenEXR.File(str(path), separate_channels=True) as exr:
                     if len(exr.parts) != header.parts:  # the library skips a part it cannot decode
@@ -162,7 +170,7 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                         plane = np.asarray(channels[name].pixels)
                         if plane.shape != (header.height, header.width):
                             raise DatasetError(f"{path}: channel {name} differs in size from the header's data window")
-                        image[..., index] = plane
+                        image[..., index] = plane[first:stop]
     except DatasetError:
         raise
     except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError for damaged data

@@ -159,29 +159,41 @@ class FrameReader:
         """True when frames are read from one channel (a monochrome camera)."""
         return len(self.channels) == 1
 
-    def _read_file(self, path, what: str) -> np.ndarray:
-        """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame."""
+    def _read_file(self, path, what: str, rows: tuple[int, int] | None = None) -> np.ndarray:
+        """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame (``rows``: only
+        those rows of a grid-space file)."""
         return read_exr_channels(path, self.channels, self.frame_shape, what, self.size_of,
-                                 self.manifest.part, self.manifest.colorspace)
+                                 self.manifest.part, self.manifest.colorspace, rows)
 
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
 
-    def read(self, frame: FrameEntry) -> tuple[np.ndarray, int]:
+    def check(self, frame: FrameEntry) -> None:
+        """Check a frame's header (size, channels, part, colourspace) without decoding it."""
+        check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape, "frame",
+                  self.size_of, self.manifest.part, self.manifest.colorspace)
+
+    def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance (R = G = B for a
         monochrome camera) and how many of its pixel values were NaN or Inf (the caller decides how
-        to report them).
+        to report them). With ``rows`` = ``(first, stop)``, only those grid rows (a grid-space
+        frame decodes only them; a camera frame is decoded whole and mapped, then cut).
 
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
         path = self.manifest.file_path(frame.file, self.allow_outside)
-        image = self._read_file(path, "frame")
-        bad = int(np.count_nonzero(~np.isfinite(image)))
+        first, stop = rows if rows is not None else (0, self.grid_shape[0])
+        image = self._read_file(path, "frame", rows if self.mapping is None else None)
+        # A camera frame is decoded whole for every band: its bad values count with the first.
+        bad = int(np.count_nonzero(~np.isfinite(image))) if self.mapping is None or first == 0 else 0
         grid = self._to_grid(image)
+        if self.mapping is not None:
+            grid = grid[first:stop]
+        dark = None if self.dark is None else self.dark[first:stop]
         with np.errstate(over="ignore", under="ignore", invalid="ignore"):
             scaled = grid / np.float32(frame.exposure)
-            radiance = scaled if self.dark is None else scaled - self.dark
+            radiance = scaled if dark is None else scaled - dark
         finite = np.isfinite(grid)
         if (~np.isfinite(scaled) & finite).any() or ((scaled == 0) & (grid != 0) & finite).any():
             raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "

@@ -7,31 +7,48 @@ radiance seen at ``p`` from every lit point within ``max_radius`` of it:
 
 where ``offsets`` are all integer offsets with ``|d| <= max_radius`` (``disc_offsets``).
 Invariant: entries whose ``q`` lies outside the grid or is missing (lit in no frame), and all
-entries of unobserved ``p``, hold exactly 0; ``lit_counts`` tells which ``q`` exist. Memory: ``H * W * K * 3 * 4`` bytes with ``K ~ pi * max_radius**2``, e.g.
-96 x 96 at max_radius 24 (K = 1789) is 198 MB.
+entries of unobserved ``p``, hold exactly 0; ``lit_counts`` tells which ``q`` exist. Size:
+``H * W * K * 3 * 4`` bytes with ``K ~ pi * max_radius**2``, e.g. 96 x 96 at max_radius 24
+(K = 1789) is 198 MB, 800 x 800 is 13.8 GB.
+
+Where it lives. A first open assembles the array (:mod:`.assembly`) and writes the dataset's
+store (:mod:`.response_store`); an array that fits the memory budget (:mod:`.memory`) stays in
+memory, a larger one is built band by band into the store. A reopen reads only the store's small
+arrays (lit counts, observed points, the steady state) and reads responses band by band when
+asked, keeping decoded bands up to the budget. Every consumer reads through :meth:`ImpulseDataset.rows`
+(or :meth:`~ImpulseDataset.point`, :meth:`~ImpulseDataset.window`), so both work alike.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from ..errors import DatasetError
+from ..errors import DatasetError, RinglightError
 from . import cache
-from .frames import FrameReader, dataset_channels
+from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
+from .frames import dataset_channels
 from .manifest import Manifest, read_manifest
+from .memory import format_bytes, memory_budget
+from .response_store import ResponseStore, open_store, store_tile, write_store
 
 ProgressCallback = Callable[[float], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
-
-MEMORY_LIMIT_BYTES = 8 * 2**30
-"""Largest response array :func:`open_dataset` builds unless told otherwise."""
+WHOLE_READ_BYTES = 256 * 2**20
+"""A reopened dataset whose responses are at most this big (and within the budget) is read whole
+into memory; a larger one band by band as it is used, so that a reopen takes the same short time
+at any size."""
+IN_MEMORY_ROWS = 32
+"""Rows a band of an in-memory dataset holds at least (enough work per thread, progress in steps)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,7 +65,8 @@ class ImpulseDataset:
     offsets
         (K, 2) int64 offsets ``[dy, dx]`` of the response array's offset axis.
     responses
-        (H, W, K, 3) float32 (possibly a read-only memory map of the cache).
+        (H, W, K, 3) float32 in memory, or None when the dataset is read from its store (see
+        :attr:`in_memory` and :meth:`rows`).
     lit_counts
         (H, W) int32: frames in which each point was lit; 0 marks a missing point.
     observed
@@ -56,15 +74,70 @@ class ImpulseDataset:
     channels
         The frame channels read: three (R, G, B) or one (a monochrome camera, whose responses
         hold its value in all three of R, G, B).
+    store
+        The store the responses are read from when ``responses`` is None.
+    steady
+        (H, W, 3) float32 steady state when known at open (a store holds it), else None.
     """
 
     manifest: Manifest
     max_radius: float
     offsets: np.ndarray
-    responses: np.ndarray
+    responses: np.ndarray | None
     lit_counts: np.ndarray
     observed: np.ndarray
     channels: tuple[str, ...] = ("R", "G", "B")
+    store: ResponseStore | None = None
+    steady: np.ndarray | None = None
+
+    @property
+    def in_memory(self) -> bool:
+        """True when the whole response array is in memory (else it is read band by band)."""
+        return self.responses is not None
+
+    @property
+    def response_shape(self) -> tuple[int, int, int, int]:
+        return (*self.grid_shape, len(self.offsets), 3)
+
+    @property
+    def response_bytes(self) -> int:
+        return int(np.prod(self.response_shape)) * 4
+
+    @property
+    def band_height(self) -> int:
+        """Rows of one band of :meth:`bands`: a store tile, or enough rows per compute call."""
+        if self.store is not None and self.responses is None:
+            return self.store.tile
+        return max(IN_MEMORY_ROWS, -(-self.grid_shape[0] // 8))
+
+    def bands(self) -> list[tuple[int, int]]:
+        """``(row0, row1)`` of each band of rows, top to bottom."""
+        height, rows = self.grid_shape[0], self.band_height
+        return [(row, min(row + rows, height)) for row in range(0, height, rows)]
+
+    def rows(self, row0: int, row1: int) -> np.ndarray:
+        """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32 (read-only when read
+        from the store; a view of the in-memory array)."""
+        return self.responses[row0:row1] if self.responses is not None else self.store.rows(row0, row1)
+
+    def point(self, y: int, x: int) -> np.ndarray:
+        """Responses at grid point ``p = [y, x]``: (K, 3) float32 (one store chunk read)."""
+        return self.responses[y, x] if self.responses is not None else self.store.window(y, y + 1, x, x + 1)[0, 0]
+
+    def window(self, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
+        """Responses of a window of grid points: (rows, cols, K, 3) float32."""
+        if self.responses is not None:
+            return self.responses[row0:row1, col0:col1]
+        return self.store.window(row0, row1, col0, col1)
+
+    def validity_rows(self, row0: int, row1: int) -> np.ndarray:
+        """(rows, W, K) uint8 :attr:`validity` of grid rows ``row0 .. row1`` (computed, not kept,
+        for a dataset read from its store)."""
+        if self.responses is not None:
+            return self.validity[row0:row1]
+        validity = np.empty((row1 - row0, self.grid_shape[1], len(self.offsets)), np.uint8)
+        fill_validity(self.lit_counts > 0, self.observed, self.offsets, validity, row0)
+        return validity
 
     @property
     def monochrome(self) -> bool:
@@ -95,11 +168,8 @@ class ImpulseDataset:
 
         Computed on first use and kept: 1 byte per entry, 1/12 of the response array.
         """
-        validity = np.empty(self.responses.shape[:3], np.uint8)
-        _fill_validity(
-            np.ascontiguousarray(self.lit_counts > 0), np.ascontiguousarray(self.observed),
-            np.ascontiguousarray(self.offsets[:, 0]), np.ascontiguousarray(self.offsets[:, 1]), validity,
-        )
+        validity = np.empty(self.response_shape[:3], np.uint8)
+        fill_validity(self.lit_counts > 0, self.observed, self.offsets, validity, 0)
         return validity
 
     @property
@@ -119,30 +189,46 @@ class ImpulseDataset:
         px = x - self.offsets[:, 1]
         inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
         k = np.flatnonzero(inside)
-        image[py[k], px[k]] = self.responses[py[k], px[k], k]
+        if len(k):
+            row0, row1 = int(py[k].min()), int(py[k].max()) + 1
+            col0, col1 = int(px[k].min()), int(px[k].max()) + 1
+            window = self.window(row0, row1, col0, col1)
+            image[py[k], px[k]] = window[py[k] - row0, px[k] - col0, k]
         image[~self.observed] = np.nan
         return image
 
     def steady_state(self) -> np.ndarray:
         """Appearance under full illumination of the grid: (H, W, 3) float32, the sum at each
         point of the responses of all lit points within max_radius; NaN where unobserved."""
+        if self.steady is not None:
+            return self.steady.copy()
         total = np.zeros((*self.grid_shape, 3), np.float64)
-        for row in range(self.grid_shape[0]):
-            total[row] = self.responses[row].sum(axis=1, dtype=np.float64)
+        for row0, row1 in self.bands():
+            total[row0:row1] = self.rows(row0, row1).sum(axis=2, dtype=np.float64)
         total[~self.observed] = np.nan
         return total.astype(np.float32)
 
 
+def fill_validity(lit: np.ndarray, observed: np.ndarray, offsets: np.ndarray, validity: np.ndarray,
+                  row0: int) -> None:
+    """Fill ``validity`` ((rows, W, K) uint8) with the :attr:`ImpulseDataset.validity` of grid rows
+    ``row0 ..``, from the (H, W) bool lit and observed points and the (K, 2) offsets."""
+    _fill_validity(np.ascontiguousarray(lit), np.ascontiguousarray(observed), np.ascontiguousarray(offsets[:, 0]),
+                   np.ascontiguousarray(offsets[:, 1]), validity, row0)
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _fill_validity(lit, observed, dy, dx, validity):
+def _fill_validity(lit, observed, dy, dx, validity, row0):
+    """validity[y - row0, x, k] for the rows row0 .. row0 + len(validity) (see ``validity``)."""
     height, width = lit.shape
-    for y in numba.prange(height):
+    for row in numba.prange(validity.shape[0]):
+        y = row0 + row
         for x in range(width):
             for k in range(dy.size):
                 qy = y + dy[k]
                 qx = x + dx[k]
                 inside = 0 <= qy < height and 0 <= qx < width
-                validity[y, x, k] = 1 if inside and observed[y, x] and lit[qy, qx] else 0
+                validity[row, x, k] = 1 if inside and observed[y, x] and lit[qy, qx] else 0
 
 
 def disc_offsets(max_radius: float) -> np.ndarray:
@@ -189,7 +275,7 @@ def open_dataset(
     radius: float | None = None,
     use_cache: bool = True,
     progress: ProgressCallback | None = None,
-    memory_limit: int = MEMORY_LIMIT_BYTES,
+    memory_budget_bytes: int | None = None,
     allow_outside: bool = False,
 ) -> ImpulseDataset:
     """Open an impulse dataset folder (or its ``dataset.json``).
@@ -203,11 +289,14 @@ def open_dataset(
         grid steps any ring will reach; responses are kept up to it. Default: the grid diagonal.
         Ignored when the manifest sets ``max_radius``.
     use_cache
-        Read and write the packed cache (see :mod:`ringlight.core.cache`).
+        Read and write the dataset's store (:mod:`.response_store`); without it the response
+        array must fit the memory budget.
     progress
-        Called with the fraction of frames read; may raise :class:`Cancelled`.
-    memory_limit
-        Refuse to build a response array larger than this many bytes.
+        Called with the fraction of the work done (reading frames, writing the store); may raise
+        :class:`Cancelled`, which leaves no store behind.
+    memory_budget_bytes
+        Memory the open may fill (default :func:`.memory.memory_budget`): a larger response array
+        is built band by band into the store and read from it.
     allow_outside
         Read frames, dark and mapping files that resolve (through symbolic links) outside the
         dataset folder; refused by default.
@@ -215,79 +304,85 @@ def open_dataset(
     Raises
     ------
     DatasetError
-        For any problem with the manifest or a file, naming the file.
+        For any problem with the manifest or a file, naming the file, and when the store cannot
+        be written for a dataset larger than the budget, or would not fit its disk.
     """
     manifest = path if isinstance(path, Manifest) else read_manifest(path)
     max_radius = effective_max_radius(manifest, radius)
-    needed = response_memory_bytes((manifest.height, manifest.width), max_radius)
-    if needed > memory_limit:
-        raise DatasetError(
-            f"{manifest.path}: responses up to radius {max_radius:g} need {needed / 2**30:.1f} GiB "
-            f"(limit {memory_limit / 2**30:.1f} GiB); open with a smaller radius"
-        )
+    height, width = manifest.height, manifest.width
+    needed = response_memory_bytes((height, width), max_radius)
+    budget = memory_budget() if memory_budget_bytes is None else int(memory_budget_bytes)
+    location = cache.cache_location(manifest.folder) if use_cache else None
+    advice = "; open with a smaller radius" if manifest.max_radius is None else ""
+    if needed > budget and not use_cache:
+        raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
+                           f"over the memory budget of {format_bytes(budget)}, and without the cache there is "
+                           f"no store to read them from{advice}")
+    if location is not None and needed > (free := _free_disk(location)):
+        raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
+                           f"more than the {format_bytes(free)} free for its store in {location.parent}{advice}")
     offsets = disc_offsets(max_radius)
     channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
-    location = cache.cache_location(manifest.folder) if use_cache else None
+    shape = (height, width, len(offsets), 3)
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
-    height, width = manifest.height, manifest.width
-    expected = {"responses": ((height, width, len(offsets), 3), np.dtype(np.float32)),
-                "lit_counts": ((height, width), np.dtype(np.int32)),
-                "observed": ((height, width), np.dtype(bool))}
-    arrays = cache.load_cache(location, key, expected) if use_cache else None
-    if arrays is None:
-        arrays = _assemble_responses(manifest, offsets, progress, allow_outside)
-        if use_cache:
-            cache.save_cache(location, key, arrays)
+    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels)
+    store = open_store(location, key, shape, budget // 2) if use_cache else None
+    if store is not None and needed <= min(budget, WHOLE_READ_BYTES):
+        try:
+            responses = store.window(0, height, 0, width)
+        except DatasetError:  # a chunk failed its checksum: the entry is marked stale, rebuilt below
+            store = None
+        else:
+            if progress is not None:
+                progress(1.0)
+            return dataset(responses=responses, lit_counts=store.lit_counts, observed=store.observed,
+                           steady=store.steady, store=store)
+    if store is None:
+        assembler = Assembler(manifest, offsets, allow_outside)
+        tile = store_tile((height, width), len(offsets))
+        if needed <= budget:
+            assembled = assemble_in_memory(assembler, progress, 1.0 - WRITE_SHARE if use_cache else 1.0)
+            if use_cache:
+                try:
+                    with write_store(location, key, shape, tile) as writer:
+                        write_assembled(writer, assembled, progress, 1.0 - WRITE_SHARE)
+                except (OSError, RinglightError):  # no store: the next open assembles again
+                    pass
+            return dataset(responses=assembled.responses, lit_counts=assembled.lit_counts,
+                           observed=assembled.observed, steady=assembled.steady)
+        try:
+            with write_store(location, key, shape, tile) as writer:
+                assemble_into_store(assembler, writer, budget, progress)
+        except OSError as error:
+            raise DatasetError(f"{location}: cannot write the store that a dataset of "
+                               f"{format_bytes(needed)} is read from ({error.strerror or error})") from None
+        store = open_store(location, key, shape, budget // 2)
+        if store is None:
+            raise DatasetError(f"{location}: the store just written cannot be read back")
     elif progress is not None:
         progress(1.0)
-    return ImpulseDataset(
-        manifest=manifest, max_radius=max_radius, offsets=offsets, responses=arrays.responses,
-        lit_counts=arrays.lit_counts, observed=arrays.observed, channels=channels,
-    )
+    return dataset(responses=None, lit_counts=store.lit_counts, observed=store.observed, steady=store.steady,
+                   store=store)
 
 
-def _assemble_responses(
-    manifest: Manifest, offsets: np.ndarray, progress: ProgressCallback | None, allow_outside: bool = False
-) -> cache.CachedArrays:
-    """Read every frame and scatter each lit point's light into the offset layout."""
-    height, width = manifest.height, manifest.width
-    reader = FrameReader(manifest, allow_outside)
-    # The first frame is read before the response array exists: a manifest whose frames are
-    # missing or of the wrong size fails before anything of the grid's size is allocated.
-    first = reader.read(manifest.frames[0])
-    lit_counts = manifest.lit_counts()
-    inverse_counts = np.zeros(lit_counts.shape, np.float32)
-    np.divide(1, lit_counts, out=inverse_counts, where=lit_counts > 0)
-    responses = np.zeros((height, width, len(offsets), 3), np.float32)
-    # Only offsets shorter than the grid can join two grid points: a max_radius far beyond the
-    # grid (1024 on a 4 x 3 grid, 3.3 million offsets) must not cost that much per frame.
-    offset_index = np.flatnonzero((np.abs(offsets[:, 0]) < height) & (np.abs(offsets[:, 1]) < width))
-    reachable = offsets[offset_index]
-    bad_values, bad_frames, first_bad = 0, 0, None
-    for done, frame in enumerate(manifest.frames):
-        radiance, bad = first if done == 0 else reader.read(frame)
-        if bad:
-            bad_values += bad
-            bad_frames += 1
-            first_bad = first_bad or manifest.folder / frame.file
-        # Every lit point q owns the points p = q - d within max_radius (multiplexed points are
-        # more than 2 * max_radius apart, so no p is claimed twice in one frame).
-        py = frame.lit[:, 0, None] - reachable[None, :, 0]
-        px = frame.lit[:, 1, None] - reachable[None, :, 1]
-        inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
-        point, k = np.nonzero(inside)
-        py, px = py[point, k], px[point, k]
-        weight = inverse_counts[frame.lit[point, 0], frame.lit[point, 1]]
-        responses[py, px, offset_index[k]] += radiance[py, px] * weight[:, None]
-        if progress is not None:
-            progress((done + 1) / len(manifest.frames))
-    if bad_values:
-        raise DatasetError(
-            f"{first_bad}: NaN or Inf radiance ({bad_values} values in {bad_frames} frame(s); "
-            f"this is the first)"
-        )
-    observed = reader.observed
-    responses[~observed] = 0.0
-    return cache.CachedArrays(responses=responses, lit_counts=lit_counts, observed=observed)
+def _free_disk(location: Path) -> int:
+    """Bytes free on the file system that will hold ``location`` (its nearest existing parent)."""
+    folder = location
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return shutil.disk_usage(folder).free + (_entry_bytes(location) if location.exists() else 0)
+    except OSError:
+        return 2**63
 
 
+def _entry_bytes(location: Path) -> int:
+    """Bytes an existing entry takes (it is replaced, so its space counts as free)."""
+    total = 0
+    for folder, _, names in os.walk(location):
+        for name in names:
+            try:
+                total += os.lstat(os.path.join(folder, name)).st_size
+            except OSError:
+                pass
+    return total

@@ -327,7 +327,11 @@ def _parse_ground_truth(check: Validator, value: object) -> GroundTruth:
 
 def _check_multiplexed_spacing(where: Path, frames: tuple[FrameEntry, ...], max_radius: float) -> None:
     limit = 2.0 * max_radius
-    for index, frame in enumerate(frames):
+    points = np.concatenate([frame.lit for frame in frames])
+    groups = np.repeat(np.arange(len(frames)), [len(frame.lit) for frame in frames])
+    if close_pair(points, limit, groups) is None:  # every frame at once: the usual, valid case
+        return
+    for index, frame in enumerate(frames):  # name the first frame at fault
         pair = close_pair(frame.lit, limit)
         if pair is not None:
             p, q = frame.lit[min(pair)], frame.lit[max(pair)]  # in the manifest's order
@@ -338,8 +342,9 @@ def _check_multiplexed_spacing(where: Path, frames: tuple[FrameEntry, ...], max_
             )
 
 
-def close_pair(points: np.ndarray, limit: float) -> tuple[int, int] | None:
-    """Indices of two of the (n, 2) integer ``points`` at most ``limit`` apart, or None.
+def close_pair(points: np.ndarray, limit: float, groups: np.ndarray | None = None) -> tuple[int, int] | None:
+    """Indices of two of the (n, 2) integer ``points`` at most ``limit`` apart, or None; with
+    ``groups`` ((n,) int, e.g. each point's frame), only two points of one group count.
 
     Linear time: points are binned into square cells of side ``floor(limit) + 1``, so a close
     pair lies in one cell or two neighbouring ones, and a cell of points pairwise farther than
@@ -353,6 +358,8 @@ def close_pair(points: np.ndarray, limit: float) -> tuple[int, int] | None:
     cells = points // side + 1  # >= 1, so that neighbour -1 stays non-negative
     stride = int(cells[:, 1].max()) + 2
     key = cells[:, 0] * stride + cells[:, 1]
+    if groups is not None:  # each group's cells in a block of its own: neighbours never cross
+        key = key + groups.astype(np.int64) * ((int(cells[:, 0].max()) + 2) * stride)
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     starts, sizes = np.unique(sorted_key, return_index=True, return_counts=True)[1:]

@@ -33,28 +33,35 @@ class MeasuredProfile:
 def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickness: float = 1.0,
                      antialias: bool = False) -> MeasuredProfile:
     """The profile of the lit points in ``region`` ((H, W) bool) at ``radii`` (within max_radius)."""
-    height, width = dataset.grid_shape
+    width = dataset.grid_shape[1]
     index = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(dataset.offsets)}
     qy, qx = np.nonzero(region & dataset.lit)
     if len(qy) < 2:
         raise ValueError("the region holds fewer than 2 lit points")
-    profiles = np.full((len(qy), len(radii), 3), np.nan)
-    for row, radius in enumerate(radii):
+    rings = []
+    for radius in radii:
         ring = ring_geometry(float(radius), thickness, antialias)
-        total = np.zeros((len(qy), 3))
-        weights = np.zeros(len(qy))
-        for (dy, dx), weight in zip(ring.offsets, ring.weights):
-            # The response of q at p = q + d is stored at p under the offset q - p = -d.
-            k = index.get((-int(dy), -int(dx)))
-            if k is None:
-                raise ValueError(f"ring of radius {radius} reaches beyond the dataset's max_radius")
-            py, px = qy + dy, qx + dx
-            inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
-            inside[inside] &= dataset.observed[py[inside], px[inside]]
-            total[inside] += weight * dataset.responses[py[inside], px[inside], k]
-            weights[inside] += weight
-        with np.errstate(invalid="ignore", divide="ignore"):
-            profiles[:, row] = total / weights[:, None]
+        # The response of q at p = q + d is stored at p under the offset q - p = -d.
+        ks = [index.get((-int(dy), -int(dx))) for dy, dx in ring.offsets]
+        if None in ks:
+            raise ValueError(f"ring of radius {radius} reaches beyond the dataset's max_radius")
+        rings.append((ring, ks))
+    reach = int(np.ceil(max(ring.outer_radius for ring, _ in rings)))
+    total = np.zeros((len(radii), len(qy), 3))
+    weights = np.zeros((len(radii), len(qy)))
+    for row0, row1 in dataset.bands():
+        if row1 <= qy.min() - reach or row0 > qy.max() + reach:
+            continue
+        block = dataset.rows(row0, row1)
+        for row, (ring, ks) in enumerate(rings):
+            for (dy, dx), weight, k in zip(ring.offsets, ring.weights, ks):
+                py, px = qy + dy, qx + dx
+                inside = (py >= row0) & (py < row1) & (px >= 0) & (px < width)
+                inside[inside] &= dataset.observed[py[inside], px[inside]]
+                total[row, inside] += weight * block[py[inside] - row0, px[inside], k]
+                weights[row, inside] += weight
+    with np.errstate(invalid="ignore", divide="ignore"):
+        profiles = (total / weights[..., None]).transpose(1, 0, 2)
     counts = np.isfinite(profiles).sum(axis=0)
     mean = np.nanmean(profiles, axis=0)
     spread = np.nanstd(profiles, axis=0, ddof=1)

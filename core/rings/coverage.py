@@ -91,7 +91,8 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
     """Coverage of the default rings of ``radii`` (grid steps) in ``dataset``.
 
     Rings reaching beyond the dataset's ``max_radius`` count only the offsets it holds, as the
-    stacks do. Memory: four (n, H, W) arrays and one (H, W, M) temporary per ring of M offsets.
+    stacks do. Memory: four (n, H, W) arrays and, per band of rows, its validity flags and a (rows, W, M)
+    temporary per ring of M offsets.
     """
     radii = np.asarray(radii, np.float64).reshape(-1)
     height, width = dataset.grid_shape
@@ -100,24 +101,26 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
     mean_distance = np.full(shape, np.nan, np.float32)
     nearest = np.full(shape, np.nan, np.float32)
     index_of = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(dataset.offsets.tolist())}
-    validity = dataset.validity
     yy, xx = np.mgrid[:height, :width]
+    rings = []
     for i, radius in enumerate(radii):
         offsets = [(int(dy), int(dx)) for dy, dx in ring_geometry(float(radius), thickness).offsets.tolist()
                    if (int(dy), int(dx)) in index_of]
-        if not offsets:
-            continue
-        ks = np.array([index_of[offset] for offset in offsets])
-        distance = np.hypot(*np.array(offsets, np.float64).T).astype(np.float32)
-        inside = np.stack([(yy + dy >= 0) & (yy + dy < height) & (xx + dx >= 0) & (xx + dx < width)
-                           for dy, dx in offsets], axis=-1)
-        valid = validity[:, :, ks].astype(bool)
-        members[i] = valid.sum(-1)
-        points[i] = inside.sum(-1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_distance[i] = np.where(members[i] > 0, (valid * distance).sum(-1) / members[i], np.nan)
-        deviation = np.where(valid, np.abs(distance - np.float32(radius)), np.inf).min(-1)
-        nearest[i] = np.where(np.isfinite(deviation), deviation, np.nan)
+        if offsets:
+            rings.append((i, np.array([index_of[offset] for offset in offsets]),
+                          np.hypot(*np.array(offsets, np.float64).T).astype(np.float32)))
+            points[i] = sum(((yy + dy >= 0) & (yy + dy < height) & (xx + dx >= 0) & (xx + dx < width)).astype(np.int32)
+                            for dy, dx in offsets)
+    for row0, row1 in dataset.bands():
+        validity = dataset.validity_rows(row0, row1)
+        for i, ks, distance in rings:
+            valid = validity[:, :, ks].astype(bool)
+            count = valid.sum(-1)
+            members[i, row0:row1] = count
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean_distance[i, row0:row1] = np.where(count > 0, (valid * distance).sum(-1) / count, np.nan)
+            deviation = np.where(valid, np.abs(distance - np.float32(radii[i])), np.inf).min(-1)
+            nearest[i, row0:row1] = np.where(np.isfinite(deviation), deviation, np.nan)
     return RingCoverage(radii, float(thickness), members, points, mean_distance, nearest)
 
 

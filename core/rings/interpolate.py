@@ -56,10 +56,12 @@ def _profile_value(distances, values, count, target, channel, max_gap):  # pragm
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_offsets, max_gap,
-                        out):  # pragma: no cover - compiled
-    height, width, offsets = validity.shape
-    for y in numba.prange(height):
+def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_offsets, max_gap, out, row0,
+                        height):  # pragma: no cover - compiled
+    """``out[i, y]`` for the band of rows ``row0 + y`` (``responses``, ``validity`` and ``out``
+    hold the band's rows; ``height`` is the grid's)."""
+    rows, width, offsets = validity.shape
+    for y in numba.prange(rows):
         samples = np.empty(offsets, np.float64)
         values = np.empty((offsets, 3), np.float64)
         for x in range(width):
@@ -84,7 +86,7 @@ def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_
                 used = 0
                 for j in range(ring_start[i], ring_start[i + 1]):
                     k = ring_offsets[j]
-                    qy, qx = y + dy[k], x + dx[k]
+                    qy, qx = row0 + y + dy[k], x + dx[k]
                     if qy < 0 or qy >= height or qx < 0 or qx >= width:
                         continue
                     used += 1
@@ -125,8 +127,10 @@ def interpolated_ring_stack(dataset: ImpulseDataset, radii, thickness: float = 1
     distance = np.hypot(offsets[:, 0], offsets[:, 1]).astype(np.float64)
     height, width = dataset.grid_shape
     images = np.empty((len(radii), height, width, 3), np.float32)
-    _interpolated_rings(dataset.responses, dataset.validity, np.ascontiguousarray(offsets[:, 0]),
-                        np.ascontiguousarray(offsets[:, 1]), distance, ring_start, ring_offsets, float(max_gap), images)
+    for row0, row1 in dataset.bands():
+        _interpolated_rings(dataset.rows(row0, row1), dataset.validity_rows(row0, row1),
+                            np.ascontiguousarray(offsets[:, 0]), np.ascontiguousarray(offsets[:, 1]), distance,
+                            ring_start, ring_offsets, float(max_gap), images[:, row0:row1], row0, height)
     images[:, ~dataset.observed] = np.nan
     yy, xx = np.mgrid[:height, :width]
     counts = np.stack([sum(((yy + offsets[k, 0] >= 0) & (yy + offsets[k, 0] < height) & (xx + offsets[k, 1] >= 0)

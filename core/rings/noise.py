@@ -208,13 +208,11 @@ def _ring_spread(dataset, radii, thickness, antialias, luma, progress):
     height, width = dataset.grid_shape
     se = np.empty((len(radii), height, width, 3), np.float32)
     se_luminance = np.empty((len(radii), height, width), np.float32)
-    validity = dataset.validity
-    chunk = max(32, -(-height // 8))  # rows per call: enough work per thread, progress in steps
-    for row in range(0, height, chunk):
-        _spread_kernel(dataset.responses, validity, first, stop, weight_start, weights, group_end, luma,
-                       row, min(row + chunk, height), se, se_luminance)
+    for row0, row1 in dataset.bands():
+        _spread_kernel(dataset.rows(row0, row1), dataset.validity_rows(row0, row1), first, stop, weight_start,
+                       weights, group_end, luma, 0, row1 - row0, se[:, row0:row1], se_luminance[:, row0:row1])
         if progress is not None:
-            progress(min(row + chunk, height) / height)
+            progress(row1 / height)
     return se, se_luminance
 
 

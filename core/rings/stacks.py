@@ -91,13 +91,18 @@ def ring_stack(
     thickness: float = 1.0,
     antialias: bool = False,
     progress: ProgressCallback | None = None,
+    scheduler=None,
 ) -> Stack:
     """Ring light images E_r for each radius in ``radii`` (grid steps).
+
+    ``scheduler``: None computes here, band by band on every core; a ``dask.distributed.Client``
+    or a scheduler's address computes one task per band of the dataset's store on that cluster
+    (:mod:`.distributed`), with the same result bit for bit.
 
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
     radii = _as_radii(radii)
-    images, counts = _ring_images(dataset, radii, thickness, antialias, progress)
+    images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler)
     return Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images, counts)
 
 
@@ -108,13 +113,14 @@ def transient_stack(
     thickness: float = 1.0,
     antialias: bool = False,
     progress: ProgressCallback | None = None,
+    scheduler=None,
 ) -> Stack:
     """Transient images T_r = E_r - E_{r+step} for each radius in ``radii`` (grid steps).
 
-    Each distinct ring radius among ``radii`` and ``radii + step`` is computed once.
-    Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
+    Each distinct ring radius among ``radii`` and ``radii + step`` is computed once; ``scheduler``
+    as :func:`ring_stack` takes it. Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
-    return ring_and_transient_stacks(dataset, radii, step, thickness, antialias, progress)[1]
+    return ring_and_transient_stacks(dataset, radii, step, thickness, antialias, progress, scheduler)[1]
 
 
 def ring_and_transient_stacks(
@@ -124,6 +130,7 @@ def ring_and_transient_stacks(
     thickness: float = 1.0,
     antialias: bool = False,
     progress: ProgressCallback | None = None,
+    scheduler=None,
 ) -> tuple[Stack, Stack]:
     """E_r and T_r = E_r - E_{r+step} for the same ``radii``, sharing every ring: the ring
     light stack's images are views into the computed rings whenever the radii allow it."""
@@ -132,7 +139,7 @@ def ring_and_transient_stacks(
         raise StackError(f"transient step dr must be > 0, got {step}")
     outer = np.round(radii + step, _RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
-    images, counts = _ring_images(dataset, unique, thickness, antialias, progress)
+    images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler)
     inner = _as_selection(np.searchsorted(unique, radii))
     outer = _as_selection(np.searchsorted(unique, outer))
     ring = Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images[inner], counts[inner])
@@ -164,7 +171,7 @@ def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, a
     ``radii[i]`` (0 outside it), so that for one point ``p = (y, x)``::
 
         w = matrix * dataset.validity[y, x]           # drop missing and outside lit points
-        E = (w @ dataset.responses[y, x]) / w.sum(1)  # (n, 3): E_r(p) for every radius
+        E = (w @ dataset.point(y, x)) / w.sum(1)        # (n, 3): E_r(p) for every radius
     """
     radii = _as_radii(radii)
     first, stop, weight_start, weights = _ring_tables(dataset, radii, thickness, antialias)
@@ -219,20 +226,21 @@ def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, a
             np.asarray(weight_start, np.int64), np.concatenate(weights))
 
 
-def _ring_images(dataset, radii, thickness, antialias, progress):
-    first, stop, weight_start, weights = _ring_tables(dataset, radii, thickness, antialias)
+def _ring_images(dataset, radii, thickness, antialias, progress, scheduler=None):
+    tables = _ring_tables(dataset, radii, thickness, antialias)
+    if scheduler is not None:
+        from .distributed import distributed_ring_images
+
+        return distributed_ring_images(dataset, tables, scheduler, progress)
+    first, stop, weight_start, weights = tables
     height, width = dataset.grid_shape
     images = np.empty((len(radii), height, width, 3), np.float32)
     counts = np.empty((len(radii), height, width), np.int32)
-    validity = dataset.validity
-    chunk = max(32, -(-height // 8))  # rows per call: enough work per thread, progress in steps
-    for row in range(0, height, chunk):
-        _ring_sums(
-            dataset.responses, validity, first, stop, weight_start, weights,
-            row, min(row + chunk, height), images, counts,
-        )
+    for row0, row1 in dataset.bands():
+        _ring_sums(dataset.rows(row0, row1), dataset.validity_rows(row0, row1), first, stop, weight_start,
+                   weights, 0, row1 - row0, images[:, row0:row1], counts[:, row0:row1])
         if progress is not None:
-            progress(min(row + chunk, height) / height)
+            progress(row1 / height)
     return images, counts
 
 

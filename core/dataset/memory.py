@@ -1,0 +1,49 @@
+"""How much memory opening a dataset may use: a budget, not a fixed limit.
+
+The budget is :data:`BUDGET_FRACTION` of the memory available now (psutil's ``available``: free
+plus reclaimable page cache), or ``$RINGLIGHT_MEMORY_BUDGET`` (bytes, or with a K, M, G or T
+suffix: ``4G``). A dataset whose response array fits the budget is assembled in memory; a larger
+one is assembled band by band into its store and read from it lazily (:mod:`.response_store`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import psutil
+
+from ..errors import RinglightError
+
+BUDGET_FRACTION = 0.25
+"""Share of the available memory a dataset open may fill: an out-of-core open assembles bands of
+a quarter of the budget and keeps decoded bands up to half of it, so that with the arrays it
+computes it stays well within the budget, beside whatever else the machine runs."""
+MIN_BUDGET = 64 * 2**20
+"""Smallest budget taken (bytes): below it a band holds too few rows to be worth a pass."""
+_SIZE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([KMGT]?)i?B?\s*", re.IGNORECASE)
+
+
+def memory_budget() -> int:
+    """Bytes a dataset open may use (module docstring); at least :data:`MIN_BUDGET`."""
+    text = os.environ.get("RINGLIGHT_MEMORY_BUDGET")
+    if text:
+        return max(parse_size(text, "$RINGLIGHT_MEMORY_BUDGET"), MIN_BUDGET)
+    return max(int(BUDGET_FRACTION * psutil.virtual_memory().available), MIN_BUDGET)
+
+
+def parse_size(text: str, what: str) -> int:
+    """``"4G"``, ``"512M"``, ``"1.5GiB"`` or plain bytes -> bytes (powers of 1024)."""
+    match = _SIZE.fullmatch(text)
+    if not match:
+        raise RinglightError(f"{what}: {text!r} is not a size (bytes, or a number with K, M, G or T)")
+    return int(float(match.group(1)) * 1024 ** " KMGT".index(match.group(2).upper() or " "))
+
+
+def format_bytes(count: float) -> str:
+    """``count`` bytes in the largest binary unit that keeps it at least 1, e.g. ``"3.2 MiB"``."""
+    for unit in ("B", "KiB", "MiB"):
+        if abs(count) < 1024:
+            return f"{count:.0f} {unit}" if unit == "B" else f"{count:.1f} {unit}"
+        count /= 1024
+    return f"{count:.1f} GiB"

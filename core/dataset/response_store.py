@@ -1,0 +1,240 @@
+"""The chunked, compressed, checksummed store of a dataset's responses (zarr v3).
+
+An entry is a folder (where :func:`.cache.cache_location` says) holding a zarr v3 group and
+ringlight's ``meta.json``:
+
+- ``responses``: (H, W, K, 3) float32 in chunks of ``tile x tile`` grid points with every offset
+  and channel inside (a point's responses are one chunk's; a band of ``tile`` rows is one row of
+  chunks), Blosc-zstd with byte shuffling, then a CRC-32C of each compressed chunk;
+- ``lit_counts`` (H, W) int32, ``observed`` (H, W) bool, ``steady`` (H, W, 3) float32 (the steady
+  state, so that an open shows it without reading the responses), same codecs;
+- ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
+  and how many files the entry holds.
+
+Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
+types, and a walk of the folder's names that refuses anything but regular files and folders (a
+symbolic link, FIFO or device planted in it is never opened) and a file count other than the one
+written (a deleted chunk would otherwise read as zeros). Each chunk's checksum is checked when it
+is read; a chunk that fails raises :class:`~ringlight.core.errors.DatasetError` naming the store,
+and the entry is marked stale so that the next open rebuilds it. Entries are written in a
+temporary folder and renamed into place (:func:`ringlight.core.atomic.atomic_folder`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import stat
+import threading
+from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec, Crc32cCodec
+
+from ..atomic import atomic_folder
+from ..errors import DatasetError, RinglightError
+from ..validation import read_json
+
+LAYOUT_VERSION = 2
+CHUNK_BYTES = 8 * 2**20
+"""Target size of one uncompressed responses chunk: big enough for compression and few files,
+small enough that a click (one point's chunk) decodes in a few milliseconds."""
+META = "meta.json"
+_SMALL = ("lit_counts", "observed", "steady")
+
+
+def _codecs():
+    return [BloscCodec(cname="zstd", clevel=1, shuffle="shuffle"), Crc32cCodec()]
+
+
+def store_tile(grid_shape: tuple[int, int], offsets: int) -> int:
+    """Side (grid points) of a responses chunk: about :data:`CHUNK_BYTES` of (K, 3) float32 each,
+    a multiple of 16 rows when at least 16 (bands then start on the 16-line chunks of ZIP- and
+    PIZ-compressed EXR, so that a band decodes none of its neighbours' lines)."""
+    side = int(math.sqrt(CHUNK_BYTES / max(offsets * 12, 1)))
+    side = side // 16 * 16 if side >= 16 else side
+    return max(1, min(side, max(grid_shape)))
+
+
+class StoreWriter:
+    """Writes an entry's arrays; made by :func:`write_store`. Bands of responses are written in
+    row order, each a whole number of tiles high (the last one may be shorter)."""
+
+    def __init__(self, folder: Path, shape: tuple[int, ...], tile: int):
+        self.folder, self.shape, self.tile = folder, shape, tile
+        group = zarr.open_group(zarr.storage.LocalStore(folder), mode="w")
+        self._group = group
+        self._responses = group.create_array(
+            "responses", shape=shape, chunks=(tile, tile, shape[2], shape[3]), dtype="float32", fill_value=0.0,
+            compressors=_codecs(), config={"write_empty_chunks": True})
+
+    def write_rows(self, row0: int, band: np.ndarray) -> None:
+        """Store responses rows ``row0 .. row0 + len(band)`` ((rows, W, K, 3) float32)."""
+        if row0 % self.tile:
+            raise ValueError(f"band starts at row {row0}, not on a tile boundary ({self.tile})")
+        self._responses[row0:row0 + band.shape[0]] = band
+
+    def write_small(self, lit_counts: np.ndarray, observed: np.ndarray, steady: np.ndarray) -> None:
+        for name, array in zip(_SMALL, (lit_counts, observed, steady)):
+            stored = self._group.create_array(name, shape=array.shape, chunks=array.shape, dtype=array.dtype,
+                                              compressors=_codecs(), config={"write_empty_chunks": True})
+            stored[...] = array
+
+
+@contextmanager
+def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> Iterator[StoreWriter]:
+    """Write an entry at ``location`` atomically: the caller fills the yielded writer; on leaving
+    without an error the entry is published, on an error (or :class:`Cancelled`) nothing is left.
+
+    Raises the caller's errors, and OSError or RinglightError when the folder cannot be written
+    (``location`` exists as anything but a real folder: replacing it would follow a link).
+    """
+    try:
+        if not stat.S_ISDIR(os.lstat(location).st_mode):
+            raise OSError(f"{location} is not a folder")
+    except FileNotFoundError:
+        pass
+    with atomic_folder(location) as staging:
+        writer = StoreWriter(staging, shape, tile)
+        yield writer
+        files = sum(len(names) for _, _, names in os.walk(staging)) + 1
+        meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile, "files": files}
+        (staging / META).write_text(json.dumps(meta), encoding="utf-8")
+
+
+class ResponseStore:
+    """An entry opened for reading: the responses read band by band (decoded bands kept up to a
+    byte budget, least recently used dropped first), the small arrays in memory.
+
+    Attributes
+    ----------
+    path
+        The entry's folder.
+    tile
+        Side of a responses chunk (grid points): bands are read ``tile`` rows at a time.
+    lit_counts, observed, steady
+        The small arrays (see the module docstring).
+    """
+
+    def __init__(self, path: Path, responses: zarr.Array, tile: int, lit_counts: np.ndarray,
+                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int):
+        self.path, self.tile = path, tile
+        self._responses = responses
+        self.lit_counts, self.observed, self.steady = lit_counts, observed, steady
+        self._keep_bytes = keep_bytes
+        self._bands: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(self._responses.shape)
+
+    def band(self, index: int) -> np.ndarray:
+        """Rows ``index * tile`` onward (``tile`` of them, fewer at the end): (rows, W, K, 3)
+        float32, read-only."""
+        with self._lock:
+            if index in self._bands:
+                self._bands.move_to_end(index)
+                return self._bands[index]
+        row0 = index * self.tile
+        try:
+            band = self._responses[row0:min(row0 + self.tile, self.shape[0])]
+        except (ValueError, OSError, RuntimeError) as error:  # a checksum or a decode that failed
+            mark_stale(self.path)
+            raise DatasetError(f"{self.path}: damaged cache chunk in rows {row0}.. ({error}); "
+                               "open the dataset again to rebuild it") from None
+        band.flags.writeable = False
+        with self._lock:
+            self._bands[index] = band
+            while len(self._bands) > 1 and sum(b.nbytes for b in self._bands.values()) > self._keep_bytes:
+                self._bands.popitem(last=False)
+        return band
+
+    def rows(self, row0: int, row1: int) -> np.ndarray:
+        """Responses of rows ``row0 .. row1`` (a view when they lie in one band, else a copy)."""
+        first, last = row0 // self.tile, (row1 - 1) // self.tile
+        if first == last:
+            return self.band(first)[row0 - first * self.tile:row1 - first * self.tile]
+        return np.concatenate([self.band(index)[max(row0 - index * self.tile, 0):row1 - index * self.tile]
+                               for index in range(first, last + 1)])
+
+    def window(self, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
+        """Responses of a window of grid points, reading only the chunks it touches."""
+        try:
+            return self._responses[row0:row1, col0:col1]
+        except (ValueError, OSError, RuntimeError) as error:
+            mark_stale(self.path)
+            raise DatasetError(f"{self.path}: damaged cache chunk ({error}); "
+                               "open the dataset again to rebuild it") from None
+
+
+def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int) -> ResponseStore | None:
+    """The entry at ``location`` for ``key`` and a responses array of ``shape``, or None when it
+    is absent, stale or fails a check (module docstring); reads no responses chunk."""
+    try:
+        if not stat.S_ISDIR(os.lstat(location).st_mode):
+            return None
+        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16) \
+            if stat.S_ISREG(os.lstat(location / META).st_mode) else None
+        if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
+            return None
+        if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
+            return None
+        files = 0
+        for folder, folders, names in os.walk(location):
+            for name in folders + names:
+                mode = os.lstat(os.path.join(folder, name)).st_mode
+                if not (stat.S_ISREG(mode) or (stat.S_ISDIR(mode) and name in folders)):
+                    return None
+            files += len(names)
+        if files != meta.get("files"):
+            return None
+        group = zarr.open_group(zarr.storage.LocalStore(location, read_only=True), mode="r")
+        responses = group["responses"]
+        height, width = shape[:2]
+        expected = {"lit_counts": ((height, width), np.int32), "observed": ((height, width), np.bool_),
+                    "steady": ((height, width, 3), np.float32)}
+        if responses.shape != tuple(shape) or responses.dtype != np.float32 \
+                or responses.chunks != (meta["tile"], meta["tile"], shape[2], shape[3]):
+            return None
+        small = {}
+        for name in _SMALL:
+            array = group[name]
+            if (array.shape, array.dtype) != (expected[name][0], np.dtype(expected[name][1])):
+                return None
+            small[name] = array[...]
+    except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
+        return None
+    return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
+                         small["steady"], keep_bytes)
+
+
+def stored_entry_bytes(location: Path, key: str) -> int | None:
+    """Bytes on disk of the entry at ``location`` when its key is ``key``, else None (no chunk
+    is read)."""
+    try:
+        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16) \
+            if stat.S_ISREG(os.lstat(location / META).st_mode) else None
+    except (OSError, RinglightError):
+        return None
+    if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
+        return None
+    return sum(os.lstat(os.path.join(folder, name)).st_size for folder, _, names in os.walk(location)
+               for name in names)
+
+
+def mark_stale(location: Path) -> None:
+    """Make the entry fail its next open (its meta.json removed), so that it is rebuilt."""
+    try:
+        os.unlink(location / META)
+    except OSError:
+        pass
+
+
+class _StoreInvalid(RinglightError):
+    """A store file that cannot be used; the entry is rebuilt, so users never see this."""

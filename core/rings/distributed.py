@@ -1,0 +1,86 @@
+"""Ring light images on a dask cluster: one task per band of the dataset's store.
+
+A point's ring means need only its own responses, so bands of rows are independent. Each task
+opens the store (zarr, read-only) at its path, reads its band (every chunk's checksum checked),
+computes the band's validity flags and runs the same compiled kernel as the local path
+(:func:`ringlight.core.rings.stacks._ring_sums`), so the images equal the local ones bit for bit.
+The store and the frames' dataset folder must be on a file system every worker sees at the same
+path (a shared or network file system); the workers need ringlight installed.
+
+``scheduler`` is a ``dask.distributed.Client`` or the address of a running scheduler
+(``tcp://host:8786``), whose client is opened for the call and closed after it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..dataset.impulse_dataset import ImpulseDataset, fill_validity
+from ..errors import Cancelled, StackError
+
+
+def band_ring_sums(store_path: str, row0: int, row1: int, lit: np.ndarray, observed: np.ndarray,
+                   offsets: np.ndarray, tables: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """One band's ring images and counts: (n, rows, W, 3) float32 and (n, rows, W) int32."""
+    import zarr
+
+    from .stacks import _ring_sums
+
+    responses = zarr.open_array(zarr.storage.LocalStore(Path(store_path), read_only=True), path="responses",
+                                mode="r")[row0:row1]
+    validity = np.empty(responses.shape[:3], np.uint8)
+    fill_validity(lit, observed, offsets, validity, row0)
+    first, stop, weight_start, weights = tables
+    images = np.empty((len(first), row1 - row0, responses.shape[1], 3), np.float32)
+    counts = np.empty((len(first), row1 - row0, responses.shape[1]), np.int32)
+    _ring_sums(responses, validity, first, stop, weight_start, weights, 0, row1 - row0, images, counts)
+    return images, counts
+
+
+def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
+                            progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(n, H, W, 3) images and (n, H, W) counts of the rings in ``tables`` (see
+    :func:`ringlight.core.rings.stacks._ring_tables`), one task per store band on ``scheduler``."""
+    if dataset.store is None:
+        raise StackError(f"{dataset.path}: a stack on a cluster reads the dataset's store; open it with the cache on")
+    from dask.distributed import Client, as_completed
+
+    client = scheduler if isinstance(scheduler, Client) else None
+    try:
+        if client is None:
+            try:
+                client = Client(str(scheduler), timeout="10s")
+            except OSError as error:
+                raise StackError(f"cannot reach the dask scheduler at {scheduler} ({error})") from None
+        height, width = dataset.grid_shape
+        images = np.empty((len(tables[0]), height, width, 3), np.float32)
+        counts = np.empty((len(tables[0]), height, width), np.int32)
+        lit, observed, offsets, shared_tables = client.scatter(
+            [np.ascontiguousarray(dataset.lit_counts > 0), np.ascontiguousarray(dataset.observed),
+             dataset.offsets, tables], broadcast=True)
+        bands = {client.submit(band_ring_sums, str(dataset.store.path), row0, row1, lit, observed, offsets,
+                               shared_tables, pure=False): (row0, row1)
+                 for row0, row1 in _store_bands(dataset)}
+        done = 0
+        try:
+            for future in as_completed(bands):
+                row0, row1 = bands[future]
+                images[:, row0:row1], counts[:, row0:row1] = future.result()
+                done += 1
+                if progress is not None:
+                    progress(done / len(bands))
+        except (Cancelled, KeyboardInterrupt):
+            client.cancel(list(bands))
+            raise
+        return images, counts
+    finally:
+        if client is not None and client is not scheduler:
+            client.close()
+
+
+def _store_bands(dataset: ImpulseDataset) -> list[tuple[int, int]]:
+    height, tile = dataset.grid_shape[0], dataset.store.tile
+    return [(row, min(row + tile, height)) for row in range(0, height, tile)]

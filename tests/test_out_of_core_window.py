@@ -1,0 +1,68 @@
+"""The explorer on a dataset read from its store: clicks read nothing, the impulse view reads in
+a worker, and what it shows equals the in-memory path."""
+
+import threading
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+from PySide6.QtCore import QSettings
+from reference import random_impulses, write_dataset
+from ringlight.app.window import MainWindow
+from ringlight.core import open_dataset
+from ringlight.core.dataset import impulse_dataset, response_store
+from ringlight.core.dataset.impulse_dataset import disc_offset_count
+from ringlight.core.rings.profiles import pixel_profile
+
+TIMEOUT_MS = 120_000
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(window)
+    window.resize(1366, 768)
+    window.show()
+    qtbot.waitExposed(window)
+    yield window
+    window.shutdown()
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    impulses = random_impulses(np.random.default_rng(5), 20, 17, support=4)
+    write_dataset(tmp_path / "ds", 20, 17, impulses, max_radius=4.0, multiplex=True)
+    monkeypatch.setattr(response_store, "CHUNK_BYTES", 4 * 4 * disc_offset_count(4.0) * 12)
+    return tmp_path / "ds"
+
+
+def test_the_window_reads_an_out_of_core_dataset_without_io_on_clicks(qtbot, window, folder, monkeypatch):
+    memory = open_dataset(folder, use_cache=False)
+    monkeypatch.setattr(impulse_dataset, "memory_budget", lambda: 1)
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.open_dataset(str(folder))
+    dataset = window.loaded.dataset
+    assert not dataset.in_memory
+    assert "out of core" in window.dataset_label.text()
+    reads = []  # reads on the GUI thread (the noise estimate reads bands in its worker meanwhile)
+
+    def watched(method):
+        def read(*args):
+            if threading.current_thread() is threading.main_thread():
+                reads.append((method.__name__, args))
+            return method(*args)
+        return read
+
+    monkeypatch.setattr(dataset.store, "window", watched(dataset.store.window))
+    monkeypatch.setattr(dataset.store, "band", watched(dataset.store.band))
+    window.pick(9, 8)
+    assert not reads  # the profile comes from the stacks on screen
+    expected = pixel_profile(memory, window.stacks.rings, (9, 8))
+    assert_array_equal(window.profile.counts, expected.counts)
+    assert_allclose(window.profile.transient, expected.transient, rtol=1e-6, atol=1e-7)
+    assert_allclose(window.profile.outer_ring, expected.outer_ring, rtol=1e-6, atol=1e-7)
+    monkeypatch.undo()
+    window.display_controls.set_view("impulse")
+    assert "reading the impulse image" in window.image_panel.title.textItem.toPlainText()
+    qtbot.waitUntil(lambda: window._impulse_cache is not None, timeout=TIMEOUT_MS)
+    assert_array_equal(window._impulse_cache[1], memory.impulse_image(9, 8))
