@@ -2,11 +2,13 @@
 
 Each frame is decoded once per *band* of grid rows (a grid-space frame decodes only the band's
 rows; the library decodes its line chunks on every core), in a thread that runs one frame ahead of
-the scatter; the scatter is compiled and parallel over the frame's lit points and offsets (every
-``(p, k)`` pair it writes is distinct within a frame: multiplexed points are more than
-``2 max_radius`` apart). A response array that fits the memory budget is one band, kept in
-memory; a larger one is built band by band into the dataset's store (:mod:`.response_store`),
-each band as many store tiles high as fit a quarter of the budget, and read from there.
+the scatter. The scatter is compiled: for a batch of frames it marks which offset each point of
+the band takes from each frame, then visits the points in parallel over rows, adding each one's
+light from every frame of the batch into its block of responses (one visit a batch rather than
+one scattered write a frame). A response array that fits the memory budget is one
+band, kept in memory; a larger one is built band by band into the dataset's store
+(:mod:`.response_store`), each band as many store tiles high as fit a quarter of the budget, and
+read from there.
 
 Progress runs over every phase: reading the frames (per band) and writing the store.
 """
@@ -29,6 +31,8 @@ from .manifest import Manifest
 from .response_store import StoreWriter, store_tile
 
 ProgressCallback = Callable[[float], None]
+BATCH_BYTES = 32 * 2**20
+"""Frame rows (radiance, owner and weight: 20 bytes a point) scattered together."""
 WRITE_SHARE = 0.1
 """Share of an in-memory open's progress given to writing its store."""
 
@@ -61,9 +65,7 @@ class Assembler:
         # Only offsets shorter than the grid can join two grid points: a max_radius far beyond the
         # grid (1024 on a 4 x 3 grid, 3.3 million offsets) must not cost that much per frame.
         reachable = np.flatnonzero((np.abs(offsets[:, 0]) < self.height) & (np.abs(offsets[:, 1]) < self.width))
-        # In raster order of the offsets: around one lit point the writes then walk the band's
-        # points row by row (a point's responses are one block), not the rings' order across it.
-        self.offset_index = reachable[np.lexsort((-offsets[reachable, 1], -offsets[reachable, 0]))]
+        self.offset_index = reachable
         self.dy = np.ascontiguousarray(offsets[self.offset_index, 0])
         self.dx = np.ascontiguousarray(offsets[self.offset_index, 1])
 
@@ -71,27 +73,42 @@ class Assembler:
     def observed(self) -> np.ndarray:
         return self.reader.observed
 
-    def band(self, row0: int, row1: int, progress: Callable[[float], None] | None = None) -> np.ndarray:
+    def band(self, row0: int, row1: int, progress: Callable[[float], None] | None = None,
+             batch_bytes: int = BATCH_BYTES) -> np.ndarray:
         """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32, 0 at unobserved points.
 
+        Frames are scattered in batches of up to ``batch_bytes`` of their rows (radiance, and
+        which offset and weight each point takes from the frame), point by point: a point's
+        responses are one block, which a batch fills in one visit instead of one visit a frame.
         ``progress`` gets the fraction of frames read. Raises DatasetError naming the first frame
         with NaN or Inf values."""
         frames = self.manifest.frames
+        rows = row1 - row0
+        batch = int(np.clip(batch_bytes // max(rows * self.width * 20, 1), 1, len(frames)))
         bad_values, bad_frames, first_bad = 0, 0, None
         with _decoding_threads(), ThreadPoolExecutor(max_workers=1) as ahead:
             pending = ahead.submit(self.reader.read, frames[0], (row0, row1))
             pending.result()  # a first frame that cannot be read fails before the band is allocated
-            responses = np.zeros((row1 - row0, self.width, len(self.offsets), 3), np.float32)
+            responses = np.zeros((rows, self.width, len(self.offsets), 3), np.float32)
+            radiance = np.empty((batch, rows, self.width, 3), np.float32)
+            owner = np.empty((batch, rows, self.width), np.int32)
+            weight = np.empty((batch, rows, self.width), np.float32)
+            filled = 0
             for done, frame in enumerate(frames):
-                radiance, bad = pending.result()
+                radiance[filled], bad = pending.result()
                 if done + 1 < len(frames):
                     pending = ahead.submit(self.reader.read, frames[done + 1], (row0, row1))
                 if bad:
                     bad_values += bad
                     bad_frames += 1
                     first_bad = first_bad or self.manifest.folder / frame.file
-                _scatter(responses, radiance, frame.lit, self.dy, self.dx, self.offset_index, self.inverse_counts,
-                         row0)
+                owner[filled] = -1
+                _owners(owner[filled], weight[filled], frame.lit, self.dy, self.dx, self.offset_index,
+                        self.inverse_counts, row0)
+                filled += 1
+                if filled == batch or done + 1 == len(frames):
+                    _scatter_batch(responses, radiance, owner, weight, filled)
+                    filled = 0
                 if progress is not None:
                     progress((done + 1) / len(frames))
         if bad_values:
@@ -138,7 +155,7 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
         row1 = min(row0 + rows, height)
         report = None if progress is None else (
             lambda fraction, row0=row0, row1=row1: progress((row0 + fraction * (row1 - row0)) / height))
-        band = assembler.band(row0, row1, report)
+        band = assembler.band(row0, row1, report, min(BATCH_BYTES, budget // 8))
         writer.write_rows(row0, band)
         steady[row0:row1] = assembler.steady(band, row0)
         del band
@@ -157,13 +174,12 @@ def _decoding_threads() -> Iterator[None]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _scatter(responses, radiance, lit, dy, dx, offset_index, inverse_counts, row0):  # pragma: no cover - compiled
-    """responses[p - row0, k] += radiance[p - row0] / lit_count(q) for every lit point q of a
-    frame and offset d = offsets[k] with p = q - d inside the band (rows row0 ..).
-
-    Serial, without the GIL: it runs beside the next frame's decoding (which takes longer and
-    uses the library's threads), and a parallel launch per frame costs more than it gives."""
-    rows, width = responses.shape[0], responses.shape[1]
+def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # pragma: no cover - compiled
+    """For each point p of the band (rows row0 ..) within reach of a lit point q of a frame:
+    ``owner[p - row0]`` = the offset index k of d = q - p and ``weight[p - row0]`` = 1 / (frames
+    lighting q); other points keep ``owner`` -1. One q per p: multiplexed points are more than
+    ``2 max_radius`` apart (checked with the manifest), and other frames light one point."""
+    rows, width = owner.shape
     reach = 0
     for j in range(dy.size):
         reach = max(reach, abs(dy[j]))
@@ -172,12 +188,24 @@ def _scatter(responses, radiance, lit, dy, dx, offset_index, inverse_counts, row
         qx = lit[i, 1]
         if qy + reach < row0 or qy - reach >= row0 + rows:
             continue  # no point of the band within reach
-        weight = inverse_counts[qy, qx]
         for j in range(dy.size):
             py = qy - dy[j] - row0
             px = qx - dx[j]
             if py >= 0 and py < rows and px >= 0 and px < width:
-                k = offset_index[j]
-                for c in range(3):
-                    responses[py, px, k, c] += radiance[py, px, c] * weight
+                owner[py, px] = offset_index[j]
+                weight[py, px] = inverse_counts[qy, qx]
 
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _scatter_batch(responses, radiance, owner, weight, count):  # pragma: no cover - compiled
+    """responses[p, owner[b, p]] += radiance[b, p] * weight[b, p] for the first ``count`` frames b
+    of a batch, in frame order; parallel over rows (each thread owns its points)."""
+    rows, width = responses.shape[0], responses.shape[1]
+    for y in numba.prange(rows):
+        for x in range(width):
+            for b in range(count):
+                k = owner[b, y, x]
+                if k >= 0:
+                    w = weight[b, y, x]
+                    for c in range(3):
+                        responses[y, x, k, c] += radiance[b, y, x, c] * w

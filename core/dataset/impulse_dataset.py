@@ -100,10 +100,6 @@ class ImpulseDataset:
         return (*self.grid_shape, len(self.offsets), 3)
 
     @property
-    def response_bytes(self) -> int:
-        return int(np.prod(self.response_shape)) * 4
-
-    @property
     def band_height(self) -> int:
         """Rows of one band of :meth:`bands`: a store tile, or enough rows per compute call."""
         if self.store is not None and self.responses is None:
