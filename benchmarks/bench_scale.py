@@ -55,11 +55,6 @@ def write_synthetic(folder: Path, size: int, radius: int) -> None:
                 writer.add_frame(image[radius:radius + size, radius:radius + size], lit=[list(p) for p in lit])
 
 
-def folder_bytes(folder: Path, skip: str | None = None) -> int:
-    return sum(os.lstat(os.path.join(root, name)).st_size for root, folders, names in os.walk(folder)
-               for name in names if skip is None or skip not in root)
-
-
 def worker(task: str, folder: str) -> None:
     """Run one measured step in this (fresh) process and print its figures as JSON."""
     from ringlight.core import open_dataset, transient_stack
@@ -67,6 +62,9 @@ def worker(task: str, folder: str) -> None:
     from ringlight.core.dataset.manifest import read_manifest
     from ringlight.core.dataset.memory import memory_budget
 
+    from ringlight.core.colourspaces import colour_module
+
+    colour_module()  # the library's own import (seconds, once per process) is not the dataset's
     figures = {"budget": memory_budget()}
     start = time.perf_counter()
     if task == "decode":
@@ -117,10 +115,12 @@ def bench(root: Path, size: int, radius: int) -> None:
         print(f"{size} px, R {radius}: wrote {(2 * radius + 1) ** 2} frames in {time.perf_counter() - start:.0f} s",
               flush=True)
     shutil.rmtree(folder / ".ringlight-cache", ignore_errors=True)
-    exr = folder_bytes(folder / "frames")
+    from ringlight.core.dataset.response_store import entry_bytes
+
+    exr = entry_bytes(folder / "frames")
     decode = measured("decode", folder)
     first = measured("open", folder)
-    store = folder_bytes(folder / ".ringlight-cache")
+    store = entry_bytes(folder / ".ringlight-cache")
     reopen = measured("open", folder)
     stack = measured("stack", folder)
     cluster = measured("cluster", folder)

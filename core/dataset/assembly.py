@@ -31,7 +31,7 @@ from .manifest import Manifest
 from .response_store import StoreWriter, store_tile
 
 ProgressCallback = Callable[[float], None]
-BATCH_BYTES = 32 * 2**20
+BATCH_BYTES = 256 * 2**20
 """Frame rows (radiance, owner and weight: 20 bytes a point) scattered together."""
 WRITE_SHARE = 0.1
 """Share of an in-memory open's progress given to writing its store."""
@@ -74,8 +74,10 @@ class Assembler:
         return self.reader.observed
 
     def band(self, row0: int, row1: int, progress: Callable[[float], None] | None = None,
-             batch_bytes: int = BATCH_BYTES) -> np.ndarray:
-        """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32, 0 at unobserved points.
+             batch_bytes: int = BATCH_BYTES) -> tuple[np.ndarray, np.ndarray]:
+        """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32, 0 at unobserved points,
+        and their steady state (rows, W, 3) float32 (NaN at unobserved points), summed as the
+        responses are.
 
         Frames are scattered in batches of up to ``batch_bytes`` of their rows (radiance, and
         which offset and weight each point takes from the frame), point by point: a point's
@@ -90,6 +92,7 @@ class Assembler:
             pending = ahead.submit(self.reader.read, frames[0], (row0, row1))
             pending.result()  # a first frame that cannot be read fails before the band is allocated
             responses = np.zeros((rows, self.width, len(self.offsets), 3), np.float32)
+            steady = np.zeros((rows, self.width, 3), np.float64)
             radiance = np.empty((batch, rows, self.width, 3), np.float32)
             owner = np.empty((batch, rows, self.width), np.int32)
             weight = np.empty((batch, rows, self.width), np.float32)
@@ -107,29 +110,26 @@ class Assembler:
                         self.inverse_counts, row0)
                 filled += 1
                 if filled == batch or done + 1 == len(frames):
-                    _scatter_batch(responses, radiance, owner, weight, filled)
+                    _scatter_batch(responses, steady, radiance, owner, weight, filled)
                     filled = 0
                 if progress is not None:
                     progress((done + 1) / len(frames))
         if bad_values:
             raise DatasetError(f"{first_bad}: NaN or Inf radiance ({bad_values} values in {bad_frames} frame(s); "
                                "this is the first)")
-        responses[~self.observed[row0:row1]] = 0.0
-        return responses
-
-    def steady(self, band: np.ndarray, row0: int) -> np.ndarray:
-        """The steady state of a band's rows: (rows, W, 3) float32, NaN where unobserved."""
-        total = band.sum(axis=2, dtype=np.float64)
-        total[~self.observed[row0:row0 + len(band)]] = np.nan
-        return total.astype(np.float32)
+        unobserved = ~self.observed[row0:row1]
+        responses[unobserved] = 0.0
+        steady[unobserved] = np.nan
+        return responses, steady.astype(np.float32)
 
 
-def assemble_in_memory(assembler: Assembler, progress: ProgressCallback | None = None,
+def assemble_in_memory(assembler: Assembler, budget: int, progress: ProgressCallback | None = None,
                        share: float = 1.0) -> Assembled:
-    """The whole response array at once; ``progress`` goes from 0 to ``share``."""
+    """The whole response array at once (its batches within an eighth of ``budget``);
+    ``progress`` goes from 0 to ``share``."""
     report = None if progress is None else (lambda fraction: progress(share * fraction))
-    responses = assembler.band(0, assembler.height, report)
-    return Assembled(responses, assembler.lit_counts, assembler.observed, assembler.steady(responses, 0))
+    responses, steady = assembler.band(0, assembler.height, report, min(BATCH_BYTES, budget // 8))
+    return Assembled(responses, assembler.lit_counts, assembler.observed, steady)
 
 
 def write_assembled(writer: StoreWriter, assembled: Assembled, progress: ProgressCallback | None = None,
@@ -155,9 +155,8 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
         row1 = min(row0 + rows, height)
         report = None if progress is None else (
             lambda fraction, row0=row0, row1=row1: progress((row0 + fraction * (row1 - row0)) / height))
-        band = assembler.band(row0, row1, report, min(BATCH_BYTES, budget // 8))
+        band, steady[row0:row1] = assembler.band(row0, row1, report, min(BATCH_BYTES, budget // 8))
         writer.write_rows(row0, band)
-        steady[row0:row1] = assembler.steady(band, row0)
         del band
     writer.write_small(assembler.lit_counts, assembler.observed, steady)
 
@@ -197,9 +196,10 @@ def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # 
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _scatter_batch(responses, radiance, owner, weight, count):  # pragma: no cover - compiled
+def _scatter_batch(responses, steady, radiance, owner, weight, count):  # pragma: no cover - compiled
     """responses[p, owner[b, p]] += radiance[b, p] * weight[b, p] for the first ``count`` frames b
-    of a batch, in frame order; parallel over rows (each thread owns its points)."""
+    of a batch, in frame order, and the same into ``steady[p]`` (float64); parallel over rows
+    (each thread owns its points)."""
     rows, width = responses.shape[0], responses.shape[1]
     for y in numba.prange(rows):
         for x in range(width):
@@ -208,4 +208,6 @@ def _scatter_batch(responses, radiance, owner, weight, count):  # pragma: no cov
                 if k >= 0:
                     w = weight[b, y, x]
                     for c in range(3):
-                        responses[y, x, k, c] += radiance[b, y, x, c] * w
+                        light = radiance[b, y, x, c] * w
+                        responses[y, x, k, c] += light
+                        steady[y, x, c] += light

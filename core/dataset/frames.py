@@ -70,6 +70,36 @@ def _camera_mean(flat, pixels, grid_index, counts, out):  # pragma: no cover - c
             out[g, c] = total[g, c] / counts[g] if counts[g] > 0 else np.nan
 
 
+@numba.njit(cache=True, nogil=True)
+def _radiance(grid, exposure, dark, has_dark, out):  # pragma: no cover - compiled
+    """``out = grid / exposure - dark`` in float32 (R = G = B from a single channel), in one pass.
+
+    Returns ``(bad, problem)``: how many values of ``grid`` are NaN or Inf, and 1 when dividing
+    takes a finite value out of float32's range (to Inf, or a non-zero value to 0), 2 when
+    subtracting the dark frame does (to Inf), else 0."""
+    rows, width, channels = grid.shape
+    bad = 0
+    divide = False
+    subtract = False
+    for y in range(rows):
+        for x in range(width):
+            for c in range(3):
+                value = grid[y, x, c if channels == 3 else 0]
+                if not np.isfinite(value):
+                    if c < channels:
+                        bad += 1
+                    out[y, x, c] = value
+                    continue
+                scaled = value / exposure
+                if not np.isfinite(scaled) or (scaled == 0 and value != 0):
+                    divide = True
+                result = scaled - dark[y, x, c if channels == 3 else 0] if has_dark else scaled
+                if not np.isfinite(result) and np.isfinite(scaled):
+                    subtract = True
+                out[y, x, c] = result
+    return bad, 1 if divide else (2 if subtract else 0)
+
+
 class CameraMapping:
     """Averages camera pixels onto the grid: grid ``[y, x]`` is the mean of the camera pixels
     whose rounded mapped position is ``[y, x]`` (rounded half up: ``floor(v + 0.5)``).
@@ -185,22 +215,18 @@ class FrameReader:
         path = self.manifest.file_path(frame.file, self.allow_outside)
         first, stop = rows if rows is not None else (0, self.grid_shape[0])
         image = self._read_file(path, "frame", rows if self.mapping is None else None)
-        # A camera frame is decoded whole for every band: its bad values count with the first.
-        bad = int(np.count_nonzero(~np.isfinite(image))) if self.mapping is None or first == 0 else 0
-        grid = self._to_grid(image)
-        if self.mapping is not None:
-            grid = grid[first:stop]
-        dark = None if self.dark is None else self.dark[first:stop]
-        with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-            scaled = grid / np.float32(frame.exposure)
-            radiance = scaled if dark is None else scaled - dark
-        finite = np.isfinite(grid)
-        if (~np.isfinite(scaled) & finite).any() or ((scaled == 0) & (grid != 0) & finite).any():
+        camera_bad = 0
+        if self.mapping is not None:  # decoded whole for every band: its bad values count with the first
+            camera_bad = int(np.count_nonzero(~np.isfinite(image))) if first == 0 else 0
+            grid = self._to_grid(image)[first:stop]
+        else:
+            grid = image
+        dark = self.dark[first:stop] if self.dark is not None else np.zeros((0, 0, grid.shape[2]), np.float32)
+        radiance = np.empty((*grid.shape[:2], 3), np.float32)
+        bad, problem = _radiance(grid, np.float32(frame.exposure), dark, self.dark is not None, radiance)
+        if problem == 1:
             raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
                                "takes values out of float32's range")
-        if (~np.isfinite(radiance) & finite).any():
+        if problem == 2:
             raise DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
-        radiance = radiance.astype(np.float32, copy=False)
-        if self.monochrome:
-            radiance = np.repeat(radiance, 3, axis=-1)
-        return radiance, bad
+        return radiance, camera_bad if self.mapping is not None else int(bad)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_
 from .frames import dataset_channels
 from .manifest import Manifest, read_manifest
 from .memory import format_bytes, memory_budget
-from .response_store import ResponseStore, open_store, store_tile, write_store
+from .response_store import ResponseStore, entry_bytes, open_store, store_tile, write_store
 
 ProgressCallback = Callable[[float], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
@@ -300,8 +299,8 @@ def open_dataset(
     Raises
     ------
     DatasetError
-        For any problem with the manifest or a file, naming the file, and when the store cannot
-        be written for a dataset larger than the budget, or would not fit its disk.
+        For any problem with the manifest or a file, naming the file, and for a dataset larger
+        than the budget whose store cannot be written or would not fit its disk.
     """
     manifest = path if isinstance(path, Manifest) else read_manifest(path)
     max_radius = effective_max_radius(manifest, radius)
@@ -314,7 +313,7 @@ def open_dataset(
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"over the memory budget of {format_bytes(budget)}, and without the cache there is "
                            f"no store to read them from{advice}")
-    if location is not None and needed > (free := _free_disk(location)):
+    if needed > budget and needed > (free := _free_disk(location)):
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"more than the {format_bytes(free)} free for its store in {location.parent}{advice}")
     offsets = disc_offsets(max_radius)
@@ -337,7 +336,7 @@ def open_dataset(
         assembler = Assembler(manifest, offsets, allow_outside)
         tile = store_tile((height, width), len(offsets))
         if needed <= budget:
-            assembled = assemble_in_memory(assembler, progress, 1.0 - WRITE_SHARE if use_cache else 1.0)
+            assembled = assemble_in_memory(assembler, budget, progress, 1.0 - WRITE_SHARE if use_cache else 1.0)
             if use_cache:
                 try:
                     with write_store(location, key, shape, tile) as writer:
@@ -366,19 +365,7 @@ def _free_disk(location: Path) -> int:
     folder = location
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
-    try:
-        return shutil.disk_usage(folder).free + (_entry_bytes(location) if location.exists() else 0)
+    try:  # an existing entry is replaced, so its space counts as free
+        return shutil.disk_usage(folder).free + entry_bytes(location)
     except OSError:
         return 2**63
-
-
-def _entry_bytes(location: Path) -> int:
-    """Bytes an existing entry takes (it is replaced, so its space counts as free)."""
-    total = 0
-    for folder, _, names in os.walk(location):
-        for name in names:
-            try:
-                total += os.lstat(os.path.join(folder, name)).st_size
-            except OSError:
-                pass
-    return total

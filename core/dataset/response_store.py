@@ -5,7 +5,8 @@ ringlight's ``meta.json``:
 
 - ``responses``: (H, W, K, 3) float32 in chunks of ``tile x tile`` grid points with every offset
   and channel inside (a point's responses are one chunk's; a band of ``tile`` rows is one row of
-  chunks), Blosc-zstd with byte shuffling, then a CRC-32C of each compressed chunk;
+  chunks), Blosc-zstd with bit shuffling (float32 values from half-float frames leave 13 zero bits
+  that it packs away), then a CRC-32C of each compressed chunk;
 - ``lit_counts`` (H, W) int32, ``observed`` (H, W) bool, ``steady`` (H, W, 3) float32 (the steady
   state, so that an open shows it without reading the responses), same codecs;
 - ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
@@ -49,7 +50,7 @@ _SMALL = ("lit_counts", "observed", "steady")
 
 
 def _codecs():
-    return [BloscCodec(cname="zstd", clevel=1, shuffle="shuffle"), Crc32cCodec()]
+    return [BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle"), Crc32cCodec()]
 
 
 def store_tile(grid_shape: tuple[int, int], offsets: int) -> int:
@@ -224,8 +225,19 @@ def stored_entry_bytes(location: Path, key: str) -> int | None:
         return None
     if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
         return None
-    return sum(os.lstat(os.path.join(folder, name)).st_size for folder, _, names in os.walk(location)
-               for name in names)
+    return entry_bytes(location)
+
+
+def entry_bytes(location: Path) -> int:
+    """Bytes the files under ``location`` take (0 when it does not exist)."""
+    total = 0
+    for folder, _, names in os.walk(location):
+        for name in names:
+            try:
+                total += os.lstat(os.path.join(folder, name)).st_size
+            except OSError:
+                pass
+    return total
 
 
 def mark_stale(location: Path) -> None:
