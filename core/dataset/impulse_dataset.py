@@ -161,7 +161,9 @@ class ImpulseDataset:
         """(H, W, K) uint8: 1 where ``responses[y, x, k]`` holds a real response (the lit point
         ``q = p + offsets[k]`` is inside the grid and not missing, and ``p`` is observed).
 
-        Computed on first use and kept: 1 byte per entry, 1/12 of the response array.
+        Computed on first use and kept: 1 byte per entry, 1/12 of the response array. Consumers
+        read it through :meth:`validity_rows`, which for a dataset read from its store computes
+        each band's flags instead of keeping the whole.
         """
         validity = np.empty(self.response_shape[:3], np.uint8)
         fill_validity(self.lit_counts > 0, self.observed, self.offsets, validity, 0)
@@ -309,11 +311,11 @@ def open_dataset(
     budget = memory_budget() if memory_budget_bytes is None else int(memory_budget_bytes)
     location = cache.cache_location(manifest.folder) if use_cache else None
     advice = "; open with a smaller radius" if manifest.max_radius is None else ""
-    if needed > budget and not use_cache:
+    if not fits_in_memory(needed, budget) and not use_cache:
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"over the memory budget of {format_bytes(budget)}, and without the cache there is "
                            f"no store to read them from{advice}")
-    if needed > budget and needed > (free := _free_disk(location)):
+    if not fits_in_memory(needed, budget) and needed > (free := _free_disk(location)):
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"more than the {format_bytes(free)} free for its store in {location.parent}{advice}")
     offsets = disc_offsets(max_radius)
@@ -335,7 +337,7 @@ def open_dataset(
     if store is None:
         assembler = Assembler(manifest, offsets, allow_outside)
         tile = store_tile((height, width), len(offsets))
-        if needed <= budget:
+        if fits_in_memory(needed, budget):
             assembled = assemble_in_memory(assembler, budget, progress, 1.0 - WRITE_SHARE if use_cache else 1.0)
             if use_cache:
                 try:
@@ -358,6 +360,12 @@ def open_dataset(
         progress(1.0)
     return dataset(responses=None, lit_counts=store.lit_counts, observed=store.observed, steady=store.steady,
                    store=store)
+
+
+def fits_in_memory(response_bytes: int, budget: int) -> bool:
+    """Whether a response array of this size is assembled and kept in memory: it and its
+    validity flags (1 byte per 12 of it) fit the budget."""
+    return response_bytes * 13 // 12 <= budget
 
 
 def _free_disk(location: Path) -> int:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import cache
-from .impulse_dataset import WHOLE_READ_BYTES, disc_offset_count, effective_max_radius
+from .impulse_dataset import WHOLE_READ_BYTES, disc_offset_count, effective_max_radius, fits_in_memory
 from .manifest import Manifest
 from .memory import format_bytes, memory_budget
 from .response_store import stored_entry_bytes
@@ -26,7 +26,7 @@ class OpenPlan:
 
     @property
     def out_of_core(self) -> bool:
-        return self.response_bytes > self.budget
+        return not fits_in_memory(self.response_bytes, self.budget)
 
     @property
     def memory(self) -> int:
