@@ -163,7 +163,11 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
 
 @contextmanager
 def _decoding_threads() -> Iterator[None]:
-    """OpenEXR decodes a file's line chunks on every core while a frame is read."""
+    """OpenEXR decodes a file's line chunks on every core while a frame is read (its Python
+    binding has the setting from 3.5 on; older ones decode on one)."""
+    if not hasattr(OpenEXR, "set_global_thread_count"):
+        yield
+        return
     before = OpenEXR.global_thread_count()
     OpenEXR.set_global_thread_count(os.cpu_count() or 1)
     try:
