@@ -401,7 +401,7 @@ def test_a_meta_json_of_the_wrong_type_rebuilds_the_cache(dataset, monkeypatch, 
     assert json.loads((dataset / CACHE_FOLDER_NAME / "meta.json").read_text())["layout"] == 2
 
 
-@pytest.mark.parametrize("name", ["meta.json", "responses/zarr.json", "responses/c/0/0/0/0", "observed/zarr.json"])
+@pytest.mark.parametrize("name", ["meta.json", "responses/zarr.json", "responses/c.0.0.0.0", "observed/zarr.json"])
 @pytest.mark.parametrize("special", ["fifo", "dev-zero", "link-to-a-copy"])
 def test_special_files_in_the_cache_are_never_opened(dataset, monkeypatch, name, special):
     open_dataset(dataset, radius=2)

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from ringlight.core import DatasetError
@@ -49,3 +50,26 @@ def test_any_manifest_parses_or_raises_a_dataset_error(manifest):
             dist = (diff ** 2).sum(-1) ** 0.5
             dist[range(len(dist)), range(len(dist))] = 1e9
             assert dist.min() > 2 * parsed.max_radius
+
+
+def test_close_pair_with_groups_agrees_with_brute_force():
+    """The all-frames-at-once spacing check: a close pair is found exactly when two points of one
+    group (frame) lie within the limit, and what it returns is such a pair."""
+    import math
+
+    from ringlight.core.dataset.manifest import close_pair
+
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        count = int(rng.integers(2, 30))
+        points = rng.integers(0, 60, (count, 2))
+        groups = rng.integers(0, 3, count)
+        limit = float(rng.uniform(1, 12))
+        distance = np.hypot(*(points[:, None] - points[None]).transpose(2, 0, 1))
+        np.fill_diagonal(distance, np.inf)
+        close = (distance <= limit) & (groups[:, None] == groups[None])
+        found = close_pair(points, limit, groups)
+        assert (found is not None) == close.any()
+        if found is not None:
+            a, b = found
+            assert groups[a] == groups[b] and math.dist(points[a], points[b]) <= limit

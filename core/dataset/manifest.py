@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from ..colourspaces import parse_colourspace
@@ -362,25 +363,34 @@ def close_pair(points: np.ndarray, limit: float, groups: np.ndarray | None = Non
         key = key + groups.astype(np.int64) * ((int(cells[:, 0].max()) + 2) * stride)
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
-    starts, sizes = np.unique(sorted_key, return_index=True, return_counts=True)[1:]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    sizes = np.diff(np.append(starts, count))
     if sizes.max() > 4:
         members = order[starts[np.argmax(sizes)]:][:5]
         distances = np.hypot(*(points[members][:, None] - points[members][None]).transpose(2, 0, 1))
         distances[np.diag_indices(len(members))] = np.inf
         a, b = np.unravel_index(np.argmin(distances), distances.shape)
         return int(members[a]), int(members[b])
-    everyone = np.arange(count)
-    limit_sq = limit * limit
-    for shift in (-stride - 1, -stride, -stride + 1, -1, 0, 1, stride - 1, stride, stride + 1):
-        target = key + shift
-        first = np.searchsorted(sorted_key, target)
-        for slot in range(4):
-            at = np.minimum(first + slot, count - 1)
-            other = order[at]
-            valid = (first + slot < count) & (sorted_key[at] == target) & (other != everyone)
-            distance_sq = ((points - points[other]) ** 2).sum(axis=1)
-            hit = valid & (distance_sq <= limit_sq)
-            if hit.any():
-                first_hit = int(np.argmax(hit))
-                return first_hit, int(other[first_hit])
-    return None
+    found = _neighbour_pair(points, key, order, sorted_key, stride, limit * limit)
+    return None if found[0] < 0 else (int(found[0]), int(found[1]))
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_pair(points, key, order, sorted_key, stride, limit_sq):  # pragma: no cover - compiled
+    """The first point (in index order) with another within ``limit_sq`` (squared) in its cell or
+    a neighbouring one, and that other point; (-1, -1) when none. Cells hold at most 4 points."""
+    count = points.shape[0]
+    for i in range(count):
+        for row in range(-1, 2):
+            for column in range(-1, 2):
+                target = key[i] + row * stride + column
+                at = np.searchsorted(sorted_key, target)
+                while at < count and sorted_key[at] == target:
+                    other = order[at]
+                    if other != i:
+                        dy = points[i, 0] - points[other, 0]
+                        dx = points[i, 1] - points[other, 1]
+                        if dy * dy + dx * dx <= limit_sq:
+                            return i, other
+                    at += 1
+    return -1, -1

@@ -47,6 +47,9 @@ CHUNK_BYTES = 8 * 2**20
 small enough that a click (one point's chunk) decodes in a few milliseconds."""
 META = "meta.json"
 _SMALL = ("lit_counts", "observed", "steady")
+_FLAT_KEYS = {"name": "default", "separator": "."}
+"""Chunk files named ``c.ROW.COLUMN.0.0`` in their array's folder, not nested folders: a reopen's
+walk of the names then lists a few folders, not one per chunk."""
 
 
 def _codecs():
@@ -72,7 +75,7 @@ class StoreWriter:
         self._group = group
         self._responses = group.create_array(
             "responses", shape=shape, chunks=(tile, tile, shape[2], shape[3]), dtype="float32", fill_value=0.0,
-            compressors=_codecs(), config={"write_empty_chunks": True})
+            compressors=_codecs(), config={"write_empty_chunks": True}, chunk_key_encoding=_FLAT_KEYS)
 
     def write_rows(self, row0: int, band: np.ndarray) -> None:
         """Store responses rows ``row0 .. row0 + len(band)`` ((rows, W, K, 3) float32)."""
@@ -83,7 +86,8 @@ class StoreWriter:
     def write_small(self, lit_counts: np.ndarray, observed: np.ndarray, steady: np.ndarray) -> None:
         for name, array in zip(_SMALL, (lit_counts, observed, steady)):
             stored = self._group.create_array(name, shape=array.shape, chunks=array.shape, dtype=array.dtype,
-                                              compressors=_codecs(), config={"write_empty_chunks": True})
+                                              compressors=_codecs(), config={"write_empty_chunks": True},
+                                              chunk_key_encoding=_FLAT_KEYS)
             stored[...] = array
 
 
