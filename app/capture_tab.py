@@ -15,7 +15,8 @@ from ringlight.core.capture.calibration import calibrate_colour, capture_white, 
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
 from ringlight.core.capture.live_view import LIVE_FPS, summarise_frame
 from ringlight.core.capture.scan import Scan, capture_with_timeout
-from ringlight.core.capture.scan_plan import ScanError, estimate_disk, format_bytes
+from ringlight.core.capture.scan_plan import ScanError, estimate_disk
+from ringlight.core.dataset.memory import format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     estimated_seconds,

@@ -280,7 +280,7 @@ def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path)
 
 
 def test_byte_counts_are_shown_in_units_that_keep_their_digits():
-    from ringlight.core.capture.scan_plan import format_bytes
+    from ringlight.core.dataset.memory import format_bytes
 
     assert [format_bytes(n) for n in (0, 1000, 15552, 3 * 2**20 + 2**19, 5 * 2**30, 2**50)] == [
         "0 B", "1000 B", "15.2 KiB", "3.5 MiB", "5.0 GiB", "1048576.0 GiB"]

@@ -57,7 +57,7 @@ def test_close_pair_with_groups_agrees_with_brute_force():
     group (frame) lie within the limit, and what it returns is such a pair."""
     import math
 
-    from ringlight.core.dataset.manifest import close_pair
+    from ringlight.core.dataset.spacing import close_pair
 
     rng = np.random.default_rng(0)
     for _ in range(500):

@@ -8,7 +8,8 @@ import sys
 from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
 from ringlight.core.capture.scan import Scan
 from ringlight.core.capture.multiplex import s_matrix
-from ringlight.core.capture.scan_plan import ScanError, estimate_disk, format_bytes
+from ringlight.core.capture.scan_plan import ScanError, estimate_disk
+from ringlight.core.dataset.memory import format_bytes
 from ringlight.core.capture.workflow import (
     camera_notes,
     estimated_seconds,

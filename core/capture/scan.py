@@ -52,6 +52,7 @@ from ..atomic import (
 )
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
+from ..dataset.memory import format_bytes
 from ..errors import Cancelled, RinglightError
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
@@ -64,7 +65,6 @@ from .scan_plan import (
     ScanError,
     ScanPaused,
     ScanPlan,
-    format_bytes,
     read_plan,
 )
 

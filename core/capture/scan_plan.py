@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.memory import format_bytes
 from ..errors import RinglightError
 from ..simulate.lattice import lattice_frames
 from ..validation import read_json
