@@ -129,3 +129,34 @@ def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_f
     assert_array_equal(transient.images, transient_memory.images)
     assert_array_equal(by_address.images, ring_memory.images)
     assert fractions[-1] == 1.0 and len(fractions) == 6
+
+
+def test_camera_frames_with_a_dark_frame_and_exposures_give_the_same_bands(tmp_path, impulses, monkeypatch):
+    """Camera-space frames (2 x 2 camera pixels a grid point, through mapping.exr), a dark frame
+    and exposures other than 1: a band reads each whole camera frame, maps it and cuts its rows;
+    the result equals the in-memory open bit for bit."""
+    from reference import edit_manifest, write_exr, write_rgb
+
+    monkeypatch.setattr(response_store, "CHUNK_BYTES", TILE * TILE * disc_offset_count(MAX_RADIUS) * 12)
+    folder = tmp_path / "camera"
+    manifest = write_dataset(folder, HEIGHT, WIDTH, impulses, max_radius=MAX_RADIUS, multiplex=True)
+    dark = np.random.default_rng(9).uniform(0.0, 0.01, (2 * HEIGHT, 2 * WIDTH, 3)).astype(np.float32)
+    for index, frame in enumerate(manifest["frames"]):
+        grid = np.zeros((HEIGHT, WIDTH, 3), np.float32)
+        for y, x in frame["lit"]:
+            grid += impulses[(y, x)]
+        exposure = 0.5 + 0.25 * (index % 3)
+        write_rgb(folder / frame["file"], (np.repeat(np.repeat(grid, 2, 0), 2, 1) + dark) * np.float32(exposure))
+        frame["exposure"] = exposure
+    write_rgb(folder / "dark.exr", dark)
+    cy, cx = (np.mgrid[:2 * HEIGHT, :2 * WIDTH].astype(np.float32) - 0.5) / 2  # rounds to (cy // 2, cx // 2)
+    write_exr(folder / "mapping.exr", {"y": cy, "x": cx})
+    edit_manifest(folder, lambda m: m.update(frames=manifest["frames"], frame_space="camera",
+                                             mapping="mapping.exr", dark="dark.exr"))
+    memory = open_dataset(folder, use_cache=False)
+    lazy = open_dataset(folder, memory_budget_bytes=1)
+    assert not lazy.in_memory and len(lazy.bands()) == 6
+    assert_array_equal(lazy.steady_state(), memory.steady_state())
+    assert_array_equal(ring_stack(lazy, RADII).images, ring_stack(memory, RADII).images)
+    np.testing.assert_allclose(ring_stack(memory, [1]).images[0], brute_ring_image(impulses, HEIGHT, WIDTH, 1),
+                               rtol=1e-4, atol=1e-5)
