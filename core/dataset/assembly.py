@@ -161,6 +161,23 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
     writer.write_small(assembler.lit_counts, assembler.observed, steady)
 
 
+def warm_up_assembly() -> None:
+    """Load the assembly's compiled kernels (and the frame and spacing ones it calls) on tiny
+    arrays of the types an open passes, so that a first open in a worker does not hold the GIL
+    while numba loads them (see :func:`ringlight.core.rings.stacks.warm_up_kernels`)."""
+    from .frames import _radiance
+    from .spacing import close_pair
+
+    one = np.zeros(1, np.int64)
+    owner, weight = np.full((1, 1), -1, np.int32), np.zeros((1, 1), np.float32)
+    _owners(owner, weight, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
+    _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), np.zeros((1, 1, 1, 3), np.float32),
+                   owner[None], weight[None], 1)
+    _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
+              np.zeros((1, 1, 3), np.float32))
+    close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
+
+
 @contextmanager
 def _decoding_threads() -> Iterator[None]:
     """OpenEXR decodes a file's line chunks on every core while a frame is read (its Python

@@ -17,6 +17,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from ..dataset.assembly import warm_up_assembly
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
 from ..dataset.manifest import Manifest
 from ..errors import StackError
@@ -297,3 +298,4 @@ def warm_up_kernels() -> None:
     dataset = ImpulseDataset(manifest, 1.0, offsets, np.zeros((1, 1, len(offsets), 3), np.float32),
                              np.ones((1, 1), np.int32), np.ones((1, 1), bool))
     ring_stack(dataset, [0.0])
+    warm_up_assembly()
