@@ -118,11 +118,11 @@ def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_f
 
     memory = open_dataset(folder, use_cache=False)
     lazy = open_dataset(folder, memory_budget_bytes=1)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            Client(cluster) as client:
-        fractions = []
-        ring, transient = ring_and_transient_stacks(lazy, RADII, scheduler=client, progress=fractions.append)
-        by_address = ring_stack(lazy, RADII, scheduler=cluster.scheduler_address)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            fractions = []
+            ring, transient = ring_and_transient_stacks(lazy, RADII, scheduler=client, progress=fractions.append)
+        by_address = ring_stack(lazy, RADII, scheduler=cluster.scheduler_address)  # its own client
     ring_memory, transient_memory = ring_and_transient_stacks(memory, RADII)
     assert_array_equal(ring.images, ring_memory.images)
     assert_array_equal(ring.counts, ring_memory.counts)

@@ -58,11 +58,11 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
         height, width = dataset.grid_shape
         images = np.empty((len(tables[0]), height, width, 3), np.float32)
         counts = np.empty((len(tables[0]), height, width), np.int32)
-        lit, observed, offsets, shared_tables = client.scatter(
-            [np.ascontiguousarray(dataset.lit_counts > 0), np.ascontiguousarray(dataset.observed),
-             dataset.offsets, tables], broadcast=True)
-        bands = {client.submit(band_ring_sums, str(dataset.store.path), row0, row1, lit, observed, offsets,
-                               shared_tables, pure=False): (row0, row1)
+        # The small arrays go with each task (a few MB at 800 x 800): no scatter step, which can
+        # wait forever on a cluster that another client in the process also holds.
+        lit, observed = np.ascontiguousarray(dataset.lit_counts > 0), np.ascontiguousarray(dataset.observed)
+        bands = {client.submit(band_ring_sums, str(dataset.store.path), row0, row1, lit, observed, dataset.offsets,
+                               tables, pure=False): (row0, row1)
                  for row0, row1 in _store_bands(dataset)}
         done = 0
         try:
