@@ -153,3 +153,20 @@ def pytest_runtest_makereport(item, call):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "allow_leaks(reason): the test deliberately leaves work running")
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    """The explorer's main window at 1366 x 768, shown and active, its settings in ``tmp_path``
+    (Qt is imported here, only by the tests that ask for a window; a module may define its own)."""
+    from PySide6.QtCore import QSettings
+    from ringlight.app.window import MainWindow
+
+    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(window)
+    window.resize(1366, 768)
+    window.show()
+    qtbot.waitExposed(window)
+    window.activateWindow()
+    yield window
+    window.shutdown()

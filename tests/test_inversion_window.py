@@ -7,26 +7,13 @@ import json
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QSettings, Qt
-from ringlight.app.window import MainWindow
+from PySide6.QtCore import Qt
 from ringlight.core.dataset.impulse_dataset import open_dataset
 from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.report import invert_region
 from ringlight.core.simulate.samples import sample_folder
 
 TIMEOUT_MS = 240_000
-
-
-@pytest.fixture
-def window(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
-    qtbot.addWidget(window)
-    window.resize(1366, 768)
-    window.show()
-    qtbot.waitExposed(window)
-    window.activateWindow()
-    yield window
-    window.shutdown()
 
 
 def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, window, tmp_path):

@@ -6,26 +6,13 @@ import threading
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
-from PySide6.QtCore import QSettings
 from reference import random_impulses, write_dataset
-from ringlight.app.window import MainWindow
 from ringlight.core import open_dataset
 from ringlight.core.dataset import impulse_dataset, response_store
 from ringlight.core.dataset.impulse_dataset import disc_offset_count
 from ringlight.core.rings.profiles import pixel_profile
 
 TIMEOUT_MS = 120_000
-
-
-@pytest.fixture
-def window(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
-    qtbot.addWidget(window)
-    window.resize(1366, 768)
-    window.show()
-    qtbot.waitExposed(window)
-    yield window
-    window.shutdown()
 
 
 @pytest.fixture

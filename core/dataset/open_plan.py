@@ -7,7 +7,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import cache
-from .impulse_dataset import WHOLE_READ_BYTES, disc_offset_count, effective_max_radius, fits_in_memory
+from .impulse_dataset import (
+    WHOLE_READ_BYTES,
+    disc_offset_count,
+    effective_max_radius,
+    fits_in_memory,
+    response_memory_bytes,
+)
 from .manifest import Manifest
 from .memory import format_bytes, memory_budget
 from .response_store import stored_entry_bytes
@@ -54,5 +60,5 @@ def plan_open(manifest: Manifest, radius: float | None = None, budget: int | Non
     offsets = disc_offset_count(max_radius)
     location = cache.cache_location(manifest.folder)
     stored = stored_entry_bytes(location, cache.cache_key(manifest, max_radius))
-    return OpenPlan(max_radius, offsets, manifest.height * manifest.width * offsets * 12,
+    return OpenPlan(max_radius, offsets, response_memory_bytes((manifest.height, manifest.width), max_radius),
                     memory_budget() if budget is None else budget, location, stored)

@@ -184,9 +184,8 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
     try:
         if not stat.S_ISDIR(os.lstat(location).st_mode):
             return None
-        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16) \
-            if stat.S_ISREG(os.lstat(location / META).st_mode) else None
-        if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
+        meta = _current_meta(location, key)
+        if meta is None:
             return None
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
@@ -223,13 +222,20 @@ def stored_entry_bytes(location: Path, key: str) -> int | None:
     """Bytes on disk of the entry at ``location`` when its key is ``key``, else None (no chunk
     is read)."""
     try:
-        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16) \
-            if stat.S_ISREG(os.lstat(location / META).st_mode) else None
+        return None if _current_meta(location, key) is None else entry_bytes(location)
     except (OSError, RinglightError):
         return None
+
+
+def _current_meta(location: Path, key: str) -> dict | None:
+    """The entry's meta.json when it is a regular file of this layout written for ``key``, else
+    None (raises OSError or RinglightError for a file that cannot be read)."""
+    if not stat.S_ISREG(os.lstat(location / META).st_mode):
+        return None
+    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16)
     if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
         return None
-    return entry_bytes(location)
+    return meta
 
 
 def entry_bytes(location: Path) -> int:
