@@ -165,3 +165,23 @@ def test_unwritable_dataset_folder_caches_in_the_user_folder(dataset, private_ca
 def test_cache_can_be_bypassed(dataset):
     open_dataset(dataset, radius=4, use_cache=False)
     assert not (dataset / CACHE_FOLDER_NAME).exists()
+
+
+def test_the_store_of_a_smooth_half_float_capture_is_smaller_than_its_frames(tmp_path):
+    """Offset-major chunks (one offset's responses over neighbouring points, a smooth image)
+    compress the store below the EXR frames' size: 0.71x here, where point-major chunks took 1.24x."""
+    size, radius = 48, 6
+    yy, xx = np.mgrid[0:size, 0:size]
+    impulses = {}
+    for qy in range(size):
+        for qx in range(size):
+            distance = np.hypot(yy - qy, xx - qx)
+            falloff = np.exp(-distance / 3.0) * (1.0 + 0.2 * np.sin(0.05 * (qy + 2 * qx)))
+            falloff[distance > radius] = 0.0
+            impulses[(qy, qx)] = (falloff[..., None] * [0.9, 0.6, 0.3]).astype(np.float32)
+    write_dataset(tmp_path / "ds", size, size, impulses, max_radius=radius, multiplex=True, half=True)
+    opened = open_dataset(tmp_path / "ds")
+    frames = sum(path.stat().st_size for path in (tmp_path / "ds" / "frames").iterdir())
+    store = sum(path.stat().st_size for path in (tmp_path / "ds" / CACHE_FOLDER_NAME).rglob("*") if path.is_file())
+    assert opened.responses is not None and opened.responses.any()
+    assert store < 0.85 * frames, (store, frames)
