@@ -20,13 +20,15 @@ from ringlight.core.colour.display import (
     display_levels,
     negative_fraction,
     render,
+    shown_values,
 )
 from ringlight.core.colour.regions import region_statistics
-from ringlight.core.dataset.ground_truth import normalised_cross_correlation
+from ringlight.core.dataset.ground_truth import normalised_cross_correlation, scaled_difference
 from ringlight.core.rings.noise import StackNoise, median_snr, smoothed, stack_noise, transient_snr
 from ringlight.core.rings.profiles import pixel_profile, stack_profile
 from ringlight.core.rings.stack_request import StackPair
-from ringlight.widgets.snr_colours import SNR_COLORMAP, SNR_LEVELS, snr_colormap, snr_rgb
+from ringlight.widgets.colormaps import bar_colormap, lut
+from ringlight.widgets.snr_colours import SNR_LEVELS, set_snr_colormap, snr_colormap, snr_colormap_name, snr_rgb
 
 SNR_LABEL = "SNR = |Y(T_r)| / SE"
 
@@ -184,8 +186,26 @@ class ExploreView:
             return self._impulse_cache[1]
         if view == "snr":
             return None if self.noise is None else self.noise.snr[self.radius_index()]
+        if view == "difference":
+            return self._difference_image()
         stack = self.stacks.pair.transient if view == "transient" else self.stacks.pair.ring
         return stack.images[self.radius_index()]
+
+    def _difference_image(self) -> np.ndarray | None:
+        """T_r minus the least-squares multiple of its ground-truth bin (None without truth);
+        keeps the scale in ``_difference_scale`` for the title."""
+        truth = self.loaded.truth
+        if truth is None:
+            return None
+        index = self.radius_index()
+        bin_index = truth.nearest_bin(float(self.stacks.pair.radii[index]), self.stacks.pair.request.dr)
+        transient = self.stacks.pair.transient.images[index]
+        difference, self._difference_scale = scaled_difference(transient, truth.images[bin_index])
+        finite = np.isfinite(difference)
+        energy = float(np.sqrt(np.mean(np.square(transient[finite], dtype=np.float64)))) if finite.any() else 0.0
+        rms = float(np.sqrt(np.mean(np.square(difference[finite], dtype=np.float64)))) if finite.any() else float("nan")
+        self._difference_rms = rms / energy if energy > 0 else float("nan")
+        return difference
 
     def _request_impulse(self, dataset: ImpulseDataset, point: tuple[int, int]) -> None:
         """Read the impulse image of ``point`` from the store in a worker (one at a time; the
@@ -209,14 +229,44 @@ class ExploreView:
         return self._levels
 
     def _levels_for(self, image: np.ndarray, settings: DisplaySettings, source: str) -> tuple[float, float]:
-        if settings.normalisation != "global" or source in ("impulse", "steady"):
-            return display_levels(image, settings)
-        key = (source, id(self.stacks), settings.percentile, settings.diverging)
+        colorspace = self.loaded.dataset.colorspace
+        if settings.normalisation != "global" or source in ("impulse", "steady", "difference"):
+            return display_levels(image, settings, colorspace)
+        key = (source, id(self.stacks), settings.percentile, settings.diverging, settings.channel)
         if key not in self._global_levels:
             values = self.loaded.truth.images if source == "truth" else (
                 self.stacks.pair.transient.images if source == "transient" else self.stacks.pair.ring.images)
-            self._global_levels[key] = display_levels(values, settings)
+            self._global_levels[key] = display_levels(values, settings, colorspace)
         return self._global_levels[key]
+
+    def shown_settings(self) -> DisplaySettings:
+        """The display settings the current view is drawn with: the user's, except that a
+        difference is always signed."""
+        settings = self.display_settings()
+        return settings.with_changes(diverging=True) if self.view() == "difference" else settings
+
+    def _scalar_map(self, settings: DisplaySettings) -> tuple[str | None, np.ndarray | None]:
+        """Name and table of the colour map a scalar view is drawn with ((None, None) for colour)."""
+        if not settings.scalar:
+            return None, None
+        name = self.display_controls.colormap_name("signed" if settings.diverging else "channel")
+        return name, lut(name)
+
+    def _show_colour_bar(self, settings: DisplaySettings, name: str | None) -> None:
+        """The colour bar of a scalar view: the data values at the two levels (before exposure;
+        log10 of them on the log scale)."""
+        if name is None:
+            self.image_panel.set_colour_bar(None)
+            return
+        gain = 2.0 ** settings.exposure_stops
+        low, high = (level / gain for level in self._levels)
+        quantity = "Y" if settings.diverging or settings.channel == "Y" else settings.channel
+        if settings.diverging:
+            low, high = -max(abs(low), abs(high)), max(abs(low), abs(high))
+        if settings.normalisation == "log" and not settings.diverging:
+            low, high = np.log10(max(low, high * 1e-12)), np.log10(high)
+            quantity = f"log10 {quantity}"
+        self.image_panel.set_colour_bar((float(low), float(high)), bar_colormap(name, settings), quantity)
 
     def _refresh_all(self) -> None:
         self.request_noise()  # again after a cancel (Esc): any change of view brings it back
@@ -230,26 +280,32 @@ class ExploreView:
             return
         image = self.current_image()
         if image is None:
+            if self.view() == "difference" and self.loaded is not None and self.loaded.truth is None:
+                self._shown_image = None
+                self.image_panel.set_title("T_r minus ground truth: this dataset has no ground truth\n"
+                                           "(simulated datasets carry it)")
             return
-        settings = self.display_settings()
+        settings = self.shown_settings()
         view = self.view()
         colorspace = self.loaded.dataset.colorspace
         self._levels = self._levels_for(image, settings, view)
         self._shown_image = image
-        pixels = render(image, self._levels, settings, colorspace)
+        name, table = self._scalar_map(settings)
+        pixels = render(image, self._levels, settings, colorspace, table)
         sigma = self.display_controls.denoise_sigma()
         if sigma > 0 and view in ("ring", "transient"):
             # Display only: the levels and the hover readout stay those of the data.
             exports = "exports denoised too" if self.display_controls.denoise_exports() else "exports raw"
-            self.image_panel.set_pixels(pixels, render(smoothed(image, sigma), self._levels, settings, colorspace),
+            self.image_panel.set_pixels(pixels, render(smoothed(image, sigma), self._levels, settings, colorspace, table),
                                         f"denoised for display:\nGaussian sigma {sigma:g} grid steps\n{exports}")
         else:
             self.image_panel.set_pixels(pixels)
-        self.image_panel.set_colour_bar(None)
+        self._show_colour_bar(settings, name)
         self.image_panel.set_title(self._image_title())
-        self.display_controls.show_levels(self._levels, negative_fraction(image))
-        self.levels_histogram.set_image(image, self._levels, 2.0 ** settings.exposure_stops)
-        self._refresh_truth(settings, colorspace)
+        shown = shown_values(image, settings, colorspace) if settings.scalar else image
+        self.display_controls.show_levels(self._levels, 0.0 if settings.diverging else negative_fraction(shown))
+        self.levels_histogram.set_image(shown, self._levels, 2.0 ** settings.exposure_stops)
+        self._refresh_truth(self.display_settings(), colorspace)
         self.show_region_statistics()
         self.image_shown.emit()
 
@@ -261,6 +317,8 @@ class ExploreView:
             self._shown_image = None
             self.image_panel.set_title("SNR map of T_r: estimating the noise (status bar) ...")
             return
+        set_snr_colormap(self.display_controls.colormap_name("snr"))
+        self.scrub_bar.snr_strip.update()
         image = self.noise.snr[self.radius_index()]
         self._levels = SNR_LEVELS
         self._shown_image = image
@@ -305,9 +363,14 @@ class ExploreView:
         radius = self.stacks.pair.radii[self.radius_index()]
         if view == "ring":
             return f"E_r  r = {radius:g}  w = {request.thickness:g}"
+        if view == "difference":
+            truth = self.loaded.truth
+            low, high = truth.bounds[truth.nearest_bin(radius, request.dr)]
+            return (f"T_r - a truth  r = {radius:g}  dr = {request.dr:g}  truth [{low:g}, {high:g})\n"
+                    f"a = {self._difference_scale:.4g}  RMS diff / RMS T_r {self._difference_rms:.3f}")
         if view == "snr":
             return (f"SNR of T_r  r = {radius:g}  dr = {request.dr:g}\n"
-                    f"{SNR_COLORMAP} {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g} (above: {SNR_LEVELS[1]:g})\n"
+                    f"{snr_colormap_name()} {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g} (above: {SNR_LEVELS[1]:g})\n"
                     f"grey: < 2 ring members")
         return f"T_r  r = {radius:g}  dr = {request.dr:g}  w = {request.thickness:g}"
 
@@ -322,7 +385,7 @@ class ExploreView:
         image = truth.images[bin_index]
         truth_settings = settings if settings.normalisation != "manual" else settings.with_changes(normalisation="per-image")
         levels = self._levels_for(image, truth_settings, "truth")
-        self.truth_panel.set_pixels(render(image, levels, truth_settings, colorspace))
+        self.truth_panel.set_pixels(render(image, levels, truth_settings, colorspace, self._scalar_map(truth_settings)[1]))
         low, high = truth.bounds[bin_index]
         current = normalised_cross_correlation(self.stacks.pair.transient.images[index], image)
         mean = float(np.nanmean(self.stacks.correlations)) if np.isfinite(self.stacks.correlations).any() else float("nan")

@@ -17,8 +17,10 @@ from ringlight.core.colour.display import (
     UNDEFINED_RGB,
     DisplaySettings,
     display_levels,
+    diverging_lut,
     negative_fraction,
     render,
+    scalar_lut,
 )
 from ringlight.core.colour.image_export import (
     ExportError,
@@ -30,6 +32,7 @@ from ringlight.core.colourspaces import colour_module
 from ringlight.core.dataset.ground_truth import (
     PathLengthImages,
     normalised_cross_correlation,
+    scaled_difference,
 )
 from ringlight.core.rings.profiles import pixel_profile, profile_rings
 from ringlight.core.rings.stack_request import (
@@ -70,7 +73,8 @@ def test_levels_are_robust_maxima_of_finite_values_and_never_zero():
     values = np.concatenate([np.linspace(0, 1, 1001), [np.nan, np.inf, 1e6]]).astype(np.float32)
     low, high = display_levels(values, DisplaySettings(percentile=50))
     assert low == 0 and high == pytest.approx(np.percentile(values[np.isfinite(values)], 50))
-    assert display_levels(-values, DisplaySettings(percentile=50, diverging=True))[1] == pytest.approx(high)
+    grey = np.repeat(-values[:, None], 3, axis=1)  # a signed view's levels are its luminance's
+    assert display_levels(grey, DisplaySettings(percentile=50, diverging=True))[1] == pytest.approx(high)
     assert display_levels(np.zeros(4), DisplaySettings()) == (0.0, 1.0)
     assert display_levels(values, DisplaySettings(normalisation="log", percentile=50, log_decades=2))[0] == pytest.approx(high / 100)
     assert display_levels(values, DisplaySettings(normalisation="manual", manual_levels=(-1, 3))) == (-1.0, 3.0)
@@ -86,6 +90,73 @@ def test_diverging_map_is_white_at_zero_and_symmetric_in_sign():
     assert (pixels[0, 1] == 247).all()  # RdBu centre
     assert pixels[0, 0, 2] > pixels[0, 0, 0] and pixels[0, 2, 0] > pixels[0, 2, 2]
     assert negative_fraction(image) == pytest.approx(3 / 9)  # one pixel of three, all channels
+
+
+def test_one_channel_views_show_that_channel_or_luminance_through_the_map():
+    rng = np.random.default_rng(1)
+    image = rng.uniform(0, 2, (4, 5, 3)).astype(np.float32)
+    image[0, 0, 2] = np.nan
+    colour = colour_module()
+    for channel, values in (("R", image[..., 0]), ("B", image[..., 2]),
+                            ("Y", colour.RGB_to_XYZ(image, "ACEScg")[..., 1])):
+        settings = DisplaySettings(channel=channel)
+        low, high = display_levels(image, settings, "ACEScg")
+        finite = values[np.isfinite(values)]
+        assert (low, high) == (0.0, pytest.approx(np.percentile(finite, 99.5), rel=1e-5))
+        pixels = render(image, (0.0, 1.5), settings, "ACEScg").astype(int)
+        expected = np.round(colour.cctf_encoding(np.clip(np.nan_to_num(values) / 1.5, 0, 1), function="sRGB") * 255)
+        assert tuple(pixels[0, 0]) == UNDEFINED_RGB
+        grey = pixels.reshape(-1, 3)[1:]
+        assert (grey[:, 0] == grey[:, 1]).all() and (grey[:, 1] == grey[:, 2]).all()
+        assert np.abs(pixels[..., 0] - expected)[1:].max() <= 1
+    lut = np.stack([np.arange(256), 255 - np.arange(256), np.full(256, 7)], -1).astype(np.uint8)
+    pixels = render(image, (0.5, 1.5), DisplaySettings(channel="G"), "sRGB", lut)
+    position = np.clip((image[..., 1] - 0.5) / 1.0, 0, 1)
+    np.testing.assert_array_equal(pixels[1:, :, 0], np.round(position * 255)[1:])
+    assert (pixels[1:, :, 2] == 7).all()
+    decades = render(np.array([[[1e-3, 0, 0], [1e-1, 0, 0], [1.0, 0, 0]]], np.float32), (1e-3, 1.0),
+                     DisplaySettings(channel="R", normalisation="log", log_decades=3))
+    assert decades[0, :, 0].tolist() == [0, 170, 255]  # log10 positions 0, 2/3, 1 on a plain ramp
+
+
+def test_a_diverging_map_given_as_a_table_puts_zero_at_its_middle():
+    image = np.array([[[-2.0] * 3, [0.0] * 3, [2.0] * 3]], np.float32)
+    lut = np.stack([np.arange(255), np.arange(255), np.arange(255)], -1).astype(np.uint8)  # 255 entries
+    pixels = render(image, (-2.0, 2.0), DisplaySettings(diverging=True), "sRGB", lut)
+    assert pixels[0, :, 0].tolist() == [0, 127, 254]
+    builtin = diverging_lut(11)
+    assert builtin[5].tolist() == [247, 247, 247] and builtin[0].tolist() == [5, 48, 97]
+
+
+@pytest.mark.parametrize("settings", [DisplaySettings(channel="R"), DisplaySettings(channel="Y", normalisation="log"),
+                                      DisplaySettings(diverging=True)])
+def test_a_colour_bar_table_holds_the_colours_render_gives_from_low_to_high(settings):
+    levels = (-2.0, 2.0) if settings.diverging else (0.01, 10.0)
+    entries = 64
+    if settings.diverging:
+        values = np.linspace(-2.0, 2.0, entries)
+    elif settings.normalisation == "log":
+        values = np.geomspace(0.01, 10.0, entries)
+    else:
+        values = np.linspace(0.01, 10.0, entries)
+    image = np.repeat(values[None, :, None], 3, axis=2).astype(np.float32)  # grey: Y equals each channel
+    pixels = render(image, levels, settings).astype(int)
+    assert np.abs(pixels[0] - scalar_lut(settings, entries=entries).astype(int)).max() <= 2
+
+
+def test_scaled_difference_removes_the_least_squares_multiple_of_the_truth():
+    rng = np.random.default_rng(2)
+    truth = rng.uniform(0, 1, (6, 7, 3))
+    transient = 3.5 * truth + rng.normal(0, 0.01, truth.shape)
+    transient[0, 0, 0] = np.nan
+    difference, scale = scaled_difference(transient, truth)
+    finite = np.isfinite(transient)
+    reference, *_ = np.linalg.lstsq(truth[finite][:, None], transient[finite], rcond=None)
+    assert scale == pytest.approx(reference[0], rel=1e-12)
+    np.testing.assert_allclose(difference[finite], transient[finite] - reference[0] * truth[finite], atol=1e-6)
+    assert np.isnan(difference[0, 0, 0]) and np.isfinite(difference[finite]).all()
+    empty, none = scaled_difference(transient, np.zeros_like(truth))
+    assert math.isnan(none) and np.isnan(empty).all()
 
 
 @pytest.mark.parametrize("antialias", [False, True])

@@ -177,7 +177,7 @@ def test_each_slider_step_shows_the_stack_slice_under_the_chosen_normalisation(q
     open_and_wait(qtbot, window, dataset)
     controls = window.display_controls
     if mode == "diverging":
-        controls.diverging_box.setChecked(True)
+        controls.shown_box.setCurrentIndex(controls.shown_box.findData("signed"))
     else:
         controls.normalisation_box.setCurrentIndex(controls.normalisation_box.findData(mode))
     if mode == "manual":

@@ -1,5 +1,5 @@
-"""Controls for what the image view shows and how: view, normalisation, levels, exposure, and a
-display-only denoise."""
+"""Controls for what the image view shows and how: view, channel and colour map, normalisation,
+levels, exposure, and a display-only denoise."""
 
 from __future__ import annotations
 
@@ -21,14 +21,28 @@ from PySide6.QtWidgets import (
 )
 from ringlight.core.colour.display import NORMALISATIONS, DisplaySettings
 
+from .colormaps import MAPS
+
 VIEWS = {
     "transient": "Transient T_r",
     "ring": "Ring light E_r",
     "impulse": "Impulse image of picked point",
     "steady": "Steady state (all lit)",
     "snr": "SNR map of T_r (|T_r| / SE)",
+    "difference": "T_r minus ground truth (scaled)",
 }
 """View keys and their labels (the window's View menu numbers them Ctrl+1, Ctrl+2, ...)."""
+
+SHOWN = {
+    "rgb": "Colour (RGB)",
+    "Y": "Luminance Y",
+    "signed": "Signed Y (diverging)",
+    "R": "Channel R",
+    "G": "Channel G",
+    "B": "Channel B",
+}
+"""What of an image is shown (a :data:`~ringlight.core.colour.display.CHANNELS` entry, or signed
+luminance on a diverging map, which keeps negative transients visible) and its labels."""
 
 _NORMALISATION_LABELS = {
     "per-image": "Per image (robust max)",
@@ -47,7 +61,8 @@ class DisplayControls(QWidget):
     view_changed(str)
         A key of :data:`VIEWS`.
     settings_changed(object)
-        A new :class:`DisplaySettings`.
+        A new :class:`DisplaySettings` (also sent when the colour map changes:
+        :meth:`colormap_name` gives it).
     profile_log_changed(bool)
         Whether the profile plots use a log y axis.
     denoise_changed(float, bool)
@@ -91,8 +106,14 @@ class DisplayControls(QWidget):
         reset = QToolButton(text="0")
         reset.setToolTip("Reset exposure")
         reset.clicked.connect(lambda: self.exposure_slider.setValue(0))
-        self.diverging_box = QCheckBox("Signed (diverging map)")
-        self.diverging_box.setToolTip("Show signed luminance, blue < 0 < red, so negative transients stay visible")
+        self.shown_box = QComboBox()
+        for key, label in SHOWN.items():
+            self.shown_box.addItem(label, key)
+        self.shown_box.setToolTip("Colour, one channel or luminance; signed luminance shows negative transients "
+                                  "on a diverging map (blue < 0 < red) instead of clipping them to black")
+        self.map_box = QComboBox()
+        self.map_box.setToolTip("Colour map of one-channel, signed and SNR views (colour views have none)")
+        self._maps = {kind: names[0] for kind, names in MAPS.items()}
         self.profile_log_box = QCheckBox("Profiles: log y")
         self.denoise_box = QCheckBox("Denoise display: Gaussian")
         self.denoise_box.setToolTip("Blur E_r and T_r images on screen only (NaN pixels stay undefined); "
@@ -107,8 +128,10 @@ class DisplayControls(QWidget):
         self.denoise_exports_box = QCheckBox("Denoise exports too")
         self.denoise_exports_box.setToolTip("Also blur the exported view PNGs (off: exports hold the raw values)")
         self.levels_label = QLabel()
-        self.levels_label.setWordWrap(True)
         self.levels_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        # Two lines always, the second for the negative-values notice: text that comes and goes
+        # must not change the dock's height (and with it the window's).
+        self.levels_label.setFixedHeight(2 * self.levels_label.fontMetrics().lineSpacing() + 2)
 
         levels = QHBoxLayout()
         levels.addWidget(self.low_edit)
@@ -117,31 +140,35 @@ class DisplayControls(QWidget):
         exposure.addWidget(self.exposure_slider, 1)
         exposure.addWidget(self.exposure_label)
         exposure.addWidget(reset)
+        shown = QHBoxLayout()
+        shown.addWidget(self.shown_box, 3)
+        shown.addWidget(self.map_box, 2)
         denoise = QHBoxLayout()
         denoise.addWidget(self.denoise_box)
         denoise.addWidget(self.sigma_box)
         layout = QFormLayout(self)
         layout.addRow("View", self.view_box)
+        layout.addRow("Show", shown)
         layout.addRow("Normalise", self.normalisation_box)
         layout.addRow("Robust max", self.percentile_box)
         layout.addRow("Levels", levels)
         layout.addRow("Log range", self.decades_box)
         layout.addRow("Exposure", exposure)
-        layout.addRow(self.diverging_box)
         layout.addRow(self.levels_label)
         layout.addRow(self.profile_log_box)
         layout.addRow(denoise)
         layout.addRow(self.denoise_exports_box)
 
         self.set_settings(DisplaySettings())
-        self.view_box.currentIndexChanged.connect(lambda _: self.view_changed.emit(self.view()))
+        self.view_box.currentIndexChanged.connect(self._on_view_edited)
         self.normalisation_box.currentIndexChanged.connect(self._on_edited)
         self.percentile_box.valueChanged.connect(self._on_edited)
         self.low_edit.editingFinished.connect(self._on_edited)
         self.high_edit.editingFinished.connect(self._on_edited)
         self.decades_box.valueChanged.connect(self._on_edited)
         self.exposure_slider.valueChanged.connect(self._on_edited)
-        self.diverging_box.toggled.connect(self._on_edited)
+        self.shown_box.currentIndexChanged.connect(self._on_edited)
+        self.map_box.currentIndexChanged.connect(self._on_map_edited)
         self.profile_log_box.toggled.connect(self.profile_log_changed)
         self.denoise_box.toggled.connect(self._on_denoise_edited)
         self.sigma_box.valueChanged.connect(self._on_denoise_edited)
@@ -150,6 +177,28 @@ class DisplayControls(QWidget):
 
     def view(self) -> str:
         return self.view_box.currentData()
+
+    def map_kind(self) -> str | None:
+        """The kind of colour map (:data:`~ringlight.widgets.colormaps.KINDS`) the current view
+        uses, or None for a colour view."""
+        if self.view() == "snr":
+            return "snr"
+        if self.view() == "difference":
+            return "signed"  # a difference is always shown signed
+        shown = self.shown_box.currentData()
+        return None if shown == "rgb" else "signed" if shown == "signed" else "channel"
+
+    def colormap_name(self, kind: str) -> str:
+        """The map chosen for ``kind`` (its default until the user picks one)."""
+        return self._maps[kind]
+
+    def set_colormap_name(self, kind: str, name: str) -> None:
+        """Choose map ``name`` for ``kind`` (shown in the box when that kind is on screen)."""
+        if name not in MAPS[kind]:
+            raise ValueError(f"{kind} colour map must be one of {MAPS[kind]}, got {name!r}")
+        self._maps[kind] = name
+        self._update_map_box()
+        self._on_edited()
 
     def set_view(self, key: str) -> None:
         self.view_box.setCurrentIndex(list(VIEWS).index(key))
@@ -169,14 +218,15 @@ class DisplayControls(QWidget):
             percentile=self.percentile_box.value(),
             manual_levels=(low, high),
             exposure_stops=self.exposure_slider.value() / _EXPOSURE_TICKS_PER_STOP,
-            diverging=self.diverging_box.isChecked(),
+            diverging=self.shown_box.currentData() == "signed",
             log_decades=self.decades_box.value(),
+            channel=self.shown_box.currentData() if self.shown_box.currentData() != "signed" else "rgb",
         )
 
     def set_settings(self, settings: DisplaySettings) -> None:
         """Show ``settings`` without emitting."""
         widgets = (self.normalisation_box, self.percentile_box, self.decades_box, self.exposure_slider,
-                   self.diverging_box)
+                   self.shown_box)
         for widget in widgets:
             widget.blockSignals(True)
         self.normalisation_box.setCurrentIndex(NORMALISATIONS.index(settings.normalisation))
@@ -185,18 +235,21 @@ class DisplayControls(QWidget):
         self.high_edit.setText(f"{settings.manual_levels[1]:.6g}")
         self.decades_box.setValue(settings.log_decades)
         self.exposure_slider.setValue(int(round(settings.exposure_stops * _EXPOSURE_TICKS_PER_STOP)))
-        self.diverging_box.setChecked(settings.diverging)
+        self.shown_box.setCurrentIndex(list(SHOWN).index("signed" if settings.diverging else settings.channel))
         for widget in widgets:
             widget.blockSignals(False)
         self._update_enabled(settings)
 
     def show_levels(self, levels: tuple[float, float], negative_fraction: float) -> None:
-        """Report the levels in use and how much of the image is negative (clipped to black
-        unless the diverging map is on)."""
+        """Report the levels in use and how much of the image is negative and clipped to black
+        (the caller passes 0 for a view drawn signed)."""
         text = f"Levels in use: {levels[0]:.4g} .. {levels[1]:.4g}"
-        if negative_fraction > 0 and not self.diverging_box.isChecked():
-            text += f"<br><b>{negative_fraction:.1%} of values are negative</b>, drawn black: tick Signed to see them."
+        clipped = negative_fraction > 0
+        if clipped:
+            text += f"<br><b>{negative_fraction:.1%} negative</b>, drawn black (Show: Signed Y)"
         self.levels_label.setText(text)
+        self.levels_label.setToolTip("Values below the black level are drawn black; choose Show: Signed Y "
+                                     "to see negative transients on a diverging map" if clipped else "")
 
     def _update_enabled(self, settings: DisplaySettings) -> None:
         manual = settings.normalisation == "manual"
@@ -205,6 +258,30 @@ class DisplayControls(QWidget):
         self.percentile_box.setEnabled(not manual)
         self.decades_box.setEnabled(settings.normalisation == "log")
         self.exposure_label.setText(f"{settings.exposure_stops:+.1f} EV")
+        self._update_map_box()
+
+    def _update_map_box(self) -> None:
+        """The map box lists the maps of the kind on screen, showing the one chosen for it."""
+        kind = self.map_kind()
+        self.map_box.blockSignals(True)
+        self.map_box.clear()
+        if kind is None:
+            self.map_box.addItem("no map")
+        else:
+            self.map_box.addItems(MAPS[kind])
+            self.map_box.setCurrentText(self._maps[kind])
+        self.map_box.setEnabled(kind is not None)
+        self.map_box.blockSignals(False)
+
+    def _on_view_edited(self, _index: int) -> None:
+        self._update_map_box()
+        self.view_changed.emit(self.view())
+
+    def _on_map_edited(self, _index: int) -> None:
+        kind = self.map_kind()
+        if kind is not None and self.map_box.currentText() in MAPS[kind]:
+            self._maps[kind] = self.map_box.currentText()
+            self._on_edited()
 
     def _on_denoise_edited(self, *_) -> None:
         self.sigma_box.setEnabled(self.denoise_box.isChecked())

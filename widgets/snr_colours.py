@@ -1,22 +1,39 @@
 """One colour scale for signal-to-noise ratios, shared by the SNR map, its colour bar and the
-scrub bar's SNR strip: matplotlib's perceptually uniform ``viridis`` (as pyqtgraph ships it)
-over SNR 0 .. 10, values above 10 drawn as 10."""
+scrub bar's SNR strip: over SNR 0 .. 10, values above 10 drawn as 10, through one colour map for
+all three (matplotlib's perceptually uniform ``viridis`` unless the user picks another of
+:data:`ringlight.widgets.colormaps.MAPS` ``["snr"]``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
 
-SNR_COLORMAP = "viridis"
+from .colormaps import MAPS
+
 SNR_LEVELS = (0.0, 10.0)
 TRUSTED_SNR = 3.0
 """SNR from which a transient counts as signal (the Layers tab's trusted flag uses the same)."""
 UNDEFINED_RGB = (72, 72, 80)
 """Pixels without an SNR (fewer than 2 ring members): the image views' undefined grey."""
+_current = {"name": MAPS["snr"][0]}
+
+
+def snr_colormap_name() -> str:
+    return _current["name"]
+
+
+def set_snr_colormap(name: str) -> None:
+    """Use map ``name`` (one of ``MAPS["snr"]``) for every SNR display from now on."""
+    if name not in MAPS["snr"]:
+        raise ValueError(f"SNR colour map must be one of {MAPS['snr']}, got {name!r}")
+    _current["name"] = name
 
 
 def snr_colormap() -> pg.ColorMap:
-    return pg.colormap.get(SNR_COLORMAP)
+    name = _current["name"]
+    if name == "grey":  # a plain ramp: SNR is not a radiance, so no display encoding
+        return pg.ColorMap([0.0, 1.0], [(0, 0, 0), (255, 255, 255)], name=name)
+    return pg.colormap.get(name)
 
 
 def snr_rgb(snr: np.ndarray) -> np.ndarray:

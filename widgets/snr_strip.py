@@ -8,7 +8,7 @@ from PySide6.QtCore import QEvent, QRect, QSize, Qt
 from PySide6.QtGui import QBrush, QColor, QPainter, QPen
 from PySide6.QtWidgets import QToolTip, QWidget
 
-from .snr_colours import SNR_COLORMAP, SNR_LEVELS, TRUSTED_SNR, snr_rgb
+from .snr_colours import SNR_LEVELS, TRUSTED_SNR, snr_colormap_name, snr_rgb
 
 
 class SnrStrip(QWidget):
@@ -82,7 +82,7 @@ class SnrStrip(QWidget):
                   "inf (standard error 0: the ring members agree exactly)" if np.isinf(value) else f"{value:.3g}")
         verdict = "" if np.isnan(value) else (" >= " if value >= TRUSTED_SNR else " < ") + f"{TRUSTED_SNR:g}"
         return (f"r = {self._radii[index]:g}: {self._description} {number}{verdict}\n"
-                f"colour: {SNR_COLORMAP} over SNR {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g}{coverage}")
+                f"colour: {snr_colormap_name()} over SNR {SNR_LEVELS[0]:g}..{SNR_LEVELS[1]:g}{coverage}")
 
     def paintEvent(self, event) -> None:
         count = self._count()

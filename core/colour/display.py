@@ -10,6 +10,12 @@ Pipeline for one (H, W, 3) linear image in a dataset's colourspace::
     log mode             log10(v / low) / log10(high / low) per channel, no further encoding
     diverging mode       luminance Y / max(|low|, |high|) in [-1, 1] through a blue-white-red
                          map, so negative transient values are shown, not clipped
+    one channel          R, G, B or luminance Y alone, (v - low) / (high - low) (or the log
+                         scale) through a colour map: grey (sRGB-encoded on linear scales)
+                         unless the caller passes a table
+
+Colour maps other than the two built in here (grey, and ColorBrewer RdBu for signed values) come
+from the caller as a (256, 3) uint8 table, so that this module needs no GUI library.
 
 NaN (undefined: no ring member, unobserved point) is drawn as :data:`UNDEFINED_RGB`.
 """
@@ -25,6 +31,8 @@ import numpy as np
 from ..colourspaces import colour_module
 
 NORMALISATIONS = ("per-image", "global", "log", "manual")
+CHANNELS = ("rgb", "R", "G", "B", "Y")
+"""What an image view shows: colour, one channel, or luminance Y (the colourspace's)."""
 UNDEFINED_RGB = (72, 72, 80)
 """Display colour of NaN pixels: a neutral dark grey, distinct from black (zero radiance)."""
 
@@ -54,6 +62,8 @@ class DisplaySettings:
         Show signed luminance on a diverging map instead of colour.
     log_decades
         Dynamic range of ``"log"``: low = high / 10**log_decades.
+    channel
+        One of :data:`CHANNELS`; ignored when ``diverging`` (which always shows luminance).
     """
 
     normalisation: str = "per-image"
@@ -62,6 +72,7 @@ class DisplaySettings:
     exposure_stops: float = 0.0
     diverging: bool = False
     log_decades: float = 3.0
+    channel: str = "rgb"
 
     def __post_init__(self):
         if self.normalisation not in NORMALISATIONS:
@@ -70,6 +81,13 @@ class DisplaySettings:
             raise ValueError(f"percentile must be in (0, 100], got {self.percentile}")
         if self.log_decades <= 0:
             raise ValueError(f"log_decades must be > 0, got {self.log_decades}")
+        if self.channel not in CHANNELS:
+            raise ValueError(f"channel must be one of {CHANNELS}, got {self.channel!r}")
+
+    @property
+    def scalar(self) -> bool:
+        """Whether images are shown as one value per pixel through a colour map."""
+        return self.diverging or self.channel != "rgb"
 
     def with_changes(self, **changes) -> "DisplaySettings":
         return replace(self, **changes)
@@ -87,8 +105,9 @@ def robust_maximum(values: np.ndarray, percentile: float, signed: bool = False) 
     return float(np.percentile(flat, percentile))
 
 
-def display_levels(values: np.ndarray, settings: DisplaySettings) -> tuple[float, float]:
-    """(low, high) for ``values`` (one image, or a whole stack for ``"global"``).
+def display_levels(values: np.ndarray, settings: DisplaySettings, colorspace: str = "sRGB") -> tuple[float, float]:
+    """(low, high) for ``values`` (..., 3) linear RGB in ``colorspace`` (one image, or a whole
+    stack for ``"global"``), over the values shown (:func:`shown_values`).
 
     Linear modes give (0, robust max), or (-m, m) when diverging; log gives
     (max / 10**decades, max); manual gives the user's levels. A zero maximum becomes 1 so that
@@ -96,6 +115,8 @@ def display_levels(values: np.ndarray, settings: DisplaySettings) -> tuple[float
     """
     if settings.normalisation == "manual":
         return (float(settings.manual_levels[0]), float(settings.manual_levels[1]))
+    if settings.scalar:
+        values = shown_values(values, settings, colorspace)
     high = robust_maximum(values, settings.percentile, signed=settings.diverging)
     if not high > 0:
         high = 1.0
@@ -104,21 +125,53 @@ def display_levels(values: np.ndarray, settings: DisplaySettings) -> tuple[float
     return (-high, high) if settings.diverging else (0.0, high)
 
 
+def shown_values(image: np.ndarray, settings: DisplaySettings, colorspace: str = "sRGB") -> np.ndarray:
+    """The values a scalar view shows of ``image`` (..., 3) linear RGB in ``colorspace``:
+    (...) float32, the channel or the luminance Y (always Y when diverging); the image itself
+    for the colour view."""
+    image = np.asarray(image, np.float32)
+    if settings.diverging or settings.channel == "Y":
+        return image @ _luminance_weights(colorspace)
+    if settings.channel == "rgb":
+        return image
+    return image[..., "RGB".index(settings.channel)]
+
+
 def render(image: np.ndarray, levels: tuple[float, float], settings: DisplaySettings,
-           colorspace: str = "sRGB") -> np.ndarray:
-    """Screen pixels for ``image`` (H, W, 3) linear radiance: (H, W, 3) uint8 sRGB-encoded."""
+           colorspace: str = "sRGB", lut: np.ndarray | None = None) -> np.ndarray:
+    """Screen pixels for ``image`` (H, W, 3) linear radiance: (H, W, 3) uint8 sRGB-encoded for
+    the colour view; for a scalar view (:attr:`DisplaySettings.scalar`) the value's position
+    between the levels through ``lut`` ((n, 3) uint8 colour map, low to high; default: grey,
+    sRGB-encoded on linear scales, or RdBu when diverging)."""
     image = np.asarray(image, np.float32) * np.float32(2.0**settings.exposure_stops)
     undefined = ~np.isfinite(image).all(axis=-1)
     image = np.where(undefined[..., None], 0, image)
     low, high = levels
     if settings.diverging:
-        pixels = _diverging(image @ _luminance_weights(colorspace), max(abs(low), abs(high)))
+        pixels = _diverging(shown_values(image, settings, colorspace), max(abs(low), abs(high)), lut)
+    elif settings.channel != "rgb":
+        values = shown_values(image, settings, colorspace)
+        if settings.normalisation == "log":
+            position = _log_position(values, low, high)
+        else:
+            position = (values - np.float32(low)) * np.float32(1.0 / (high - low if high != low else 1.0))
+        position = np.clip(position, 0, 1)
+        pixels = _grey(position, settings.normalisation != "log") if lut is None else _through(position, lut)
     elif settings.normalisation == "log":
         pixels = _log_encoded(image, low, high)
     else:
         pixels = _colour_encoded(image @ _to_srgb_matrix(colorspace).T, low, high)
     pixels[undefined] = UNDEFINED_RGB
     return pixels
+
+
+def scalar_lut(settings: DisplaySettings, lut: np.ndarray | None = None, entries: int = 256) -> np.ndarray:
+    """(entries, 3) uint8: the colours :func:`render` gives a scalar view's values from the low
+    level to the high one (for a colour bar that matches the pixels)."""
+    position = np.linspace(0.0, 1.0, entries, dtype=np.float32)
+    if settings.diverging:
+        return _diverging(2 * position - 1, 1.0, lut)
+    return _grey(position, settings.normalisation != "log") if lut is None else _through(position, lut)
 
 
 def negative_fraction(image: np.ndarray) -> float:
@@ -137,20 +190,50 @@ def _colour_encoded(linear_srgb: np.ndarray, low: float, high: float) -> np.ndar
     return _srgb_encoding_table()[index]
 
 
-def _log_encoded(image: np.ndarray, low: float, high: float) -> np.ndarray:
+def _log_position(values: np.ndarray, low: float, high: float) -> np.ndarray:
+    """log10(v / low) / log10(high / low): 0 at ``low`` (and below), 1 at ``high``."""
     low = low if low > 0 else high * 1e-3
     high = high if high > low else low * 10
     with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = np.log10(np.maximum(image, np.float32(low)) / np.float32(low)) / np.float32(math.log10(high / low))
-    return np.clip(scaled * 255 + 0.5, 0, 255).astype(np.uint8)
+        return np.log10(np.maximum(values, np.float32(low)) / np.float32(low)) / np.float32(math.log10(high / low))
 
 
-def _diverging(luminance: np.ndarray, magnitude: float) -> np.ndarray:
+def _log_encoded(image: np.ndarray, low: float, high: float) -> np.ndarray:
+    return np.clip(_log_position(image, low, high) * 255 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _through(position: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Colours of ``position`` in [0, 1] (any shape) from the nearest entry of ``lut`` (n, 3)."""
+    index = np.clip(position * (len(lut) - 1) + 0.5, 0, len(lut) - 1).astype(np.int32)
+    return np.asarray(lut, np.uint8)[index]
+
+
+def _diverging(luminance: np.ndarray, magnitude: float, lut: np.ndarray | None = None) -> np.ndarray:
     magnitude = magnitude if magnitude > 0 else 1.0
     position = np.clip(luminance / np.float32(magnitude), -1, 1)
+    return _rdbu(position) if lut is None else _through((position + 1) / 2, lut)
+
+
+def _rdbu(position: np.ndarray) -> np.ndarray:
+    """(..., 3) uint8 ColorBrewer RdBu colours of ``position`` in [-1, 1] (white at 0)."""
     anchors = np.linspace(-1, 1, len(_DIVERGING_ANCHORS))
     channels = [np.interp(position, anchors, _DIVERGING_ANCHORS[:, c]) for c in range(3)]
     return (np.stack(channels, axis=-1) + 0.5).astype(np.uint8)
+
+
+def diverging_lut(entries: int = 256) -> np.ndarray:
+    """(entries, 3) uint8: the built-in signed map (RdBu), negative to positive."""
+    return _rdbu(np.linspace(-1, 1, entries))
+
+
+def _grey(position: np.ndarray, encoded: bool) -> np.ndarray:
+    """(..., 3) uint8 grey of ``position`` in [0, 1]: sRGB-encoded like the colour view (a grey
+    image looks the same in its R view), or a plain ramp for the log scale, which is not encoded
+    either."""
+    if not encoded:
+        return np.repeat(np.clip(position * 255 + 0.5, 0, 255).astype(np.uint8)[..., None], 3, axis=-1)
+    index = np.clip(position * (_ENCODING_TABLE_SIZE - 1) + 0.5, 0, _ENCODING_TABLE_SIZE - 1).astype(np.int32)
+    return np.repeat(_srgb_encoding_table()[index][..., None], 3, axis=-1)
 
 
 @functools.cache

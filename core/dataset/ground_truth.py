@@ -87,6 +87,23 @@ def normalised_cross_correlation(first: np.ndarray, second: np.ndarray) -> float
     return float((a * b).sum() / norm) if norm > 0 else float("nan")
 
 
+def scaled_difference(transient: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, float]:
+    """``transient - a * truth`` and ``a``, for two same-shape arrays (H, W, 3), with ``a`` the
+    least-squares scale of the truth onto the transient over the entries finite in both (the two
+    are in different units: NCC ignores that, a difference must match it first).
+
+    The difference is float32, NaN where either is not finite; ``a`` is NaN (and the difference
+    all NaN) when the truth is zero or not finite everywhere.
+    """
+    first = np.asarray(transient, np.float64)
+    second = np.asarray(truth, np.float64)
+    both = np.isfinite(first) & np.isfinite(second)
+    energy = float((second[both] ** 2).sum())
+    scale = float((first[both] * second[both]).sum() / energy) if energy > 0 else float("nan")
+    difference = np.where(both, first - scale * second, np.nan)
+    return difference.astype(np.float32), scale
+
+
 def stack_correlations(radii: np.ndarray, step: float, images: np.ndarray,
                        truth: PathLengthImages) -> np.ndarray:
     """(n,) NCC of each transient image ``images[i]`` (n, H, W, 3) with its nearest bin."""
