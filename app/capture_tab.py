@@ -91,8 +91,9 @@ class CaptureTab(QObject):
         def work(progress):
             options = parse_options(options_text.split())
             camera_options = {**options, **parse_options(camera_options_text.split())}
-            camera = make_device(self.discovery.cameras(), camera_name, camera_options)
-            projector = make_device(self.discovery.projectors(), projector_name, options)
+            # The camera first: a simulated rig is made (and its progress shown) then, and shared.
+            camera = make_device(self.discovery.cameras(), camera_name, camera_options, progress)
+            projector = make_device(self.discovery.projectors(), projector_name, options, progress)
             camera.open()
             projector.open()
             return camera, projector

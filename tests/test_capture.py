@@ -12,7 +12,7 @@ import pytest
 from reference import write_dataset
 from ringlight.app.main import main
 from ringlight.core import Cancelled, RinglightError, open_dataset, transient_stack
-from ringlight.core.capture.hardware import HardwareError, discover_plugins
+from ringlight.core.capture.hardware import HardwareError, discover_plugins, make_device
 from ringlight.core.capture.hdr import bracket_exposures, merge_brackets
 from ringlight.core.capture.scan import Scan
 from ringlight.core.capture.scan_plan import ScanError, ScanPaused, ScanPlan
@@ -223,6 +223,22 @@ def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys
     assert frame_files(tmp_path / "scan") == frame_files(tmp_path / "whole")
     assert main([*base[:-1], str(tmp_path / "whole")]) == 2  # never overwrites a dataset
     assert "already holds a finished dataset" in capsys.readouterr().err
+
+
+def test_opening_a_simulated_rig_reports_its_progress_and_a_reopen_is_instant():
+    """The simulated rig's making is most of an open (the simulator runs): its factory gets the
+    progress callback; factories that do not name one never see it."""
+    cameras = discover_plugins().cameras()
+    fractions = []
+    options = {"size": "6x5", "photons": "40", "seed": "11"}
+    camera = make_device(cameras, "simulated", options, fractions.append)
+    assert fractions and fractions[-1] == pytest.approx(1.0) and fractions == sorted(fractions)
+    again = []
+    assert make_device(cameras, "simulated", options, again.append).rig is camera.rig and again == []
+    seen = {}
+    plain = make_device({"plain": lambda **kwargs: seen.update(kwargs) or "device"}, "plain", {"a": "1"},
+                        fractions.append)
+    assert plain == "device" and seen == {"a": "1"}
 
 
 def test_opencv_camera_without_a_device_says_so():

@@ -58,8 +58,10 @@ def run_capture(args) -> int:
     if args.multiplex:
         s_matrix(args.multiplex)  # refuses an order that has no code before any device opens
     shared = parse_options(args.option)
-    camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)})
-    projector = make_device(discovery.projectors(), args.projector, {**shared, **parse_options(args.projector_option)})
+    with progress_bar(f"Opening {args.camera} and {args.projector}") as progress:
+        camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)}, progress)
+        projector = make_device(discovery.projectors(), args.projector,
+                                {**shared, **parse_options(args.projector_option)}, progress)
     camera.open()
     projector.open()
     scan = None

@@ -19,6 +19,7 @@ projector pixels.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -91,6 +92,7 @@ class Projector(Protocol):
 
 
 Factory = Callable[..., object]
+ProgressCallback = Callable[[float], None]
 
 
 @dataclass(frozen=True)
@@ -141,14 +143,30 @@ def discover_plugins(group: str = ENTRY_POINT_GROUP) -> Discovery:
     return Discovery(tuple(plugins), tuple(failures))
 
 
-def make_device(factories: dict[str, Factory], name: str, options: dict[str, str] | None = None):
-    """Build device ``name`` with ``options``; HardwareError names the choices when unknown."""
+def make_device(factories: dict[str, Factory], name: str, options: dict[str, str] | None = None,
+                progress: ProgressCallback | None = None):
+    """Build device ``name`` with ``options``; HardwareError names the choices when unknown.
+
+    A factory that names a ``progress`` parameter (one whose building takes a while, such as the
+    simulated rig's) gets ``progress``, which receives the fraction done; others never see it."""
     if name not in factories:
         raise HardwareError(f"no device called {name!r}; available: {', '.join(sorted(factories)) or 'none'}")
+    factory = factories[name]
+    arguments = dict(options or {})
+    if progress is not None and _names_progress(factory):
+        arguments["progress"] = progress
     try:
-        return factories[name](**(options or {}))
+        return factory(**arguments)
     except TypeError as error:
         raise HardwareError(f"device {name!r}: bad options {options}: {error}") from None
+
+
+def _names_progress(factory: Factory) -> bool:
+    try:
+        parameter = inspect.signature(factory).parameters.get("progress")
+    except (TypeError, ValueError):  # a builtin or extension without a signature
+        return False
+    return parameter is not None and parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
 
 
 def parse_options(pairs: list[str] | None) -> dict[str, str]:
