@@ -67,6 +67,21 @@ def test_over_the_budget_a_dataset_is_read_band_by_band_with_the_same_results(fo
                                rtol=1e-12)
 
 
+def test_an_out_of_core_build_previews_the_steady_state_band_by_band_before_it_ends(folder, impulses):
+    bands = []
+    opened = open_dataset(folder, memory_budget_bytes=1, preview=lambda row0, row1, steady: bands.append(
+        (row0, row1, steady)))
+    assert [(row0, row1) for row0, row1, _ in bands] == [(row, min(row + TILE, HEIGHT)) for row in range(0, HEIGHT, TILE)]
+    assert_array_equal(np.concatenate([steady for *_, steady in bands]), opened.steady_state())
+    # Independent: the steady state is every impulse summed (all points lit), unobserved points NaN.
+    lit = sum(impulses.values())
+    observed = np.isfinite(opened.steady_state()).all(-1)
+    np.testing.assert_allclose(opened.steady_state()[observed], lit[observed], rtol=1e-5, atol=1e-7)
+    reopened = []
+    open_dataset(folder, memory_budget_bytes=1, preview=lambda *band: reopened.append(band))
+    assert reopened == []  # nothing to build: the stored steady state is shown at once
+
+
 def test_a_reopen_out_of_core_reads_no_frame_and_no_responses_until_asked(folder, monkeypatch):
     open_dataset(folder, memory_budget_bytes=1)
     decoded = []

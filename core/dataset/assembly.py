@@ -144,9 +144,11 @@ def write_assembled(writer: StoreWriter, assembled: Assembled, progress: Progres
 
 
 def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
-                        progress: ProgressCallback | None = None) -> None:
+                        progress: ProgressCallback | None = None,
+                        preview: Callable[[int, int, np.ndarray], None] | None = None) -> None:
     """Build the store band by band, each band a whole number of tiles within a quarter of
-    ``budget`` (writing a band encodes copies of its chunks beside it)."""
+    ``budget`` (writing a band encodes copies of its chunks beside it); ``preview(row0, row1,
+    steady rows)`` after each band is written."""
     row_bytes = assembler.width * len(assembler.offsets) * 12
     rows = max(writer.tile, (budget // 4 // max(row_bytes, 1)) // writer.tile * writer.tile)
     height = assembler.height
@@ -158,6 +160,8 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
         band, steady[row0:row1] = assembler.band(row0, row1, report, min(BATCH_BYTES, budget // 8))
         writer.write_rows(row0, band)
         del band
+        if preview is not None:
+            preview(row0, row1, steady[row0:row1].copy())
     writer.write_small(assembler.lit_counts, assembler.observed, steady)
 
 

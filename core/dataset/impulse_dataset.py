@@ -41,6 +41,7 @@ from .memory import format_bytes, memory_budget
 from .response_store import ResponseStore, entry_bytes, open_store, store_tile, write_store
 
 ProgressCallback = Callable[[float], None]
+SteadyPreview = Callable[[int, int, np.ndarray], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
 WHOLE_READ_BYTES = 256 * 2**20
 """A reopened dataset whose responses are at most this big (and within the budget) is read whole
@@ -274,6 +275,7 @@ def open_dataset(
     progress: ProgressCallback | None = None,
     memory_budget_bytes: int | None = None,
     allow_outside: bool = False,
+    preview: SteadyPreview | None = None,
 ) -> ImpulseDataset:
     """Open an impulse dataset folder (or its ``dataset.json``).
 
@@ -297,6 +299,11 @@ def open_dataset(
     allow_outside
         Read frames, dark and mapping files that resolve (through symbolic links) outside the
         dataset folder; refused by default.
+    preview
+        Called as ``preview(row0, row1, steady)`` each time a band of an out-of-core build is
+        assembled, ``steady`` (row1 - row0, W, 3) float32 the final steady state of those rows (NaN
+        at unobserved points), so that a viewer can show the steady state before the open ends.
+        Called from the opening thread; in-memory opens and reopens do not call it.
 
     Raises
     ------
@@ -349,7 +356,7 @@ def open_dataset(
                            observed=assembled.observed, steady=assembled.steady)
         try:
             with write_store(location, key, shape, tile) as writer:
-                assemble_into_store(assembler, writer, budget, progress)
+                assemble_into_store(assembler, writer, budget, progress, preview)
         except OSError as error:
             raise DatasetError(f"{location}: cannot write the store that a dataset of "
                                f"{format_bytes(needed)} is read from ({error.strerror or error})") from None
