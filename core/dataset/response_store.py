@@ -10,7 +10,9 @@ ringlight's ``meta.json``:
   direction), which compresses 2.5x better than one point's profile after another (measured on
   ``benchmarks/bench_scale.py``'s data: 42 against 105 MiB at 128 px). Then Blosc-zstd with bit
   shuffling (float32 values from half-float frames leave 13 zero bits that it packs away), then a
-  CRC-32C of each compressed chunk;
+  CRC-32C of each compressed chunk. Byte shuffling packs the smooth benchmark data twice as well,
+  but bit shuffling is 20 % smaller on data with 5 % noise (0.27 against 0.34 of raw float32),
+  which real captures have;
 - ``lit_counts`` (H, W) int32, ``observed`` (H, W) bool, ``steady`` (H, W, 3) float32 (the steady
   state, so that an open shows it without reading the responses), same codecs;
 - ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
