@@ -5,18 +5,18 @@ A mixin of :class:`ringlight.app.window.MainWindow`. Dialogs open without blocki
 
 from __future__ import annotations
 
-from PySide6.QtCore import Qt
+import html
+import re
+from pathlib import Path
+
+from PySide6.QtCore import Qt, QUrl
 from PySide6.QtGui import QKeySequence
-from PySide6.QtWidgets import QMessageBox
+from PySide6.QtWidgets import QDialog, QDialogButtonBox, QLabel, QMessageBox, QVBoxLayout
 
-ABOUT = """ringlight {version}: variable ring light imaging
-
-Transient images of light inside translucent surfaces from a projector and a camera, after
-K. Nishino, A. Subpa-asa, Y. Asano, M. Shimano and I. Sato, "Variable Ring Light Imaging:
-Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018.
-
-README.md: "Explorer window" (this window), "Capture", "Command line", "Safety".
-License: BSD-3-Clause."""
+PAPER = ('K. Nishino, A. Subpa-asa, Y. Asano, M. Shimano and I. Sato, "Variable Ring Light Imaging: '
+         'Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018')
+README_SECTIONS = ("Explorer window", "Capture", "Command line", "Safety: what ringlight promises about your data")
+"""The README.md sections About points to, their headings as written there."""
 EXITANCE_NOTICE = """{path} was simulated by an earlier ringlight, whose frames hold exitance: all light
 leaving each pixel in any direction, plus the specular reflection at the lit pixel. A camera sees the
 radiance toward it, which has another radial shape (about 1.6x at the lit point, 0.6-0.85x one to
@@ -49,7 +49,23 @@ class HelpDialogs:
         self._information("Keyboard shortcuts", "\n".join(self.shortcut_lines()))
 
     def _show_about(self) -> None:
-        self._information("About ringlight", ABOUT.format(version=_version()))
+        """About ringlight: version, paper, and the README's sections as links (opened by the desktop)."""
+        dialog = QDialog(self)
+        dialog.setWindowTitle("About ringlight")
+        dialog.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        label = QLabel(about_html(_version(), readme_path()))
+        label.setObjectName("about-text")
+        label.setTextFormat(Qt.TextFormat.RichText)
+        label.setOpenExternalLinks(True)
+        label.setTextInteractionFlags(Qt.TextInteractionFlag.TextBrowserInteraction)
+        label.setWordWrap(True)
+        label.setMinimumWidth(460)
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok)
+        buttons.accepted.connect(dialog.accept)
+        layout = QVBoxLayout(dialog)
+        layout.addWidget(label)
+        layout.addWidget(buttons)
+        dialog.open()  # not exec(): the window keeps running behind it
 
     def _information(self, title: str, text: str) -> None:
         box = QMessageBox(QMessageBox.Icon.Information, title, text, QMessageBox.StandardButton.Ok, self)
@@ -65,3 +81,36 @@ def _version() -> str:
         return version("ringlight")
     except PackageNotFoundError:
         return "(not installed)"
+
+
+def readme_path() -> Path | None:
+    """README.md at the root of the source tree ringlight runs from (an editable or source
+    install), or None where it is not there (an installed wheel)."""
+    import ringlight.app
+
+    path = Path(ringlight.app.__file__).resolve().parents[1] / "README.md"
+    return path if path.is_file() else None
+
+
+def heading_anchor(heading: str) -> str:
+    """The anchor GitHub and Markdown viewers give a heading ("Command line" -> "command-line")."""
+    return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+
+
+def about_html(version: str, readme: Path | None) -> str:
+    """The About text as rich text: the README's sections as file:// links to ``readme``, or
+    named in plain text when there is no README to link to."""
+    if readme is None:
+        where = "README.md of the ringlight sources: " + ", ".join(
+            f'"{html.escape(heading.split(":")[0])}"' for heading in README_SECTIONS)
+    else:
+        links = []
+        for heading in README_SECTIONS:
+            url = QUrl.fromLocalFile(str(readme))
+            url.setFragment(heading_anchor(heading))
+            links.append(f'<a href="{url.toString()}">{html.escape(heading.split(":")[0])}</a>')
+        links[0] += " (this window)"
+        where = f'<a href="{QUrl.fromLocalFile(str(readme)).toString()}">README.md</a>: ' + ", ".join(links)
+    return (f"<p><b>ringlight {html.escape(version)}</b>: variable ring light imaging</p>"
+            f"<p>Transient images of light inside translucent surfaces from a projector and a camera, "
+            f"after {html.escape(PAPER)}.</p><p>{where}.</p><p>License: BSD-3-Clause.</p>")

@@ -71,18 +71,41 @@ def display_problem() -> str | None:
     """Why Qt could not open a window here, in one line, or None.
 
     Without a display, or on X11 without the xcb-cursor library, Qt aborts the process with a
-    misleading message; this is checked first (Linux only; other systems always have a display).
+    misleading message; this is checked first (Linux only; other systems always have a display),
+    whenever the platform Qt would use needs a display server: xcb (X11), wayland, or the one Qt
+    picks itself when ``QT_QPA_PLATFORM`` is unset.
     """
-    if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
+    if not sys.platform.startswith("linux"):
         return None
-    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-        return ("no display to open a window on (DISPLAY and WAYLAND_DISPLAY are unset); run it on a desktop, "
+    requested = os.environ.get("QT_QPA_PLATFORM", "")
+    plugins = _platform_plugins(requested)
+    if any(not _needs_display_server(plugin) for plugin in plugins):
+        return None  # offscreen, eglfs, vnc, ...: drawn without a display server (or Qt falls back to it)
+    x11 = bool(os.environ.get("DISPLAY")) and (not plugins or "xcb" in plugins)
+    wayland = bool(os.environ.get("WAYLAND_DISPLAY")) and (not plugins or any(p != "xcb" for p in plugins))
+    if not x11 and not wayland:
+        if plugins:
+            needed = " or ".join(dict.fromkeys("DISPLAY" if p == "xcb" else "WAYLAND_DISPLAY" for p in plugins))
+            why = f"QT_QPA_PLATFORM={requested} needs {needed}, which is unset"
+        else:
+            why = "DISPLAY and WAYLAND_DISPLAY are unset"
+        return (f"no display to open a window on ({why}); run it on a desktop, "
                 "or use --screenshot FILE.png, or the command-line tools (ringlight --help)")
-    if not os.environ.get("WAYLAND_DISPLAY") and ctypes.util.find_library("xcb-cursor") is None:
+    if not wayland and ctypes.util.find_library("xcb-cursor") is None:
         return ("Qt needs the X11 library libxcb-cursor (Debian/Ubuntu: apt install libxcb-cursor0 and the "
                 "other xcb libraries listed in README.md)")
     return None
 
+
+def _platform_plugins(requested: str) -> list[str]:
+    """The platform plugins ``QT_QPA_PLATFORM`` names, in the order Qt tries them: "wayland;xcb"
+    gives both, "xcb:option=value" gives "xcb"; empty when it is unset."""
+    return [entry.split(":")[0].strip() for entry in requested.split(";") if entry.split(":")[0].strip()]
+
+
+def _needs_display_server(plugin: str) -> bool:
+    """xcb draws on an X11 server (DISPLAY), the wayland plugins on a Wayland one (WAYLAND_DISPLAY)."""
+    return plugin == "xcb" or plugin.startswith("wayland")
 
 if __name__ == "__main__":
     sys.exit(main())

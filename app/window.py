@@ -112,6 +112,8 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.splitter = QSplitter(Qt.Orientation.Horizontal)
         self.splitter.addWidget(self.image_panel)
         self.splitter.addWidget(self.truth_panel)
+        for index in range(2):  # a resize grows or shrinks both alike: equal panels stay equal
+            self.splitter.setStretchFactor(index, 1)
         self.scrub_bar = ScrubBar()
         central = QWidget()
         layout = QVBoxLayout(central)
@@ -246,9 +248,13 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self._global_levels.clear()
         dataset = loaded.dataset
         self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
+        if loaded.truth is not None and self.truth_panel.isHidden():
+            self.truth_panel.show()
+            self.splitter.setSizes([1, 1])  # T_r and its truth side by side at one scale (any extra split alike)
         self.truth_panel.setVisible(loaded.truth is not None)
         height, width = dataset.grid_shape
         self.image_panel.set_scale_bar(dataset.manifest.pitch_mm, width)
+        self._apply_radius_unit()
         if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
             self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
             self.hover_label.clear()
@@ -259,6 +265,13 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         if simulated_before_camera_measure(dataset.manifest):
             self._information("Simulated before camera radiance", EXITANCE_NOTICE.format(path=dataset.path))
         self.dataset_loaded.emit()
+
+    def _apply_radius_unit(self) -> None:
+        """Profiles' radius axis in mm where View > Radius in mm is checked and the dataset's
+        pitch is known (the action is disabled where it is not), else in grid steps."""
+        pitch_mm = self.loaded.dataset.manifest.pitch_mm if self.loaded is not None else None
+        self.radius_mm_action.setEnabled(bool(pitch_mm))
+        self.profile_plot.set_radius_unit(pitch_mm if self.radius_mm_action.isChecked() else None)
 
     def _update_title(self) -> None:
         if self.loaded is None:

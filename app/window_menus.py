@@ -60,6 +60,12 @@ class WindowMenus:
         self._action(view_menu, "Fit layers (inverse method)", self._fit_layers, "F")
         self._action(view_menu, "Layers tab", lambda: self.analysis_tabs.setCurrentWidget(self.layer_panel), "Ctrl+L")
         self._action(view_menu, "Reset zoom", self._reset_zoom, "Ctrl+0")
+        self.radius_mm_action = self._action(
+            view_menu, "Radius in &mm", lambda _=False: self._apply_radius_unit(),
+            tip="Label the profiles' radius axis in mm (grid steps x the dataset's pitch_mm; "
+                "only for datasets whose manifest gives grid.pitch_mm)")
+        self.radius_mm_action.setCheckable(True)
+        self.radius_mm_action.setEnabled(False)
         self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
         view_menu.addSeparator()
         for dock in (self.display_dock, self.stack_dock, self.profile_dock):

@@ -90,6 +90,7 @@ class WindowSettings:
         if view in VIEWS:
             self.display_controls.set_view(view)
         self.display_controls.profile_log_box.setChecked(self.settings.value("profile_log_y", "false") == "true")
+        self.radius_mm_action.setChecked(self.settings.value("radius_in_mm", "false") == "true")
         self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
         self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
         self._rebuild_recent_menu()
@@ -100,6 +101,7 @@ class WindowSettings:
         self.settings.setValue("display", json.dumps(asdict(self.display_settings())))
         self.settings.setValue("view", self.view())
         self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
+        self.settings.setValue("radius_in_mm", "true" if self.radius_mm_action.isChecked() else "false")
         self.settings.setValue("fps", self.scrub_bar.fps_box.value())
         self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
         self._remember_request()

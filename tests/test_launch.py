@@ -1,5 +1,6 @@
 """Launching ringlight: one clear line instead of a Qt abort or a window for a typo; helpful --help."""
 
+import os
 import subprocess
 import sys
 
@@ -26,10 +27,44 @@ def test_no_display_gives_one_line_and_no_abort(monkeypatch):
         monkeypatch.delenv(name, raising=False)
     # In a child process: without the check, Qt aborts it (SIGABRT, exit 134).
     result = subprocess.run([sys.executable, "-m", "ringlight.app.main"], capture_output=True, text=True,
-                            timeout=60, env={k: v for k, v in __import__("os").environ.items()})
+                            timeout=60, env=dict(os.environ))
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("ringlight: error: no display to open a window on")
+
+
+@pytest.mark.parametrize("platform, needed", [("xcb", "DISPLAY"), ("wayland", "WAYLAND_DISPLAY"),
+                                               ("wayland;xcb", "WAYLAND_DISPLAY or DISPLAY")])
+def test_a_display_platform_without_its_display_gives_one_line_and_no_abort(platform, needed):
+    env = {name: value for name, value in os.environ.items() if name not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["QT_QPA_PLATFORM"] = platform
+    # Before the check looked at a set QT_QPA_PLATFORM, Qt aborted here (SIGABRT, exit 134).
+    result = subprocess.run([sys.executable, "-m", "ringlight.app.main"], capture_output=True, text=True,
+                            timeout=60, env=env)
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr.splitlines() == [
+        f"ringlight: error: no display to open a window on (QT_QPA_PLATFORM={platform} needs {needed}, which "
+        "is unset); run it on a desktop, or use --screenshot FILE.png, or the command-line tools (ringlight --help)"]
+
+
+@pytest.mark.parametrize("platform", ["offscreen", "minimal", "eglfs", "vnc:size=800x600", "wayland;offscreen"])
+def test_platforms_without_a_display_server_are_let_through(monkeypatch, platform):
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("QT_QPA_PLATFORM", platform)
+    assert main_module.display_problem() is None
+
+
+def test_xcb_asked_for_on_wayland_still_needs_x11_and_its_cursor_library(monkeypatch):
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setenv("QT_QPA_PLATFORM", "xcb")
+    monkeypatch.setenv("WAYLAND_DISPLAY", "wayland-0")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    assert "QT_QPA_PLATFORM=xcb needs DISPLAY, which is unset" in main_module.display_problem()
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(main_module.ctypes.util, "find_library", lambda name: None)
+    assert "apt install libxcb-cursor0" in main_module.display_problem()
 
 
 def test_missing_xcb_cursor_is_named(monkeypatch):

@@ -13,8 +13,10 @@ from PySide6.QtWidgets import QWidget
 from ringlight.core.colourspaces import colour_module
 
 PICKS_KEY = ("dots: trajectory, dark to light = small to large r\n"
-             "rings: picked radii   stars: recovered   squares: truth   +: white")
-FIT_KEY = "stars: fitted   squares: truth\noutlines: two-sigma (grey dashed: not determined)"
+             "rings: picked radii   stars: recovered\nsquares: truth   +: white")
+FIT_KEY = "stars: fitted   squares: truth\noutlines: two-sigma\n(grey dashed: not determined)"
+KEY_MARGIN = 4.0
+"""Distance of the key from the plot's top and right edges, pixels."""
 _PICK_DISTANCE = 0.02
 """Largest xy distance from a trajectory point at which a click picks it."""
 
@@ -62,10 +64,25 @@ class ChromaticityDiagram(pg.PlotWidget):
         self._regions: list = []
         self.key = pg.TextItem(PICKS_KEY, color="#bbbbbb", anchor=(1, 0))
         self.key.setParentItem(self.getPlotItem().vb)
-        self.getPlotItem().vb.sigResized.connect(lambda vb: self.key.setPos(vb.width() - 4, 4))
+        self.getPlotItem().vb.sigResized.connect(lambda _vb: self._place_key())
         self.scene().sigMouseClicked.connect(self._on_scene_clicked)
         self._radii = np.zeros(0)
         self._xy = np.zeros((0, 2))
+
+    def set_key(self, text: str) -> None:
+        """Show ``text`` as the key (legend) at the plot's top right."""
+        self.key.setText(text)
+        self._place_key()
+
+    def _place_key(self) -> None:
+        """Top right inside the plot; wrapped to the plot's width where it is narrower than the key,
+        so that no line runs out at the left (on screen or in the exported PNG)."""
+        box = self.getPlotItem().vb
+        room = max(box.width() - 2 * KEY_MARGIN, 1.0)
+        self.key.setTextWidth(-1)  # its own width, to measure
+        if self.key.textItem.boundingRect().width() > room:
+            self.key.setTextWidth(room)
+        self.key.setPos(box.width() - KEY_MARGIN, KEY_MARGIN)
 
     def reset_view(self) -> None:
         """Show the whole diagram (the spectral locus), whatever the user zoomed to."""

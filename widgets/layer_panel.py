@@ -195,7 +195,7 @@ class LayerPanel(QWidget):
         if not inverse:
             self.set_trust_rule(self._trust_rule)
         self.diagram.set_regions([], [], [])
-        self.diagram.key.setText(FIT_KEY if inverse else PICKS_KEY)
+        self.diagram.set_key(FIT_KEY if inverse else PICKS_KEY)
         self.table.setMaximumHeight(125 if inverse else 150)
 
     def show_inversion(self, result: DatasetInversion | None) -> None:

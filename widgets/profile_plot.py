@@ -5,14 +5,17 @@ of the ring members (:mod:`ringlight.core.rings.noise`), an upper bound of the n
 surface itself varies.
 
 Clicking in either plot, or dragging the radius line, asks for that radius (``radius_requested``);
-the window snaps it to the nearest radius of the stack.
+the window snaps it to the nearest radius of the stack. The radius axis reads grid steps, or mm
+(``set_radius_unit(pitch_mm)``); radii in and out stay in grid steps.
 """
 
 from __future__ import annotations
 
+from math import ceil
+
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import QSize, Qt, Signal
 from PySide6.QtWidgets import QWidget
 
 CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
@@ -24,6 +27,8 @@ BAND_TIP = (f"Bands: value ± {BAND_SE:g} standard errors, from the spread of th
             f"radius (SE of T from both rings). The spread also holds real variation of the surface, so "
             f"there the band is an upper bound of the noise. In log y a lower edge <= 0 is drawn at "
             f"{LOG_BAND_FLOOR:g} x the value.")
+POINT_LABEL_ROOM = 100
+"""Least width of each plot's view box, pixels: room for the point label ("at y 123 x 456")."""
 
 
 def _band(plot: pg.PlotItem, colour: str) -> pg.FillBetweenItem:
@@ -36,7 +41,7 @@ def _band(plot: pg.PlotItem, colour: str) -> pg.FillBetweenItem:
     brush.setAlpha(60)
     fill = pg.FillBetweenItem(edges[0], edges[1], brush=brush)
     fill.setZValue(-5)
-    plot.addItem(fill)
+    plot.addItem(fill, ignoreBounds=True)  # its edges count; an empty fill would add y = 0 (1 in log y)
     return fill
 
 
@@ -44,7 +49,18 @@ class ValueAxis(pg.AxisItem):
     """A y axis whose log-mode labels are plain values with 3 significant digits ("4e+04",
     "0.0012"): pyqtgraph's own log labels cut mantissas ("10^4.6" reads as "10^4") and, within one
     decade, label minor ticks on top of each other. One level is labelled: the decades when two or
-    more are in view, else 2..9 times a decade, else evenly spaced values."""
+    more are in view, else 2..9 times a decade, else evenly spaced values.
+
+    In linear mode the title carries pyqtgraph's automatic scale ("radiance (x0.001)") and the
+    labels are scaled to match; in log mode neither is (the labels are the values themselves)."""
+
+    def getSIPrefixEnableRanges(self):
+        # No ranges, no prefix: an "(x0.001)" in the title would make every log label read 1000x small.
+        return () if self.logMode else super().getSIPrefixEnableRanges()
+
+    def setLogMode(self, *args, **kwargs):
+        super().setLogMode(*args, **kwargs)
+        self.updateAutoSIPrefix()
 
     def tickStrings(self, values, scale, spacing):
         if not self.logMode:
@@ -66,6 +82,15 @@ class ValueAxis(pg.AxisItem):
         return [(None, list(np.log10(values[values > 0])))]
 
 
+class RadiusAxis(pg.AxisItem):
+    """The radius axis, labelled in grid steps or, with ``setScale(pitch_mm)``, in mm: never with
+    an automatic SI prefix, which pyqtgraph would apply to the labels without saying so in the
+    title (0.6 mm would read "600")."""
+
+    def getSIPrefixEnableRanges(self):
+        return ()
+
+
 class ProfilePlot(pg.GraphicsLayoutWidget):
     """Two stacked plots sharing the radius axis: ring light E(r) above, transient T(r) below.
 
@@ -77,14 +102,12 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
+        # Short titles: the dock is about 330 px wide on a 1366 px screen (the bands are in the tooltip).
         self.ring_plot = self.addPlot(row=0, col=0, title=f"E(r): ring light, band ±{BAND_SE:g} SE",
-                                      axisItems={"left": ValueAxis("left")})
-        self.transient_plot = self.addPlot(
-            row=1, col=0, title=f"T(r) = E(r) - E(r+dr): transient, band ±{BAND_SE:g} SE",
-            axisItems={"left": ValueAxis("left")})
+                                      axisItems={"left": ValueAxis("left"), "bottom": RadiusAxis("bottom")})
+        self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr)",
+                                           axisItems={"left": ValueAxis("left"), "bottom": RadiusAxis("bottom")})
         self.transient_plot.setXLink(self.ring_plot)
-        self.transient_plot.setLabel("bottom", "radius r (grid steps)")
-        self.transient_plot.getAxis("bottom").enableAutoSIPrefix(False)
         self.ring_bands = [_band(self.ring_plot, pen) for pen in CHANNEL_PENS]
         self.transient_bands = [_band(self.transient_plot, pen) for pen in CHANNEL_PENS]
         self.ring_curves = [self.ring_plot.plot(pen=pen) for pen in CHANNEL_PENS]
@@ -96,6 +119,7 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         for plot in (self.ring_plot, self.transient_plot):
             plot.showGrid(x=False, y=False)
             plot.getAxis("left").setWidth(64)
+            plot.vb.setMinimumWidth(POINT_LABEL_ROOM)
             line = pg.InfiniteLine(0, angle=90, movable=True, pen=pg.mkPen("#ffd600", width=2))
             line.sigDragged.connect(self._on_line_dragged)
             plot.addItem(line)
@@ -110,11 +134,33 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self._transient = np.zeros((0, 3))
         self._ring_se = np.zeros((0, 3))
         self._transient_se = np.zeros((0, 3))
+        self._pitch_mm: float | None = None
         self._set_axes()
 
     @property
     def log_y(self) -> bool:
         return self._log_y
+
+    @property
+    def pitch_mm(self) -> float | None:
+        """The grid pitch the radius axis is labelled in (mm per grid step), or None: grid steps."""
+        return self._pitch_mm
+
+    def set_radius_unit(self, pitch_mm: float | None) -> None:
+        """Label the radius axes in mm (grid steps x ``pitch_mm``), or in grid steps (None).
+
+        Only the labels change: radii in and out (``set_radius``, ``radius_requested``) stay in grid steps.
+        """
+        self._pitch_mm = float(pitch_mm) if pitch_mm else None
+        self._set_axes()
+
+    def minimumSizeHint(self) -> QSize:
+        """At least the size the plots' layout needs (titles, axes, the point label's room), so
+        that a narrow dock cannot clip the plots at the right."""
+        hint = super().minimumSizeHint()
+        layout = self.ci.effectiveSizeHint(Qt.SizeHint.MinimumSize)
+        frame = 2 * self.frameWidth()
+        return hint.expandedTo(QSize(ceil(layout.width()) + frame, ceil(layout.height()) + frame))
 
     def set_profiles(self, radii: np.ndarray, ring: np.ndarray, transient: np.ndarray,
                      ring_se: np.ndarray | None = None, transient_se: np.ndarray | None = None) -> None:
@@ -187,6 +233,9 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
             plot.setLogMode(False, self._log_y)
         self.ring_plot.setLabel("left", "radiance")
         self.transient_plot.setLabel("left", "radiance" + (" (T > 0 only)" if self._log_y else ""))
+        for plot in (self.ring_plot, self.transient_plot):
+            plot.getAxis("bottom").setScale(self._pitch_mm or 1.0)
+        self.transient_plot.setLabel("bottom", "radius r (mm)" if self._pitch_mm else "radius r (grid steps)")
         self.zero_line.setVisible(not self._log_y)
 
     def _on_line_dragged(self, line: pg.InfiniteLine) -> None:
