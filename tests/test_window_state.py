@@ -125,6 +125,10 @@ def test_scale_bar_shows_millimetres_when_the_pitch_is_known(qtbot, window, tmp_
     open_and_wait(qtbot, window, folder)
     bar = window.image_panel.scale_bar
     assert bar.text.toPlainText() == "0.5 mm" and bar.size == pytest.approx(5.0)
+    # Another dataset after one with a pitch: the old bar goes (pyqtgraph's ScaleBar raised while
+    # being detached, and the open never finished).
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "e", 12, 4, seed=8))
+    assert window.image_panel.scale_bar is None and bar.scene() is None
 
 
 def test_region_statistics_of_the_shown_image(qtbot, window, tmp_path):

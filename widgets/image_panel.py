@@ -124,7 +124,8 @@ class ImagePanel(pg.GraphicsView):
         """Show a scale bar in mm (bottom right) when the grid's ``pitch_mm`` is known, of a
         round length near a fifth of the grid's width; None removes it."""
         if self.scale_bar is not None:
-            self.scale_bar.setParentItem(None)
+            # Not setParentItem(None): pyqtgraph's ScaleBar re-anchors itself there and raises
+            # without a parent. Removing it from the scene detaches it from the view too.
             self.scene().removeItem(self.scale_bar)
             self.scale_bar = None
         if not pitch_mm:
@@ -150,6 +151,15 @@ class ImagePanel(pg.GraphicsView):
             self.view.setRange(xRange=(0, shape[1]), yRange=(0, shape[0]), padding=0.02)
             if self._region_mode != "all":
                 self.set_region_mode(self._region_mode)
+
+    def clear_image(self) -> None:
+        """Show nothing (no pixels, ring or title), as before the first image."""
+        self.image_item.clear()
+        self._data_pixels = self._display_pixels = None
+        self._shape = None
+        self.display_label.hide()
+        self.clear_ring()
+        self.set_title("")
 
     def set_region_mode(self, mode: str) -> None:
         """``"all"`` (no ROI), ``"rectangle"`` or ``"polygon"``: an editable ROI on the image,
