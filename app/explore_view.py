@@ -164,6 +164,19 @@ class ExploreView:
             slot.cancel()
         self.scrub_bar.play_button.setChecked(False)
 
+    def show_steady_preview(self, steady: np.ndarray, rows: int, colorspace: str) -> None:
+        """While a dataset opens with none on screen: its steady state as far as it is built
+        (``rows`` of its (H, W, 3) rows; the rest NaN, drawn undefined grey), per-image levels."""
+        if self.loaded is not None:
+            return  # another dataset is on screen and stays usable until this one is open
+        settings = DisplaySettings()
+        levels = display_levels(steady[:rows], settings, colorspace)
+        self.image_panel.set_pixels(render(steady, levels, settings, colorspace))
+        height = steady.shape[0]
+        self.image_panel.set_title(f"steady state: rows 0..{rows} of {height} built, opening ..." if rows < height
+                                   else "steady state: computing the stacks ...")
+        self._previewing = True
+
     def _reset_zoom(self) -> None:
         for panel in (self.image_panel, self.truth_panel):
             panel.view.autoRange(padding=0.02)

@@ -37,6 +37,9 @@ OPEN_RADIUS = 24.0
 the requested stack needs more."""
 
 
+Preview = Callable[[np.ndarray, int, str], None]
+
+
 @dataclass(frozen=True, eq=False)
 class ViewStacks:
     """A request's stacks plus what the explorer derives from them once.
@@ -95,27 +98,45 @@ def open_radius(manifest_max_radius: float | None, height: int, width: int, requ
 
 
 def load_for_viewing(path: str | Path | None, request: StackRequest | None, progress: Progress,
-                     sample: str | None = None) -> LoadedDataset:
+                     sample: str | None = None, preview: Preview | None = None) -> LoadedDataset:
     """Open ``path`` with its stacks; with ``sample``, that bundled sample, and with neither the
     demo dataset (each written into the user cache first, the first time).
 
     ``request`` is used when the dataset can serve it, else :func:`default_request`.
+    ``preview(steady, rows, colorspace)`` gets the steady state as it becomes known: (H, W, 3)
+    float32 linear RGB in the dataset's ``colorspace``, its first ``rows`` rows filled and the
+    rest NaN, after each band of an out-of-core build, and
+    whole once the dataset is open, before the stacks are computed (the longest part of opening
+    a big dataset from its store).
     """
     if path is None:
         path = sample_dataset(sample or DEMO_SAMPLE, progress=scaled(progress, 0.0, 0.3))
         progress = scaled(progress, 0.3, 1.0)
     manifest = read_manifest(path)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
-    dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5))  # parsed once
+    dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5),
+                           preview=None if preview is None else _band_preview(manifest, preview))
+    steady_state = dataset.steady_state()
+    if preview is not None:
+        preview(steady_state, manifest.height, manifest.colorspace)
     if dataset.in_memory:
         dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
-    steady_state = dataset.steady_state()
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
     if request is None or not _serves(dataset, request):
         request = default_request(dataset.max_radius)
     stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))
     return LoadedDataset(dataset, steady_state, truth, stacks)
+
+
+def _band_preview(manifest, preview: Preview):
+    """The open's band callback: each band's rows into one image, passed on to ``preview``."""
+    canvas = np.full((manifest.height, manifest.width, 3), np.nan, np.float32)
+
+    def band(row0: int, row1: int, steady: np.ndarray) -> None:
+        canvas[row0:row1] = steady
+        preview(canvas.copy(), row1, manifest.colorspace)
+    return band
 
 
 def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None, request: StackRequest,

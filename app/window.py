@@ -47,16 +47,20 @@ from .layer_tab import LayerTab
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
 from .window_menus import WindowMenus
 from .window_settings import WindowSettings, first_size
+from .window_tools import LineProfileDock
 
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
-class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDialogs, QMainWindow):
+class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDialogs, LineProfileDock,
+                 QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
     dataset_loaded = Signal()
     stacks_ready = Signal()
     image_shown = Signal()
+    steady_previewed = Signal(object, int, str)
+    """The steady state as far as an open has built it (see :func:`~.session.load_for_viewing`)."""
     error_shown = Signal(str)
 
     def __init__(self, settings: QSettings, parent: QWidget | None = None):
@@ -143,6 +147,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.display_dock = self._dock("Display", display, Qt.DockWidgetArea.LeftDockWidgetArea)
         self.stack_dock = self._dock("Stack", self.stack_controls, Qt.DockWidgetArea.LeftDockWidgetArea)
         self.profile_dock = self._dock("Analysis", self.analysis_tabs, Qt.DockWidgetArea.RightDockWidgetArea)
+        self._build_line_profile()
 
         self.hover_label = QLabel()
         self.hover_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
@@ -167,6 +172,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.load_jobs.finished.connect(self._on_loaded)
         self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
         self.load_jobs.idle.connect(self._hint_when_empty)
+        self.steady_previewed.connect(self.show_steady_preview)
         self.stack_jobs.finished.connect(self._on_stacks_ready)
         self.stack_jobs.failed.connect(self._on_stacks_failed)
         self.stack_jobs.cancelled.connect(self._on_stacks_cancelled)
@@ -219,7 +225,8 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.fit_jobs.cancel()
-        self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(path, request, progress))
+        self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(
+            path, request, progress, preview=self.steady_previewed.emit))
 
     def open_sample(self, name: str) -> None:
         """Open the bundled sample ``name`` (written into the user cache the first time)."""
@@ -227,11 +234,13 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.stack_jobs.cancel()
         self.fit_jobs.cancel()
         self.load_jobs.start(f"Opening the {name} sample",
-                             lambda progress: load_for_viewing(None, request, progress, sample=name))
+                             lambda progress: load_for_viewing(None, request, progress, sample=name,
+                                                               preview=self.steady_previewed.emit))
 
     def _hint_when_empty(self) -> None:
         """With no dataset shown (first start, an open cancelled or failed), say how to get one."""
         if self.loaded is None:
+            self.image_panel.clear_image()  # a steady-state preview of an open that did not finish
             self.image_panel.set_title(EMPTY_HINT)
             self.statusBar().showMessage(EMPTY_HINT)
 

@@ -44,6 +44,8 @@ class WindowMenus:
                          "Ctrl+Shift+O", "The image panel at display scale: ring, region, scale bar, title"),
             self._action(file_menu, "Export scrub as &movie (MP4)…", self.choose_movie_export, "Ctrl+Shift+M"),
             self._action(file_menu, "Export profiles as &CSV…", self.choose_csv_export, "Ctrl+Shift+C"),
+            self._action(file_menu, "Export &line profile as CSV…", self.choose_line_profile_export,
+                         tip="Distances and values along the line of View > Line profile"),
         ]
         file_menu.addSeparator()
         self._action(file_menu, "&Quit", self.close, QKeySequence.StandardKey.Quit)
@@ -68,7 +70,7 @@ class WindowMenus:
         self.radius_mm_action.setEnabled(False)
         self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
         view_menu.addSeparator()
-        for dock in (self.display_dock, self.stack_dock, self.profile_dock):
+        for dock in (self.display_dock, self.stack_dock, self.profile_dock, self.line_profile_dock):
             view_menu.addAction(dock.toggleViewAction())
         help_menu = self.menuBar().addMenu("&Help")
         self._action(help_menu, "&Keyboard shortcuts", self._show_shortcuts, "F1")

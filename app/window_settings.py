@@ -86,6 +86,11 @@ class WindowSettings:
             self.display_controls.set_settings(DisplaySettings(**document))
         except (TypeError, ValueError, KeyError):
             pass
+        try:
+            for kind, name in json.loads(self.settings.value("colormaps", "{}")).items():
+                self.display_controls.set_colormap_name(kind, name)
+        except (TypeError, ValueError, KeyError, AttributeError):
+            pass  # a map this version does not offer keeps the default
         view = self.settings.value("view", "transient")
         if view in VIEWS:
             self.display_controls.set_view(view)
@@ -100,6 +105,7 @@ class WindowSettings:
         self.settings.setValue("window_state", self.saveState())
         self.settings.setValue("display", json.dumps(asdict(self.display_settings())))
         self.settings.setValue("view", self.view())
+        self.settings.setValue("colormaps", json.dumps(self.display_controls.colormap_names()))
         self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
         self.settings.setValue("radius_in_mm", "true" if self.radius_mm_action.isChecked() else "false")
         self.settings.setValue("fps", self.scrub_bar.fps_box.value())

@@ -132,3 +132,43 @@ def test_the_ring_tint_lets_most_of_the_image_through(qtbot, window, dataset):
     assert members.any() and overlay[..., 3].max() <= MAX_MEMBER_ALPHA
     # Composited over white, the blue channel (the yellow tint has none) keeps >= 62 % of the image.
     assert 255 * (1 - overlay[members, 3] / 255).min() >= 0.62 * 255
+
+
+def test_the_line_profile_dock_follows_the_shown_image_and_exports_csv(qtbot, window, dataset, impulses, tmp_path):
+    opened(qtbot, window, dataset)
+    action = window.line_profile_dock.toggleViewAction()
+    assert action.shortcut().toString() == "Ctrl+Shift+L"
+    action.trigger()
+    assert window.line_profile_dock.isVisible() and window.line_profile.roi.scene() is not None
+    # The default line runs along the middle row's pixel centres from 20 % to 80 % of the width.
+    (y0, x0), (y1, x1) = window.line_profile.line()
+    assert y0 == y1 == HEIGHT // 2 + 0.5
+    columns = np.arange(int(x0), int(x1) + 1)
+    distances, values = window.line_profile.profile()
+    np.testing.assert_allclose(distances, columns - columns[0])
+    np.testing.assert_allclose(values, brute_transient(impulses, 2.0)[HEIGHT // 2, columns], rtol=1e-5, atol=1e-7)
+    window.set_radius(3.0)  # scrubbing feeds the new image
+    np.testing.assert_allclose(window.line_profile.profile()[1], brute_transient(impulses, 3.0)[HEIGHT // 2, columns],
+                               rtol=1e-5, atol=1e-7)
+    path = tmp_path / "line.csv"
+    window._save_path = lambda *args: path
+    window.choose_line_profile_export()
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 1:], window.line_profile.profile()[1], rtol=1e-8)
+    action.trigger()
+    assert window.line_profile.roi.scene() is None
+
+
+def test_colour_map_choices_survive_a_restart(qtbot, window, tmp_path):
+    from PySide6.QtCore import QSettings
+    from ringlight.app.window import MainWindow
+
+    window.display_controls.set_colormap_name("channel", "inferno")
+    window.display_controls.set_colormap_name("snr", "cividis")
+    window.save_settings()
+    again = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    qtbot.addWidget(again)
+    try:
+        assert again.display_controls.colormap_names() == {"channel": "inferno", "signed": "RdBu", "snr": "cividis"}
+    finally:
+        again.shutdown()

@@ -3,6 +3,8 @@ display-only denoise and the Layers tab's trusted flags, against brute-force rin
 (test_noise.brute_ring_se, reference.brute_ring_image) computed here, never by the code under test."""
 
 import json
+import threading
+import time
 
 import cv2
 import numpy as np
@@ -205,8 +207,18 @@ def test_the_trusted_flag_is_region_snr_of_at_least_3_and_flips_with_the_noise(t
     assert snr[0.002, 4.0] >= 3 > snr[0.5, 4.0] and min(snr[0.002, 1.0], snr[0.5, 1.0]) >= 3
 
 
-def test_the_layers_table_shows_pending_then_the_snr_behind_each_flag(qtbot, window, tmp_path):
+def test_the_layers_table_shows_pending_then_the_snr_behind_each_flag(qtbot, window, tmp_path, monkeypatch):
+    from ringlight.app import explore_view
+
     impulses = layered_with_noise(tmp_path / "noisy", 0.5)  # measured: SNR 9.4 at r = 1, 2.4 at r = 4
+    estimate, release = explore_view.compute_view_noise, threading.Event()
+
+    def held(dataset, pair, progress):  # the estimate waits (cancellable) until released: no race with Esc
+        while not release.is_set():
+            progress(0.0)
+            time.sleep(0.01)
+        return estimate(dataset, pair, progress)
+    monkeypatch.setattr(explore_view, "compute_view_noise", held)
     with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
         window.open_dataset(tmp_path / "noisy")
     panel = window.layer_panel
@@ -217,6 +229,7 @@ def test_the_layers_table_shows_pending_then_the_snr_behind_each_flag(qtbot, win
         window.layer_tab.toggle_pick(radius)
     assert window.noise is None
     assert panel.table.item(0, 9).text() == "pending" and "estimating the noise" in panel.message_label.text()
+    release.set()
     window.display_controls.set_view("ring")  # any change of view asks for the noise again
     qtbot.waitUntil(lambda: window.noise is not None, timeout=TIMEOUT_MS)
     whole = full_region((14, 14))

@@ -53,3 +53,27 @@ def test_the_window_reads_an_out_of_core_dataset_without_io_on_clicks(qtbot, win
     assert "reading the impulse image" in window.image_panel.title.textItem.toPlainText()
     qtbot.waitUntil(lambda: window._impulse_cache is not None, timeout=TIMEOUT_MS)
     assert_array_equal(window._impulse_cache[1], memory.impulse_image(9, 8))
+
+
+def test_opening_out_of_core_previews_the_steady_state_band_by_band(qtbot, window, folder, monkeypatch):
+    from ringlight.core.colour.display import UNDEFINED_RGB
+
+    memory = open_dataset(folder, use_cache=False)
+    monkeypatch.setattr(impulse_dataset, "memory_budget", lambda: 1)
+    previews = []
+    window.steady_previewed.connect(lambda steady, rows, colorspace: previews.append((steady, rows)))
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(str(folder))
+    # Five 4-row bands as the store is built, then the whole steady state before the stacks.
+    assert [rows for _, rows in previews] == [4, 8, 12, 16, 20, 20]
+    for steady, rows in previews:
+        assert_array_equal(steady[:rows], memory.steady_state()[:rows])
+        assert np.isnan(steady[rows:]).all()
+    # Drawn while nothing else is on screen: built rows in colour, the rest undefined grey.
+    window.loaded = None
+    window.show_steady_preview(previews[1][0], 8, "sRGB")
+    pixels = window.image_panel.pixels()
+    assert (pixels[8:] == UNDEFINED_RGB).all() and not (pixels[:8] == UNDEFINED_RGB).all()
+    assert "rows 0..8 of 20" in window.image_panel.title.textItem.toPlainText()
+    window._hint_when_empty()  # the open failed or was cancelled: the preview goes
+    assert window.image_panel.pixels() is None

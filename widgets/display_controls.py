@@ -188,6 +188,10 @@ class DisplayControls(QWidget):
         shown = self.shown_box.currentData()
         return None if shown == "rgb" else "signed" if shown == "signed" else "channel"
 
+    def colormap_names(self) -> dict[str, str]:
+        """The map chosen for each kind (for the settings)."""
+        return dict(self._maps)
+
     def colormap_name(self, kind: str) -> str:
         """The map chosen for ``kind`` (its default until the user picks one)."""
         return self._maps[kind]
