@@ -114,6 +114,7 @@ def test_the_difference_view_subtracts_the_least_squares_multiple_of_the_truth(q
     assert f"a = {scale:.4g}" in window.image_panel.title.toPlainText()
     assert window.image_panel.colour_bar is not None  # always drawn signed
     assert window.display_controls.map_kind() == "signed"
+    assert not window.display_controls.shown_box.isEnabled()  # a difference is always drawn signed
 
 
 def test_the_difference_view_says_when_there_is_no_truth(qtbot, window, tmp_path, impulses):

@@ -265,7 +265,9 @@ class DisplayControls(QWidget):
         self._update_map_box()
 
     def _update_map_box(self) -> None:
-        """The map box lists the maps of the kind on screen, showing the one chosen for it."""
+        """The map box lists the maps of the kind on screen, showing the one chosen for it; the
+        Show box is off for the views it does not apply to (SNR and difference maps are scalar)."""
+        self.shown_box.setEnabled(self.view() not in ("snr", "difference"))
         kind = self.map_kind()
         self.map_box.blockSignals(True)
         self.map_box.clear()
