@@ -120,3 +120,32 @@ def test_image_and_truth_panels_are_equal_and_stay_equal_until_dragged(qtbot, wi
     assert dragged[1] - dragged[0] >= 100
     resize_and_wait(qtbot, window, FIRST_SIZE)
     assert splitter.sizes()[1] - splitter.sizes()[0] == dragged[1] - dragged[0]  # the user's choice stays
+
+
+def test_nothing_resizes_the_window_by_itself(qtbot, window, truth_dataset, tmp_path):
+    """At the first size and at the minimum one (where any growth of a panel would show), no
+    open, radius or view change, notice, dock or tab changes the window's size."""
+    second = tmp_path / "second"
+    write_dataset(second, 20, 16, random_impulses(np.random.default_rng(6), 20, 16, support=6.0), max_radius=6.0)
+    opened(qtbot, window, truth_dataset)
+    for size in sizes_to_check(qtbot, window).values():
+        resize_and_wait(qtbot, window, size)
+        controls = window.display_controls
+        steps = [
+            lambda: window.set_radius(2.0),
+            lambda: controls.shown_box.setCurrentIndex(controls.shown_box.findData("R")),  # notice of negatives
+            lambda: controls.shown_box.setCurrentIndex(controls.shown_box.findData("signed")),
+            lambda: controls.set_view("difference"),
+            lambda: controls.set_view("snr"),
+            lambda: controls.set_view("transient"),
+            lambda: window.line_profile_dock.toggleViewAction().trigger(),
+            lambda: window.line_profile_dock.toggleViewAction().trigger(),
+            lambda: window.analysis_tabs.setCurrentWidget(window.layer_panel),
+            lambda: window.analysis_tabs.setCurrentIndex(0),
+            lambda: opened(qtbot, window, second),
+            lambda: opened(qtbot, window, truth_dataset),
+        ]
+        for step in steps:
+            step()
+            qtbot.wait(30)
+            assert (window.width(), window.height()) == tuple(size), steps.index(step)

@@ -107,7 +107,7 @@ class LineProfilePlot(QWidget):
         self.plot.getAxis("bottom").enableAutoSIPrefix(False)
         self.rgb_curves = [self.plot.plot(pen=pen, connect="finite") for pen in CHANNEL_PENS]
         self.scalar_curve = self.plot.plot(pen=SCALAR_PEN, connect="finite")
-        self.setMinimumSize(240, 160)
+        self.setMinimumSize(240, 140)  # under the image at the window's minimum size, not taller
 
     def set_profile(self, distances: np.ndarray, values: np.ndarray, title: str) -> None:
         """Plot (N, 3) RGB or (N, 1) scalar ``values`` against (N,) ``distances`` in grid steps,
