@@ -100,3 +100,19 @@ def test_layer_radii_are_checked_before_the_dataset_is_opened(capsys, tmp_path):
     status, _, err = run(capsys, "layers", str(tmp_path / "absent"), "--radii", "10,5,1")
     assert status == 2
     assert err.strip() == "ringlight: error: --radii '10,5,1' must be non-negative and increase strictly, e.g. 2,5,8"
+
+
+def test_a_screenshot_prints_one_line_and_no_qt_notices(tmp_path):
+    """--screenshot under the offscreen platform: Qt's "propagateSizeHints" notice (printed for
+    every window) is dropped; what is left is the one line naming the file."""
+    import numpy as np
+    from reference import random_impulses, write_dataset
+
+    write_dataset(tmp_path / "ds", 8, 8, random_impulses(np.random.default_rng(1), 8, 8, support=3.0), max_radius=3.0)
+    out = tmp_path / "shot.png"
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", RINGLIGHT_CACHE_DIR=str(tmp_path / "cache"))
+    result = subprocess.run([sys.executable, "-m", "ringlight.app.main", str(tmp_path / "ds"), "--screenshot", str(out)],
+                            capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert out.stat().st_size > 10_000
+    assert result.stderr == "" and result.stdout.strip().splitlines() == [f"wrote {out}"]
