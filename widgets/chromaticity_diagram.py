@@ -12,8 +12,9 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QWidget
 from ringlight.core.colourspaces import colour_module
 
-PICKS_KEY = ("dots: trajectory, dark to light = small to large r\n"
-             "rings: picked radii   stars: recovered\nsquares: truth   +: white")
+PICKS_KEY = ("dots: trajectory (dark: small r)\nrings: picked radii\n"
+             "stars: recovered   squares: truth\n+: white")
+"""Short lines, so that the key at the top right stays clear of the spectral locus."""
 FIT_KEY = "stars: fitted   squares: truth\noutlines: two-sigma\n(grey dashed: not determined)"
 KEY_MARGIN = 4.0
 """Distance of the key from the plot's top and right edges, pixels."""
