@@ -25,6 +25,7 @@ from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
 from ringlight.core.dataset.checks import check_files
 from ringlight.core.dataset.exr import read_exr_rgb
 from ringlight.core.dataset.manifest import read_manifest
+from ringlight.core.dataset.response_store import LAYOUT_VERSION
 
 MiB = 2**20
 
@@ -398,7 +399,7 @@ def test_a_meta_json_of_the_wrong_type_rebuilds_the_cache(dataset, monkeypatch, 
     reopened = open_dataset(dataset, radius=2)
     assert reads.count == 30
     np.testing.assert_array_equal(reopened.responses, truth)
-    assert json.loads((dataset / CACHE_FOLDER_NAME / "meta.json").read_text())["layout"] == 2
+    assert json.loads((dataset / CACHE_FOLDER_NAME / "meta.json").read_text())["layout"] == LAYOUT_VERSION
 
 
 @pytest.mark.parametrize("name", ["meta.json", "responses/zarr.json", "responses/c.0.0.0.0", "observed/zarr.json"])
