@@ -17,8 +17,8 @@ from ..errors import RinglightError
 
 BUDGET_FRACTION = 0.25
 """Share of the available memory a dataset open may fill: an out-of-core open assembles bands of
-a quarter of the budget and keeps decoded bands up to half of it, so that with the arrays it
-computes it stays well within the budget, beside whatever else the machine runs."""
+half the budget (with batches of frames of at most an eighth) and keeps decoded bands up to half
+of it, so that it stays within the budget, beside whatever else the machine runs."""
 MIN_BUDGET = 64 * 2**20
 """Smallest budget taken (bytes): below it a band holds too few rows to be worth a pass."""
 _SIZE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([KMGT]?)i?B?\s*", re.IGNORECASE)
