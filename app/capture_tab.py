@@ -195,8 +195,8 @@ class CaptureTab(QObject):
         self.dark = self.white = self.colour_fit = None
 
     def shutdown(self) -> None:
-        self.live_jobs.cancel()
-        self.jobs.cancel()
+        self.live_jobs.close()
+        self.jobs.close()
 
     def _require_devices(self) -> bool:
         if self.camera is None or self.projector is None:

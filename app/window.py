@@ -345,8 +345,11 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.error_shown.emit(message)
 
     def shutdown(self) -> None:
-        """Cancel all work and wait for the workers (so no job outlives the window)."""
+        """Cancel all work, start no more, and wait for the workers (so no job outlives the window)."""
         self.cancel_all()
+        for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
+                     self.impulse_jobs):
+            slot.close()
         self.capture_tab.shutdown()
         self.scrub_bar.timer.stop()
         self.pool.waitForDone()

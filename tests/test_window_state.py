@@ -55,10 +55,14 @@ def test_a_small_dataset_does_not_clamp_the_next_ones_stack(qtbot, window, tmp_p
         again.shutdown()
 
 
-def test_a_refused_request_leaves_the_controls_showing_the_stack_on_screen(qtbot, window, tmp_path):
+@pytest.mark.parametrize("change", [{"stop": 12.0}, {"antialias": True}])
+def test_a_refused_request_leaves_the_controls_showing_the_stack_on_screen(qtbot, window, tmp_path, change):
     open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 9, 3, seed=3))
-    shown = window.stacks.pair.request
-    refused = shown.with_changes(stop=12.0)  # beyond max_radius 3
+    shown = window.stacks.pair.request.with_changes(step=0.5, stop=1.5)  # reaches 3 without anti-aliasing
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.request_stacks(shown)
+    refused = shown.with_changes(**change)
+    assert refused.reach() > 3 >= shown.reach()  # r1 = 12, or anti-aliasing's wider rings, pass max_radius 3
     window.stack_controls.set_request(refused)
     with qtbot.waitSignal(window.error_shown, timeout=TIMEOUT_MS):
         window.request_stacks(refused)
@@ -199,3 +203,35 @@ def test_view_as_shown_export_has_the_panel_size_and_the_ring_overlay(qtbot, win
         return int((np.abs(image.astype(int) - np.array(MEMBER_RGB)).sum(-1) < 30).sum())
     # The ring's circle, drawn in MEMBER_RGB, is in the export and not in one without the ring.
     assert ring_coloured(pixels) > ring_coloured(bare) + 50
+
+
+def test_the_diagram_png_is_the_whole_diagram_whatever_the_zoom(qtbot, window, tmp_path):
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=5))
+    window.analysis_tabs.setCurrentWidget(window.layer_panel)
+    diagram = window.layer_panel.diagram
+    diagram.reset_view()
+    whole = np.array(diagram.getPlotItem().vb.viewRange())
+    diagram.setRange(xRange=(0.30, 0.35), yRange=(0.30, 0.35), padding=0)
+    zoomed = np.array(diagram.getPlotItem().vb.viewRange())
+    grabbed, grab = [], diagram.grab
+    diagram.grab = lambda *args: (grabbed.append(np.array(diagram.getPlotItem().vb.viewRange())), grab(*args))[1]
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=TIMEOUT_MS):
+        window.layer_tab.export("png", tmp_path / "diagram.png")
+    assert len(grabbed) == 1 and np.allclose(grabbed[0], whole)  # drawn whole for the file
+    restored = np.array(diagram.getPlotItem().vb.viewRange())  # and the user's zoom is back
+    assert np.allclose(restored.mean(1), zoomed.mean(1)) and np.allclose(np.ptp(restored, 1), np.ptp(zoomed, 1), rtol=0.1)
+    assert (tmp_path / "diagram.png").stat().st_size > 1000
+
+
+def test_a_shut_down_window_starts_no_more_work(qtbot, window, tmp_path):
+    """Destroying a window's widgets emits the signals that start jobs (a view change asks for
+    the noise): once shut down it starts none, so no job can outlive it (one blocked forever in
+    the store's reader after the interpreter's exit-time clean-up, and the exit hung)."""
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 12, 4, seed=6))
+    window.shutdown()
+    window.noise = None
+    window.display_controls.set_view("ring")  # would ask for the noise again
+    window.request_stacks(window.stacks.pair.request)
+    window.capture_tab.open_devices("simulated", "simulated", "size=4x4 photons=10")
+    assert not any(slot.busy for slot in (window.noise_jobs, window.stack_jobs, window.capture_tab.jobs))
+    assert window.pool.activeThreadCount() == 0 and window.capture_pool.activeThreadCount() == 0

@@ -86,13 +86,17 @@ class JobSlot(QObject):
         self._signals.cancelled.connect(self._on_cancelled)
         self._count = 0
         self._current: _Job | None = None
+        self._closed = False
 
     @property
     def busy(self) -> bool:
         return self._current is not None
 
     def start(self, description: str, work: Work) -> None:
-        """Run ``work`` in the pool, cancelling and superseding any job running here."""
+        """Run ``work`` in the pool, cancelling and superseding any job running here; nothing
+        once the slot is closed."""
+        if self._closed:
+            return
         self.cancel()
         self._count += 1
         self._current = _Job(self._count, work, self._signals)
@@ -106,6 +110,13 @@ class JobSlot(QObject):
             self._current = None
             self.cancelled.emit()
             self.idle.emit()
+
+    def close(self) -> None:
+        """Cancel the current job and refuse new ones: for a window going away, whose widgets
+        may still emit the signals that start jobs while they are destroyed (a job started then
+        could outlive the libraries it uses, whose exit-time clean-up has run)."""
+        self._closed = True
+        self.cancel()
 
     def _is_current(self, number: int) -> bool:
         return self._current is not None and self._current.number == number
