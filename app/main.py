@@ -107,5 +107,6 @@ def _needs_display_server(plugin: str) -> bool:
     """xcb draws on an X11 server (DISPLAY), the wayland plugins on a Wayland one (WAYLAND_DISPLAY)."""
     return plugin == "xcb" or plugin.startswith("wayland")
 
+
 if __name__ == "__main__":
     sys.exit(main())
