@@ -8,6 +8,7 @@ here to brute-force stacks (tests/reference.py), never from the code under test.
 
 import numpy as np
 import pyqtgraph as pg
+from PySide6.QtCore import QPointF
 import pytest
 from reference import brute_ring_image, random_impulses, write_dataset, write_rgb
 from ringlight.core.colourspaces import colour_module
@@ -173,3 +174,31 @@ def test_colour_map_choices_survive_a_restart(qtbot, window, tmp_path):
         assert again.display_controls.colormap_names() == {"channel": "inferno", "signed": "RdBu", "snr": "cividis"}
     finally:
         again.shutdown()
+
+
+def test_the_ring_tint_is_drawn_on_its_members_and_nowhere_else(qtbot, window, dataset):
+    """The tint is an image over the ring's bounding box only: on screen, a member pixel is the
+    alpha blend of the data and the tint, the picked pixel inside the box (not a member at r = 3)
+    is the data alone."""
+    from ringlight.widgets.image_panel import MEMBER_RGB
+
+    opened(qtbot, window, dataset)
+    window.set_radius(3.0)
+    window.pick(7, 6)
+    window.image_panel.marker.setData([], [])  # the cross would cover the picked pixel
+    overlay, data = window.image_panel.ring_overlay(), window.image_panel.pixels().astype(float)
+    grabbed = window.image_panel.grab().toImage()
+    ratio = window.image_panel.devicePixelRatioF()
+
+    def on_screen(y, x):
+        point = window.image_panel.mapFromScene(window.image_panel.view.mapViewToScene(QPointF(x + 0.5, y + 0.5)))
+        colour = grabbed.pixelColor(round(point.x() * ratio), round(point.y() * ratio))
+        return np.array([colour.red(), colour.green(), colour.blue()], float)
+
+    members = np.argwhere((overlay[..., 3] > 0) & np.all(overlay[..., :3] == MEMBER_RGB, axis=-1))
+    assert len(members) > 8 and overlay[7, 6, 3] == 0
+    for y, x in members[::3]:
+        alpha = overlay[y, x, 3] / 255
+        expected = data[y, x] * (1 - alpha) + np.array(MEMBER_RGB) * alpha
+        assert np.abs(on_screen(y, x) - expected).max() <= 3
+    assert np.abs(on_screen(7, 6) - data[7, 6]).max() <= 3

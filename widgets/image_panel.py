@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QPointF, Qt, Signal
+from PySide6.QtCore import QPointF, QRectF, Qt, Signal
 from PySide6.QtWidgets import QWidget
 
 MEMBER_RGB = (255, 214, 0)
@@ -108,7 +108,7 @@ class ImagePanel(pg.GraphicsView):
         self._shape: tuple[int, int] | None = None
         self._region_mode = "all"
         self.region_roi: pg.ROI | None = None
-        self._overlay = np.zeros((0, 0, 4), np.uint8)
+        self._ring: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.scale_bar: pg.ScaleBar | None = None
         self.scene().sigMouseMoved.connect(self._on_mouse_moved)
         self.setMinimumSize(240, 240)
@@ -254,13 +254,20 @@ class ImagePanel(pg.GraphicsView):
         so not counted) are drawn grey."""
         if self._shape is None:
             return
-        overlay = np.zeros((*self._shape, 4), np.uint8)
+        positions = np.asarray(positions, np.int64).reshape(-1, 2)
+        colours = np.where(np.asarray(missing, bool)[:, None], MISSING_RGB, MEMBER_RGB).astype(np.uint8)
+        self._ring = (positions, colours, member_alpha(np.asarray(weights)))
+        # Only the ring's bounding box is drawn (an image placed there): a click on a large grid
+        # then costs the ring's size, not the grid's (a 1024 x 1024 overlay was 4 MB a click).
         if len(positions):
-            colours = np.where(np.asarray(missing)[:, None], MISSING_RGB, MEMBER_RGB).astype(np.uint8)
-            overlay[positions[:, 0], positions[:, 1], :3] = colours
-            overlay[positions[:, 0], positions[:, 1], 3] = member_alpha(weights)
-        self._overlay = overlay
-        self.overlay_item.setImage(overlay, autoLevels=False, levels=(0, 255))
+            (y0, x0), (y1, x1) = positions.min(axis=0), positions.max(axis=0) + 1
+            box = np.zeros((y1 - y0, x1 - x0, 4), np.uint8)
+            box[positions[:, 0] - y0, positions[:, 1] - x0, :3] = colours
+            box[positions[:, 0] - y0, positions[:, 1] - x0, 3] = self._ring[2]
+            self.overlay_item.setImage(box, autoLevels=False, levels=(0, 255))
+            self.overlay_item.setRect(QRectF(float(x0), float(y0), float(x1 - x0), float(y1 - y0)))
+        else:
+            self.overlay_item.clear()
         cy, cx = center[0] + 0.5, center[1] + 0.5
         self.marker.setData([cx], [cy])
         self.circle.setData(*_circle(cx, cy, radius))
@@ -270,11 +277,18 @@ class ImagePanel(pg.GraphicsView):
             self.outer_circle.setData(*_circle(cx, cy, outer_radius))
 
     def ring_overlay(self) -> np.ndarray:
-        """(H, W, 4) uint8 RGBA overlay drawn now (alpha 0 off the ring)."""
-        return self._overlay
+        """(H, W, 4) uint8 RGBA overlay drawn now over the whole grid (alpha 0 off the ring);
+        (0, 0, 4) without a ring."""
+        if self._ring is None or self._shape is None:
+            return np.zeros((0, 0, 4), np.uint8)
+        positions, colours, alpha = self._ring
+        overlay = np.zeros((*self._shape, 4), np.uint8)
+        overlay[positions[:, 0], positions[:, 1], :3] = colours
+        overlay[positions[:, 0], positions[:, 1], 3] = alpha
+        return overlay
 
     def clear_ring(self) -> None:
-        self._overlay = np.zeros((0, 0, 4), np.uint8)
+        self._ring = None
         self.overlay_item.clear()
         self.marker.setData([], [])
         self.circle.setData([], [])
