@@ -74,7 +74,8 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self._noise_failed_for = None  # the StackPair whose noise estimate failed, if any
         self.last_error = ""
         self._levels: tuple[float, float] = (0.0, 1.0)
-        self._global_levels: dict[tuple, tuple[float, float]] = {}
+        self._global_levels: dict[tuple, tuple[float, float]] = {}  # levels and histograms of stack images,
+        self._histograms: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # kept until the stacks change
         self._impulse_cache: tuple[tuple[int, int], np.ndarray] | None = None
         self._shown_image: np.ndarray | None = None
         self.truth_correlation = float("nan")
@@ -255,6 +256,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self.loaded = loaded
         self._impulse_cache = None
         self._global_levels.clear()
+        self._histograms.clear()
         dataset = loaded.dataset
         self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
         if loaded.truth is not None and self.truth_panel.isHidden():
@@ -324,6 +326,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self._forget_noise()
         self.stacks = stacks
         self._global_levels.clear()
+        self._histograms.clear()
         self.scrub_bar.set_radii(stacks.pair.radii)
         self.scrub_bar.set_poor_coverage(stacks.poor_coverage)
         if stacks.coverage_note is not None:

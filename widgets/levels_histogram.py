@@ -37,10 +37,14 @@ class LevelsHistogram(pg.PlotWidget):
     def sizeHint(self) -> QSize:
         return QSize(220, 100)  # the dock's width comes from the controls above, not from this plot
 
-    def set_image(self, image: np.ndarray | None, levels: tuple[float, float], scale: float = 1.0) -> None:
+    def set_image(self, image: np.ndarray | None, levels: tuple[float, float], scale: float = 1.0,
+                  histogram: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Show the histogram of ``image`` times ``scale`` (the exposure, applied to the bin edges
-        rather than to a copy of the image) and ``levels`` (linear values) as the region."""
-        edges, counts = value_histogram(image) if image is not None else (np.zeros(0), np.zeros(0))
+        rather than to a copy of the image) and ``levels`` (linear values) as the region;
+        ``histogram`` is ``value_histogram(image)`` when the caller has it already."""
+        if histogram is None:
+            histogram = value_histogram(image) if image is not None else (np.zeros(0), np.zeros(0))
+        edges, counts = histogram
         edges = edges * scale
         if len(counts):
             # log(1 + count): the few bright values of a transient would otherwise be invisible.

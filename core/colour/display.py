@@ -26,6 +26,7 @@ import functools
 import math
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from ..colourspaces import colour_module
@@ -143,10 +144,16 @@ def render(image: np.ndarray, levels: tuple[float, float], settings: DisplaySett
     the colour view; for a scalar view (:attr:`DisplaySettings.scalar`) the value's position
     between the levels through ``lut`` ((n, 3) uint8 colour map, low to high; default: grey,
     sRGB-encoded on linear scales, or RdBu when diverging)."""
-    image = np.asarray(image, np.float32) * np.float32(2.0**settings.exposure_stops)
+    low, high = levels
+    gain = np.float32(2.0**settings.exposure_stops)
+    if not settings.scalar and settings.normalisation != "log":
+        # The default view, drawn at every step of a scrub: one compiled pass over the image.
+        return _colour_pass(np.asarray(image, np.float32), gain, _to_srgb_matrix(colorspace), np.float32(low),
+                            np.float32(1.0 / (high - low if high != low else 1.0)), _srgb_encoding_table(),
+                            np.array(UNDEFINED_RGB, np.uint8))
+    image = np.asarray(image, np.float32) * gain
     undefined = ~np.isfinite(image).all(axis=-1)
     image = np.where(undefined[..., None], 0, image)
-    low, high = levels
     if settings.diverging:
         pixels = _diverging(shown_values(image, settings, colorspace), max(abs(low), abs(high)), lut)
     elif settings.channel != "rgb":
@@ -157,11 +164,34 @@ def render(image: np.ndarray, levels: tuple[float, float], settings: DisplaySett
             position = (values - np.float32(low)) * np.float32(1.0 / (high - low if high != low else 1.0))
         position = np.clip(position, 0, 1)
         pixels = _grey(position, settings.normalisation != "log") if lut is None else _through(position, lut)
-    elif settings.normalisation == "log":
-        pixels = _log_encoded(image, low, high)
     else:
-        pixels = _colour_encoded(image @ _to_srgb_matrix(colorspace).T, low, high)
+        pixels = _log_encoded(image, low, high)
     pixels[undefined] = UNDEFINED_RGB
+    return pixels
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _colour_pass(image, gain, matrix, low, inverse_span, table, undefined):  # pragma: no cover - compiled
+    """(H, W, 3) uint8: ``table`` at ((matrix @ (gain * v) - low) * inverse_span) of each pixel
+    v of (H, W, 3) float32 ``image``, clipped to the table, in float32 as the numpy path computes
+    it; ``undefined`` where any channel is not finite."""
+    height, width = image.shape[0], image.shape[1]
+    pixels = np.empty((height, width, 3), np.uint8)
+    last = table.size - 1
+    for y in numba.prange(height):
+        for x in range(width):
+            r = image[y, x, 0] * gain
+            g = image[y, x, 1] * gain
+            b = image[y, x, 2] * gain
+            if not (np.isfinite(r) and np.isfinite(g) and np.isfinite(b)):
+                for c in range(3):
+                    pixels[y, x, c] = undefined[c]
+                continue
+            for c in range(3):
+                value = matrix[c, 0] * r + matrix[c, 1] * g + matrix[c, 2] * b
+                scaled = (value - low) * inverse_span * np.float32(last) + np.float32(0.5)
+                index = int(min(max(scaled, np.float32(0.0)), np.float32(last)))
+                pixels[y, x, c] = table[index]
     return pixels
 
 
@@ -181,13 +211,6 @@ def negative_fraction(image: np.ndarray) -> float:
     finite = np.isfinite(values)
     count = int(finite.sum())
     return float((values[finite] < 0).sum() / count) if count else 0.0
-
-
-def _colour_encoded(linear_srgb: np.ndarray, low: float, high: float) -> np.ndarray:
-    span = high - low if high != low else 1.0
-    scaled = (linear_srgb - np.float32(low)) * np.float32(1.0 / span)
-    index = np.clip(scaled * (_ENCODING_TABLE_SIZE - 1) + 0.5, 0, _ENCODING_TABLE_SIZE - 1).astype(np.int32)
-    return _srgb_encoding_table()[index]
 
 
 def _log_position(values: np.ndarray, low: float, high: float) -> np.ndarray:
