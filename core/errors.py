@@ -2,8 +2,11 @@
 
 Every error a user can cause (a bad file, a bad argument) is raised as one of these, with a
 message that names the file and the problem in one line, so that the CLI can print it and exit 2
-and the window can show it in a dialog.
+and the window can show it in a dialog. Long work reports through a :data:`ProgressCallback`,
+which stops it by raising :class:`Cancelled`.
 """
+
+from collections.abc import Callable
 
 
 class RinglightError(Exception):
@@ -20,3 +23,7 @@ class StackError(RinglightError):
 
 class Cancelled(RinglightError):
     """Raised by a progress callback to stop long work; the work leaves nothing half-written."""
+
+
+ProgressCallback = Callable[[float], None]
+"""Called with the fraction of long work done (0 to 1); may raise :class:`Cancelled`."""

@@ -27,7 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..errors import RinglightError
+from ..errors import ProgressCallback, RinglightError
 
 ENTRY_POINT_GROUP = "ringlight.hardware"
 
@@ -92,7 +92,6 @@ class Projector(Protocol):
 
 
 Factory = Callable[..., object]
-ProgressCallback = Callable[[float], None]
 
 
 @dataclass(frozen=True)

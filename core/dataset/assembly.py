@@ -27,12 +27,11 @@ import numba
 import numpy as np
 import OpenEXR
 
-from ..errors import DatasetError
+from ..errors import DatasetError, ProgressCallback
 from .frames import FrameReader
 from .manifest import Manifest
 from .response_store import StoreWriter, store_tile
 
-ProgressCallback = Callable[[float], None]
 BATCH_BYTES = 256 * 2**20
 """Frame rows (radiance, owner and weight: 20 bytes a point) scattered together."""
 WRITE_SHARE = 0.1

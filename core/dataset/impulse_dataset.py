@@ -32,7 +32,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..errors import DatasetError, RinglightError
+from ..errors import DatasetError, ProgressCallback, RinglightError
 from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
 from .frames import dataset_channels
@@ -40,7 +40,6 @@ from .manifest import Manifest, read_manifest
 from .memory import format_bytes, memory_budget
 from .response_store import ResponseStore, entry_bytes, open_store, store_tile, write_store
 
-ProgressCallback = Callable[[float], None]
 SteadyPreview = Callable[[int, int, np.ndarray], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
 WHOLE_READ_BYTES = 256 * 2**20
