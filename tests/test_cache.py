@@ -185,3 +185,17 @@ def test_the_store_of_a_smooth_half_float_capture_is_smaller_than_its_frames(tmp
     store = sum(path.stat().st_size for path in (tmp_path / "ds" / CACHE_FOLDER_NAME).rglob("*") if path.is_file())
     assert opened.responses is not None and opened.responses.any()
     assert store < 0.85 * frames, (store, frames)
+
+
+def test_store_tiles_are_whole_multiples_of_16_points_once_8_or_more():
+    """A chunk's side: about 8 MB of (K, 3) float32, rounded to a multiple of 16 (the EXR line
+    chunks, and whole bit-shuffle blocks per offset image: at 1024 px, R 32, a 14-point side took
+    the store to 0.215 of raw float32 and 16 to 0.134), kept below 8, never beyond the grid."""
+    from ringlight.core.dataset.impulse_dataset import disc_offset_count
+    from ringlight.core.dataset.response_store import store_tile
+
+    assert store_tile((1024, 1024), disc_offset_count(32)) == 16  # sqrt(8 MiB / (3209 * 12)) = 14.8
+    assert store_tile((800, 800), disc_offset_count(24)) == 16  # 19.3
+    assert store_tile((512, 512), disc_offset_count(8)) == 64  # 58.3
+    assert store_tile((2048, 2048), disc_offset_count(64)) == 7  # 7.4: below 8, kept
+    assert store_tile((12, 10), disc_offset_count(4)) == 12  # the grid is smaller than a chunk

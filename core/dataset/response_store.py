@@ -66,10 +66,13 @@ def _codecs():
 
 def store_tile(grid_shape: tuple[int, int], offsets: int) -> int:
     """Side (grid points) of a responses chunk: about :data:`CHUNK_BYTES` of (K, 3) float32 each,
-    a multiple of 16 rows when at least 16 (bands then start on the 16-line chunks of ZIP- and
-    PIZ-compressed EXR, so that a band decodes none of its neighbours' lines)."""
+    as a multiple of 16 rows once that is 8 or more (a 14-point side rounds up to 16). Bands then
+    start on the 16-line chunks of ZIP- and PIZ-compressed EXR, so that a band decodes none of its
+    neighbours' lines, and each offset's image in a chunk is a whole number of bit-shuffle
+    blocks: at 1024 px, R 32 a 14-point side compressed to 0.215 of raw float32, 16 to 0.134."""
     side = int(math.sqrt(CHUNK_BYTES / max(offsets * 12, 1)))
-    side = side // 16 * 16 if side >= 16 else side
+    if side >= 8:
+        side = max(16, int(round(side / 16)) * 16)
     return max(1, min(side, max(grid_shape)))
 
 
