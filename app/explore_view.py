@@ -2,16 +2,11 @@
 
 A mixin of :class:`ringlight.app.window.MainWindow`: it reads the window's state (``loaded``,
 ``stacks``, ``noise``, ``picked``) and widgets, and keeps the numbers it shows (``_shown_image``,
-``profile``, ``truth_correlation``) for the hover readout and the exports.
-
-After each new stack the noise of E_r and T_r (ring-member spread, :mod:`ringlight.core.rings.noise`)
-is estimated in a worker; it draws the profile bands, the SNR map view, the scrub bar's SNR strip
-and the Layers tab's trusted flags once it arrives.
+``profile``, ``truth_correlation``) for the hover readout and the exports. Levels and colour maps
+are :mod:`.view_levels`'s, the noise and the SNR map :mod:`.noise_view`'s.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from ringlight.core import ImpulseDataset, ring_geometry
@@ -21,39 +16,12 @@ from ringlight.core.colour.display import (
     negative_fraction,
     render,
     shown_values,
-    value_histogram,
 )
 from ringlight.core.colour.regions import region_statistics
 from ringlight.core.dataset.ground_truth import normalised_cross_correlation, scaled_difference
-from ringlight.core.rings.noise import StackNoise, median_snr, smoothed, stack_noise, transient_snr
+from ringlight.core.rings.noise import smoothed
 from ringlight.core.rings.profiles import pixel_profile, stack_profile
-from ringlight.core.rings.stack_request import StackPair
-from ringlight.widgets.colormaps import bar_colormap, lut
-from ringlight.widgets.snr_colours import SNR_LEVELS, set_snr_colormap, snr_colormap, snr_colormap_name, snr_rgb
-
-SNR_LABEL = "SNR = |Y(T_r)| / SE"
-
-
-@dataclass(frozen=True, eq=False)
-class ViewNoise:
-    """The noise of a stack pair on screen.
-
-    Attributes
-    ----------
-    snr
-        (n, H, W) float32 SNR of each T_r's luminance (:func:`transient_snr`).
-    """
-
-    pair: StackPair
-    noise: StackNoise
-    snr: np.ndarray
-
-
-def compute_view_noise(dataset: ImpulseDataset, pair: StackPair, progress) -> ViewNoise:
-    """Standard errors and SNR of ``pair``'s stacks (a worker job)."""
-    request = pair.request
-    noise = stack_noise(dataset, pair.radii, request.dr, request.thickness, request.antialias, progress)
-    return ViewNoise(pair, noise, transient_snr(pair.transient.images, noise))
+from ringlight.widgets.snr_colours import SNR_LEVELS, snr_colormap_name
 
 
 class ExploreView:
@@ -93,45 +61,6 @@ class ExploreView:
     def _on_denoise_changed(self, _sigma: float, in_exports: bool) -> None:
         self.image_panel.set_display_in_exports(in_exports)
         self._refresh_image()
-
-    # ----------------------------------------------------------------- noise
-    def request_noise(self) -> None:
-        """Estimate the noise of the shown stacks in a worker, unless known, under way or failed."""
-        if (self.loaded is None or self.stacks is None or self.noise is not None or self.noise_jobs.busy
-                or self._noise_failed_for is self.stacks.pair):
-            return
-        dataset, pair = self.loaded.dataset, self.stacks.pair
-        self.noise_jobs.start(f"Estimating noise of {len(pair.radii)} radii",
-                              lambda progress: compute_view_noise(dataset, pair, progress))
-
-    def _forget_noise(self) -> None:
-        """New stacks: their noise is unknown until the worker brings it."""
-        self.noise_jobs.cancel()
-        self.noise = None
-        self.scrub_bar.set_snr(None)
-
-    def _on_noise_failed(self, message: str) -> None:
-        self._noise_failed_for = self.stacks.pair if self.stacks is not None else None  # no retry loop
-        self.show_error("Could not estimate the noise", message)
-
-    def _on_noise_ready(self, noise: ViewNoise) -> None:
-        if self.stacks is None or noise.pair is not self.stacks.pair:
-            return  # computed for stacks that were replaced meanwhile
-        self.noise = noise
-        self.layer_tab.set_noise(noise.noise)
-        self.refresh_snr_strip()
-        self._refresh_all()
-
-    def refresh_snr_strip(self) -> None:
-        """Median SNR of T_r per radius over the Layers tab's region (all pixels when none)."""
-        if self.noise is None:
-            self.scrub_bar.set_snr(None)
-            return
-        region = self.layer_tab.region
-        whole = region.shape != self.noise.snr.shape[1:] or region.all()
-        where = "the image" if whole else "the Layers region"
-        self.scrub_bar.set_snr(median_snr(self.noise.snr, None if whole else region),
-                               f"median {SNR_LABEL} of T_r over {where}:")
 
     def _on_hover(self, y: int, x: int) -> None:
         self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
@@ -176,7 +105,6 @@ class ExploreView:
         height = steady.shape[0]
         self.image_panel.set_title(f"steady state: rows 0..{rows} of {height} built, opening ..." if rows < height
                                    else "steady state: computing the stacks ...")
-        self._previewing = True
 
     def _reset_zoom(self) -> None:
         for panel in (self.image_panel, self.truth_panel):
@@ -239,67 +167,6 @@ class ExploreView:
         if self.view() == "impulse":
             self._refresh_image()
 
-    def current_levels(self) -> tuple[float, float]:
-        return self._levels
-
-    def _levels_for(self, image: np.ndarray, settings: DisplaySettings, source: str) -> tuple[float, float]:
-        """The levels of ``image`` from ``source`` (a view key, or "truth"). Those of stack
-        images are kept until the stacks change (a percentile of a 1024 x 1024 image is 30 ms a
-        scrub step): per image for each radius, or over the whole stack."""
-        colorspace = self.loaded.dataset.colorspace
-        if settings.normalisation == "manual" or source in ("impulse", "steady", "difference", "snr"):
-            return display_levels(image, settings, colorspace)
-        per_image = settings.normalisation != "global"
-        key = (source, id(self.stacks), self.radius_index() if per_image else None, settings.normalisation,
-               settings.percentile, settings.log_decades, settings.diverging, settings.channel)
-        if key not in self._global_levels:
-            if per_image:
-                values = image
-            elif source == "truth":
-                values = self.loaded.truth.images
-            else:
-                values = self.stacks.pair.transient.images if source == "transient" else self.stacks.pair.ring.images
-            self._global_levels[key] = display_levels(values, settings, colorspace)
-        return self._global_levels[key]
-
-    def _histogram_of(self, shown: np.ndarray, settings: DisplaySettings, view: str) -> tuple[np.ndarray, np.ndarray]:
-        """``value_histogram`` of the shown values, kept per stack image until the stacks change."""
-        if view not in ("ring", "transient"):
-            return value_histogram(shown)
-        key = (view, id(self.stacks), self.radius_index(), settings.diverging, settings.channel)
-        if key not in self._histograms:
-            self._histograms[key] = value_histogram(shown)
-        return self._histograms[key]
-
-    def shown_settings(self) -> DisplaySettings:
-        """The display settings the current view is drawn with: the user's, except that a
-        difference is always signed."""
-        settings = self.display_settings()
-        return settings.with_changes(diverging=True) if self.view() == "difference" else settings
-
-    def _scalar_map(self, settings: DisplaySettings) -> tuple[str | None, np.ndarray | None]:
-        """Name and table of the colour map a scalar view is drawn with ((None, None) for colour)."""
-        if not settings.scalar:
-            return None, None
-        name = self.display_controls.colormap_name("signed" if settings.diverging else "channel")
-        return name, lut(name)
-
-    def _show_colour_bar(self, settings: DisplaySettings, name: str | None) -> None:
-        """The colour bar of a scalar view: the data values at the two levels (before exposure;
-        log10 of them on the log scale)."""
-        if name is None:
-            self.image_panel.set_colour_bar(None)
-            return
-        gain = 2.0 ** settings.exposure_stops
-        low, high = (level / gain for level in self._levels)
-        quantity = "Y" if settings.diverging or settings.channel == "Y" else settings.channel
-        if settings.diverging:
-            low, high = -max(abs(low), abs(high)), max(abs(low), abs(high))
-        if settings.normalisation == "log" and not settings.diverging:
-            low, high = np.log10(max(low, high * 1e-12)), np.log10(high)
-            quantity = f"log10 {quantity}"
-        self.image_panel.set_colour_bar((float(low), float(high)), bar_colormap(name, settings), quantity)
-
     def _refresh_all(self) -> None:
         self.request_noise()  # again after a cancel (Esc): any change of view brings it back
         self._refresh_image()
@@ -341,36 +208,6 @@ class ExploreView:
         self._refresh_truth(self.display_settings(), colorspace)
         self.show_region_statistics()
         self.image_shown.emit()
-
-    def _refresh_snr_image(self) -> None:
-        """The SNR map of T_r on the shared colour scale, with its colour bar."""
-        if self.loaded is None or self.stacks is None:
-            return
-        if self.noise is None:
-            self._shown_image = None
-            self.image_panel.set_title("SNR map of T_r: estimating the noise (status bar) ...")
-            return
-        set_snr_colormap(self.display_controls.colormap_name("snr"))
-        self.scrub_bar.snr_strip.update()
-        image = self.noise.snr[self.radius_index()]
-        self._levels = SNR_LEVELS
-        self._shown_image = image
-        self.image_panel.set_pixels(snr_rgb(image))
-        self.image_panel.set_colour_bar(SNR_LEVELS, snr_colormap(), SNR_LABEL)
-        self.image_panel.set_title(self._image_title())
-        self.display_controls.show_levels(SNR_LEVELS, 0.0)
-        self.levels_histogram.set_image(image, SNR_LEVELS)
-        self._refresh_truth(self.display_settings(), self.loaded.dataset.colorspace)
-        self.show_region_statistics()
-        self.image_shown.emit()
-
-    def set_manual_levels(self, low: float, high: float) -> None:
-        """Switch to manual levels ``(low, high)`` (linear values after exposure), as dragged."""
-        if high <= low:
-            return
-        settings = self.display_settings().with_changes(normalisation="manual", manual_levels=(low, high))
-        self.display_controls.set_settings(settings)
-        self._refresh_image()
 
     def show_region_statistics(self) -> None:
         """Count, mean and std of the shown image over the Layers tab's region (when one is drawn)."""

@@ -40,11 +40,13 @@ from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
 from .capture_tab import CaptureTab
-from .explore_view import ExploreView, ViewNoise
+from .explore_view import ExploreView
 from .export_actions import ExportActions
 from .help_dialogs import EXITANCE_NOTICE, HelpDialogs
 from .layer_tab import LayerTab
+from .noise_view import NoiseView, ViewNoise
 from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
+from .view_levels import ViewLevels
 from .window_menus import WindowMenus
 from .window_settings import WindowSettings, first_size
 from .window_tools import LineProfileDock
@@ -52,8 +54,8 @@ from .window_tools import LineProfileDock
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
-class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDialogs, LineProfileDock,
-                 QMainWindow):
+class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus, WindowSettings, HelpDialogs,
+                 LineProfileDock, QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
     dataset_loaded = Signal()
@@ -74,7 +76,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
         self._noise_failed_for = None  # the StackPair whose noise estimate failed, if any
         self.last_error = ""
         self._levels: tuple[float, float] = (0.0, 1.0)
-        self._global_levels: dict[tuple, tuple[float, float]] = {}  # levels and histograms of stack images,
+        self._levels_cache: dict[tuple, tuple[float, float]] = {}  # levels and histograms of stack images,
         self._histograms: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # kept until the stacks change
         self._impulse_cache: tuple[tuple[int, int], np.ndarray] | None = None
         self._shown_image: np.ndarray | None = None
@@ -255,8 +257,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
             self._remember_request()
         self.loaded = loaded
         self._impulse_cache = None
-        self._global_levels.clear()
-        self._histograms.clear()
+        self._forget_levels()
         dataset = loaded.dataset
         self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
         if loaded.truth is not None and self.truth_panel.isHidden():
@@ -325,8 +326,7 @@ class MainWindow(ExploreView, ExportActions, WindowMenus, WindowSettings, HelpDi
     def _install_stacks(self, stacks: ViewStacks) -> None:
         self._forget_noise()
         self.stacks = stacks
-        self._global_levels.clear()
-        self._histograms.clear()
+        self._forget_levels()
         self.scrub_bar.set_radii(stacks.pair.radii)
         self.scrub_bar.set_poor_coverage(stacks.poor_coverage)
         if stacks.coverage_note is not None:

@@ -76,6 +76,18 @@ def write_dataset(folder: Path, height, width, impulses, *, max_radius=None, mul
     return manifest
 
 
+
+def write_truth_dataset(folder: Path, height, width, impulses, truth_images, max_radius):
+    """A one-point-per-frame dataset with ground-truth path-length bins [i, i + 1), one a
+    ``truth_images[i]`` ((H, W, 3) linear RGB)."""
+    entries = []
+    for index, image in enumerate(truth_images):
+        write_rgb(folder / f"truth/len_{index:03d}.exr", image)
+        entries.append({"file": f"truth/len_{index:03d}.exr", "min": float(index), "max": float(index + 1)})
+    write_dataset(folder, height, width, impulses, max_radius=max_radius,
+                  extra={"ground_truth": {"path_length_images": entries}})
+    return folder
+
 def brute_ring_image(impulses, height, width, radius, thickness=1.0, weight=None):
     """E_r by the definition: loop over every pixel and every lit point.
 

@@ -10,7 +10,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPointF
 import pytest
-from reference import brute_ring_image, random_impulses, write_dataset, write_rgb
+from reference import brute_ring_image, random_impulses, write_dataset, write_truth_dataset
 from ringlight.core.colourspaces import colour_module
 from ringlight.widgets.image_panel import MAX_MEMBER_ALPHA
 
@@ -32,14 +32,7 @@ def truth_images():
 
 @pytest.fixture
 def dataset(tmp_path, impulses, truth_images):
-    folder = tmp_path / "dataset"
-    entries = []
-    for index, image in enumerate(truth_images):
-        write_rgb(folder / f"truth/len_{index:03d}.exr", image)
-        entries.append({"file": f"truth/len_{index:03d}.exr", "min": float(index), "max": float(index + 1)})
-    write_dataset(folder, HEIGHT, WIDTH, impulses, max_radius=SUPPORT,
-                  extra={"ground_truth": {"path_length_images": entries}})
-    return folder
+    return write_truth_dataset(tmp_path / "dataset", HEIGHT, WIDTH, impulses, truth_images, SUPPORT)
 
 
 def brute_transient(impulses, radius):

@@ -208,17 +208,17 @@ def test_the_trusted_flag_is_region_snr_of_at_least_3_and_flips_with_the_noise(t
 
 
 def test_the_layers_table_shows_pending_then_the_snr_behind_each_flag(qtbot, window, tmp_path, monkeypatch):
-    from ringlight.app import explore_view
+    from ringlight.app import noise_view
 
     impulses = layered_with_noise(tmp_path / "noisy", 0.5)  # measured: SNR 9.4 at r = 1, 2.4 at r = 4
-    estimate, release = explore_view.compute_view_noise, threading.Event()
+    estimate, release = noise_view.compute_view_noise, threading.Event()
 
     def held(dataset, pair, progress):  # the estimate waits (cancellable) until released: no race with Esc
         while not release.is_set():
             progress(0.0)
             time.sleep(0.01)
         return estimate(dataset, pair, progress)
-    monkeypatch.setattr(explore_view, "compute_view_noise", held)
+    monkeypatch.setattr(noise_view, "compute_view_noise", held)
     with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
         window.open_dataset(tmp_path / "noisy")
     panel = window.layer_panel

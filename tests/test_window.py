@@ -18,7 +18,7 @@ from reference import (
     random_impulses,
     supersampled_annulus_weight,
     write_dataset,
-    write_rgb,
+    write_truth_dataset,
 )
 from ringlight.app.window import MainWindow
 from ringlight.core import read_stack
@@ -45,14 +45,7 @@ def truth_images():
 @pytest.fixture
 def dataset(tmp_path, impulses, truth_images):
     """A one-point-per-frame dataset with max_radius and 8 ground-truth bins of width 1."""
-    folder = tmp_path / "dataset"
-    entries = []
-    for index, image in enumerate(truth_images):
-        write_rgb(folder / f"truth/len_{index:03d}.exr", image)
-        entries.append({"file": f"truth/len_{index:03d}.exr", "min": float(index), "max": float(index + 1)})
-    write_dataset(folder, HEIGHT, WIDTH, impulses, max_radius=SUPPORT,
-                  extra={"ground_truth": {"path_length_images": entries}})
-    return folder
+    return write_truth_dataset(tmp_path / "dataset", HEIGHT, WIDTH, impulses, truth_images, SUPPORT)
 
 
 @pytest.fixture

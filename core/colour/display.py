@@ -162,8 +162,7 @@ def render(image: np.ndarray, levels: tuple[float, float], settings: DisplaySett
             position = _log_position(values, low, high)
         else:
             position = (values - np.float32(low)) * np.float32(1.0 / (high - low if high != low else 1.0))
-        position = np.clip(position, 0, 1)
-        pixels = _grey(position, settings.normalisation != "log") if lut is None else _through(position, lut)
+        pixels = _scalar_colours(np.clip(position, 0, 1), settings, lut)
     else:
         pixels = _log_encoded(image, low, high)
     pixels[undefined] = UNDEFINED_RGB
@@ -201,6 +200,11 @@ def scalar_lut(settings: DisplaySettings, lut: np.ndarray | None = None, entries
     position = np.linspace(0.0, 1.0, entries, dtype=np.float32)
     if settings.diverging:
         return _diverging(2 * position - 1, 1.0, lut)
+    return _scalar_colours(position, settings, lut)
+
+
+def _scalar_colours(position: np.ndarray, settings: DisplaySettings, lut: np.ndarray | None) -> np.ndarray:
+    """(..., 3) uint8 colours of a one-channel view at ``position`` in [0, 1]: ``lut``, or grey."""
     return _grey(position, settings.normalisation != "log") if lut is None else _through(position, lut)
 
 
