@@ -106,6 +106,30 @@ def _settle_qt(deadline: float):
     return None
 
 
+def _holders(obj, bookkeeping: tuple, depth: int = 4) -> str:
+    """The chain of Python objects that keep ``obj`` alive, outermost last (a dict is named by the
+    key that holds the object): at each step the first referrer that is not a container, or else
+    the first container, leaving out frames and the guard's own ``bookkeeping`` containers."""
+    import types
+
+    chain, seen = [], {id(obj), *map(id, bookkeeping)}
+    for _ in range(depth):
+        referrers = [r for r in gc.get_referrers(obj) if id(r) not in seen and not isinstance(r, types.FrameType)]
+        seen.add(id(referrers))
+        if not referrers:
+            break
+        holder = next((r for r in referrers if not isinstance(r, (dict, list, tuple))), referrers[0])
+        seen.add(id(holder))
+        name = type(holder).__qualname__
+        for key, value in holder.items() if isinstance(holder, dict) else ():  # no comprehension: it
+            if value is obj:  # would hold ``obj`` in a cell
+                name += f"[{key!r}]"
+                break
+        chain.append(name)
+        obj = holder
+    return " <- ".join(chain) or "nothing Python can see (a C++ owner)"
+
+
 def _new(after: dict, before: dict) -> list:
     return [item for key, item in after.items() if key not in before]
 
@@ -128,14 +152,26 @@ def no_leaks(request):
         if thread.is_alive():
             problems.append(f"thread {thread.name!r}")
     qt_after = _settle_qt(deadline) if "PySide6.QtWidgets" in sys.modules else None
-    if qt_after is not None and _new(qt_after[0], qt_before[0] if qt_before else {}):
+    # Widgets that only garbage cycles keep (a plot's parentless menus) go once the cycles are
+    # collected; collect until none is new or the grace period is over, as a worker that has just
+    # ended may drop its last reference to them a moment after its pool reports it idle.
+    while qt_after is not None and _new(qt_after[0], qt_before[0] if qt_before else {}):
         qt_after = None  # hold no wrapper while the cycles that may own the widgets are collected
         gc.collect()
+        if time.monotonic() > deadline:
+            qt_after = _settle_qt(deadline)
+            break
+        time.sleep(0.05)
         qt_after = _settle_qt(deadline)
     if qt_after is not None:
         widgets_before, timers_before, pools_before = qt_before or ({}, {}, {})
         widgets, timers, pools = qt_after
-        problems += [f"top-level widget {type(w).__name__} {w.objectName()!r}" for w in _new(widgets, widgets_before)]
+        leaked = _new(widgets, widgets_before)
+        problems += [f"top-level widget {type(w).__name__} {w.objectName()!r}" for w in leaked[:5]]
+        if len(leaked) > 5:
+            problems.append(f"{len(leaked) - 5} more top-level widgets")
+        if leaked:
+            problems.append("the first is held by " + _holders(leaked[0], (leaked, widgets, qt_after)))
         problems += [f"active QTimer {t.objectName()!r} of {type(t.parent()).__name__ if t.parent() else 'no parent'}"
                      for t in _new(timers, timers_before)]
         problems += [f"QThreadPool with {p.activeThreadCount()} running job(s)" for p in _new(pools, pools_before)]
