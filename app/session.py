@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from ringlight.core import ImpulseDataset, RinglightError, open_dataset, read_manifest
+from ringlight.core import ImpulseDataset, RinglightError, load_manifest, open_dataset
 from ringlight.core.dataset.ground_truth import (
     PathLengthImages,
     read_path_length_images,
@@ -112,7 +112,7 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     if path is None:
         path = sample_dataset(sample or DEMO_SAMPLE, progress=scaled(progress, 0.0, 0.3))
         progress = scaled(progress, 0.3, 1.0)
-    manifest = read_manifest(path)
+    manifest = load_manifest(path)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
     dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5),
                            preview=None if preview is None else _band_preview(manifest, preview))

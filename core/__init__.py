@@ -15,6 +15,7 @@ from .dataset.impulse_dataset import (
     response_memory_bytes,
 )
 from .dataset.manifest import Manifest, read_manifest
+from .dataset.manifest_copy import load_manifest
 from .dataset.writer import DatasetWriter
 from .errors import Cancelled, DatasetError, RinglightError, StackError
 from .rings.geometry import RingGeometry, annulus_pixel_area, ring_geometry
@@ -31,7 +32,7 @@ from .rings.stacks import (
 __all__ = [
     "Cancelled", "DatasetError", "DatasetWriter", "ImpulseDataset", "Manifest", "RingGeometry",
     "RinglightError", "Stack", "StackError", "annulus_pixel_area", "disc_offsets",
-    "effective_max_radius", "needed_radius", "open_dataset", "parse_radius_range",
+    "effective_max_radius", "load_manifest", "needed_radius", "open_dataset", "parse_radius_range",
     "radius_range", "read_exr_rgb", "read_manifest", "read_stack", "response_memory_bytes",
     "ring_geometry", "ring_stack", "transient_stack", "write_exr_rgb", "write_stack",
 ]

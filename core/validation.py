@@ -57,6 +57,13 @@ def read_json(path: str | os.PathLike, error: type[Exception], what: str = "JSON
     file over ``max_bytes``, invalid UTF-8 or JSON, integer literals over :data:`MAX_INT_DIGITS`
     digits, NaN and Infinity literals, and nesting deeper than the interpreter can decode.
     """
+    return decode_json(read_bounded(path, error, what, max_bytes), path, error, what)
+
+
+def read_bounded(path: str | os.PathLike, error: type[Exception], what: str = "JSON file",
+                 max_bytes: int = MAX_JSON_BYTES) -> bytes:
+    """The bytes of the regular file ``path`` of at most ``max_bytes``; anything else raises
+    ``error`` with one line naming it (see :func:`read_json`)."""
     path = Path(path)
     try:
         with open(path, "rb", opener=_nonblocking) as handle:
@@ -76,6 +83,11 @@ def read_json(path: str | os.PathLike, error: type[Exception], what: str = "JSON
         raise error(f"{path}: the {what} cannot be read ({problem.strerror or problem})") from None
     if len(data) > max_bytes:
         raise error(f"{path}: the {what} is over the {max_bytes / 2**20:.0f} MiB a {what} may have")
+    return data
+
+
+def decode_json(data: bytes, path: str | os.PathLike, error: type[Exception], what: str = "JSON file") -> object:
+    """Decode ``data``, the bytes of the JSON file ``path``, with the limits of :func:`read_json`."""
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as problem:

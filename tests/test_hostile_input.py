@@ -124,7 +124,7 @@ def test_a_manifest_over_the_size_limit_is_refused_before_parsing(dataset, monke
     from ringlight.core import validation
 
     monkeypatch.setattr(validation, "MAX_JSON_BYTES", 1000)
-    monkeypatch.setattr(validation.read_json, "__defaults__", ("JSON file", 1000))
+    monkeypatch.setattr(validation.read_bounded, "__defaults__", ("JSON file", 1000))
     (dataset / "dataset.json").write_text(" " * 2000 + "{}")
     refused(dataset, "dataset.json", "over the 0 MiB a manifest may have")
 

@@ -79,6 +79,10 @@ def test_clean():
 '''
 
 
+KEPT_LABEL = ("left alive after the test: top-level widget QLabel ''; "
+              "the first is held by list <- dict['kept'] <- module <- Module")
+
+
 def test_leak_guard_names_what_each_test_left_behind(pytester):
     conftest = (Path(__file__).parent / "conftest.py").read_text()
     assert "GRACE_S = 5.0" in conftest
@@ -91,10 +95,10 @@ def test_leak_guard_names_what_each_test_left_behind(pytester):
                if (match := re.search(r"ERROR at teardown of (\w+)", line))}
     assert reasons == {
         "test_thread": "left alive after the test: thread 'left-behind'",
-        "test_widget": "left alive after the test: top-level widget QLabel ''; the first is held by list <- dict['kept'] <- module <- Module",
+        "test_widget": KEPT_LABEL,
         "test_timer": "left alive after the test: active QTimer '' of QApplication",
         "test_orphan_timer": "left alive after the test: active QTimer 'orphan' of no parent",
-        "test_hidden_widget": "left alive after the test: top-level widget QLabel ''; the first is held by list <- dict['kept'] <- module <- Module",
+        "test_hidden_widget": KEPT_LABEL,
         "test_pool_job": "left alive after the test: QThreadPool with 1 running job(s)",
     }
 

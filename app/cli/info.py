@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from ringlight.core import DatasetError, effective_max_radius, read_manifest
+from ringlight.core import DatasetError, effective_max_radius, load_manifest
 from ringlight.core.dataset.open_plan import plan_open
 from ringlight.core.colourspaces import CUSTOM_PREFIX
 from ringlight.core.dataset.checks import check_files
@@ -40,7 +40,7 @@ def _describe_channels(manifest, allow_outside: bool) -> str:
 
 
 def run_info(args) -> int:
-    manifest = read_manifest(args.dataset)
+    manifest = load_manifest(args.dataset)
     counts = manifest.lit_counts()
     lit = int(np.count_nonzero(counts))
     missing = counts.size - lit

@@ -3,7 +3,7 @@ by inversion (a layered model fitted to the region's ring-light profiles, with u
 
 from __future__ import annotations
 
-from ringlight.core import RinglightError, open_dataset, read_manifest
+from ringlight.core import RinglightError, load_manifest, open_dataset
 from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.chroma import METHODS, require_colour
 from ringlight.core.colour.image_export import write_text
@@ -84,7 +84,7 @@ def run_layers(args) -> int:
     settings = parse_inversion(args) if args.method == "inverse" else None
     if args.json:
         check_output_file(args.json, args.force)  # refused before the dataset is opened
-    manifest = read_manifest(args.dataset)
+    manifest = load_manifest(args.dataset)
     require_colour(dataset_channels(manifest, args.allow_outside))  # from the first frame's header
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)

@@ -37,6 +37,7 @@ from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
 from .frames import dataset_channels
 from .manifest import Manifest, read_manifest
+from .manifest_copy import load_manifest, write_manifest_copy
 from .memory import format_bytes, memory_budget
 from .response_store import ResponseStore, entry_bytes, open_store, store_tile, write_store
 
@@ -310,7 +311,10 @@ def open_dataset(
         For any problem with the manifest or a file, naming the file, and for a dataset larger
         than the budget whose store cannot be written or would not fit its disk.
     """
-    manifest = path if isinstance(path, Manifest) else read_manifest(path)
+    if isinstance(path, Manifest):
+        manifest = path
+    else:
+        manifest = load_manifest(path) if use_cache else read_manifest(path)
     max_radius = effective_max_radius(manifest, radius)
     height, width = manifest.height, manifest.width
     needed = response_memory_bytes((height, width), max_radius)
@@ -348,6 +352,7 @@ def open_dataset(
             if use_cache:
                 try:
                     with write_store(location, key, shape, tile) as writer:
+                        write_manifest_copy(writer.folder, manifest)
                         write_assembled(writer, assembled, progress, 1.0 - WRITE_SHARE)
                 except (OSError, RinglightError):  # no store: the next open assembles again
                     pass
@@ -355,6 +360,7 @@ def open_dataset(
                            observed=assembled.observed, steady=assembled.steady)
         try:
             with write_store(location, key, shape, tile) as writer:
+                write_manifest_copy(writer.folder, manifest)
                 assemble_into_store(assembler, writer, budget, progress, preview)
         except OSError as error:
             raise DatasetError(f"{location}: cannot write the store that a dataset of "

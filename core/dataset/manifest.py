@@ -7,6 +7,7 @@ Parsing never touches image data: it checks the manifest's structure, types and 
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from ..colourspaces import parse_colourspace
 from ..errors import DatasetError
-from ..validation import Validator, read_json, short_repr
+from ..validation import Validator, decode_json, read_bounded, short_repr
 from .spacing import check_multiplexed_spacing
 
 FORMAT_NAME = "ringlight-impulse"
@@ -98,6 +99,9 @@ class Manifest:
     or ``Y`` when frames hold a single ``Y`` and no R, G, B (see :mod:`.frames`)."""
     part: str | None = None
     """Name of the part of multi-part frames to read; None: the one part holding the channels."""
+    source_sha256: str | None = None
+    """SHA-256 (hex) of the ``dataset.json`` bytes this was read from; None when built in memory.
+    A dataset's store keeps a copy of the manifest under it (:mod:`.manifest_copy`)."""
 
     @property
     def path(self) -> Path:
@@ -155,6 +159,15 @@ def read_manifest(folder: str | Path) -> Manifest:
         ``version``, an unknown key, a key of the wrong type, a lit point outside the grid,
         multiplexed points closer than ``2 * max_radius``.
     """
+    folder, path = locate_manifest(folder)
+    data = read_bounded(path, DatasetError, "manifest")
+    return parse_manifest(decode_json(data, path, DatasetError, "manifest"), folder,
+                          source_sha256=hashlib.sha256(data).hexdigest())
+
+
+def locate_manifest(folder: str | Path) -> tuple[Path, Path]:
+    """The dataset folder and its ``dataset.json`` for a folder or its manifest; DatasetError
+    naming the path when either is missing or cannot be reached."""
     folder = Path(folder)
     try:
         if folder.name == MANIFEST_NAME and not folder.is_dir():
@@ -166,11 +179,16 @@ def read_manifest(folder: str | Path) -> Manifest:
             raise DatasetError(f"{path}: manifest not found")
     except OSError as error:  # a name too long, a permission denied on the way
         raise DatasetError(f"{folder}: cannot be read ({error.strerror or error})") from None
-    return parse_manifest(read_json(path, DatasetError, "manifest"), folder)
+    return folder, path
 
 
-def parse_manifest(document: object, folder: Path) -> Manifest:
-    """Validate a manifest already decoded from JSON; see :func:`read_manifest`."""
+def parse_manifest(document: object, folder: Path, *, source_sha256: str | None = None,
+                   frames: tuple[FrameEntry, ...] | None = None) -> Manifest:
+    """Validate a manifest already decoded from JSON; see :func:`read_manifest`.
+
+    ``frames``: the frames of this manifest, validated before (a store's copy of it): its
+    ``frames`` key is then not read, nor their spacing checked again.
+    """
     where = folder / MANIFEST_NAME
     check = Validator(where, DatasetError)
     doc = check.mapping(document, "manifest", _TOP_KEYS, required={"format", "version", "grid", "frames"})
@@ -208,19 +226,22 @@ def parse_manifest(document: object, folder: Path) -> Manifest:
     dark = check.relative_file(doc["dark"], "dark") if "dark" in doc else None
     notes = check.string(doc["notes"], "notes") if "notes" in doc else None
 
-    frames = _parse_frames(check, check.sequence(doc["frames"], "frames"), height, width)
+    checked = frames is not None
+    if not checked:
+        frames = _parse_frames(check, check.sequence(doc["frames"], "frames"), height, width)
     if not frames:
         raise DatasetError(f"{where}: 'frames' is empty")
     manifest = Manifest(
         folder=folder, height=height, width=width, pitch_mm=pitch_mm, colorspace=colorspace,
         frame_space=frame_space, mapping=mapping, max_radius=max_radius, frames=frames, dark=dark,
         ground_truth=_parse_ground_truth(check, doc["ground_truth"]) if "ground_truth" in doc else None,
-        notes=notes, channels=channels, part=part,
+        notes=notes, channels=channels, part=part, source_sha256=source_sha256,
     )
     if manifest.multiplexed:
         if max_radius is None:
             raise DatasetError(f"{where}: frames light several points at once, so 'max_radius' is required")
-        check_multiplexed_spacing(where, frames, max_radius)
+        if not checked:
+            check_multiplexed_spacing(where, frames, max_radius)
     return manifest
 
 

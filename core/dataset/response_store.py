@@ -15,6 +15,8 @@ ringlight's ``meta.json``:
   which real captures have;
 - ``lit_counts`` (H, W) int32, ``observed`` (H, W) bool, ``steady`` (H, W, 3) float32 (the steady
   state, so that an open shows it without reading the responses), same codecs;
+- ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
+  reopen need not parse its JSON;
 - ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
   and how many files the entry holds.
 
@@ -47,7 +49,8 @@ from ..atomic import atomic_folder
 from ..errors import DatasetError, RinglightError
 from ..validation import read_json
 
-LAYOUT_VERSION = 3
+LAYOUT_VERSION = 4
+"""3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`)."""
 CHUNK_BYTES = 8 * 2**20
 """Target size of one uncompressed responses chunk: big enough for compression and few files,
 small enough that a click (one point's chunk) decodes in a few milliseconds."""

@@ -1,0 +1,150 @@
+"""A validated manifest kept in the dataset's store, so that a reopen need not parse its JSON.
+
+A paper-scale manifest is large: 1024 x 1024 grid points lit 256 at a time are 4225 frames and
+34 MB of JSON, which take about 3 s to decode and validate, most of a reopen. When a store is
+written (:func:`write_manifest_copy`, inside the store's folder, so it is published and replaced
+with it), the manifest it was built from goes with it as ``manifest.npz``: the SHA-256 of the
+``dataset.json`` bytes, the manifest without its frames (JSON), and the frames as arrays (files,
+exposures, lit points, and how many points each frame lights). :func:`load_manifest` reads the
+manifest's bytes and hashes them (0.1 s at that size); when the copy was made from the same bytes
+it is used, else the manifest is parsed.
+
+The copy is checked again on load as far as it costs little: the manifest's keys go through
+:func:`.manifest.parse_manifest` again, every file name through the same rules, and every lit
+point must lie inside the grid. Only the spacing of multiplexed points is not checked again. A
+copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+import zipfile
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DatasetError
+from ..validation import Validator, decode_json, read_bounded
+from .cache import cache_location
+from .manifest import (
+    FLOAT32_MAX,
+    FLOAT32_TINY,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    MANIFEST_NAME,
+    FrameEntry,
+    Manifest,
+    locate_manifest,
+    parse_manifest,
+)
+
+COPY_NAME = "manifest.npz"
+COPY_VERSION = 1
+MAX_COPY_BYTES = 2**30
+"""Largest copy read (its arrays unpacked): a one-point-per-frame 1024 x 1024 manifest's is 120 MB."""
+
+
+def load_manifest(folder: str | Path) -> Manifest:
+    """:func:`.manifest.read_manifest`, from the store's copy when that was made from the same
+    ``dataset.json`` bytes. Raises DatasetError as ``read_manifest`` does."""
+    folder, path = locate_manifest(folder)
+    data = read_bounded(path, DatasetError, "manifest")
+    digest = hashlib.sha256(data).hexdigest()
+    copy = read_manifest_copy(cache_location(folder) / COPY_NAME, folder, digest)
+    if copy is not None:
+        return copy
+    return parse_manifest(decode_json(data, path, DatasetError, "manifest"), folder, source_sha256=digest)
+
+
+def write_manifest_copy(folder: Path, manifest: Manifest) -> None:
+    """Write ``manifest``'s copy into the store being written in ``folder``; nothing for a
+    manifest built in memory (it has no bytes to be recognised by), or one whose keys do not
+    read back the same (a copy is never allowed to differ from its manifest)."""
+    if manifest.source_sha256 is None:
+        return
+    header = {key: value for key, value in _header(manifest).items() if value is not None}
+    again = parse_manifest({**header, "frames": []}, manifest.folder, source_sha256=manifest.source_sha256,
+                           frames=manifest.frames)
+    if _keys(again) != _keys(manifest):
+        return
+    frames = manifest.frames
+    np.savez(folder / COPY_NAME, version=np.int64(COPY_VERSION), digest=np.str_(manifest.source_sha256),
+             header=np.frombuffer(json.dumps(header).encode("utf-8"), np.uint8),
+             files=np.array([frame.file for frame in frames], dtype=str),
+             exposures=np.array([frame.exposure for frame in frames], np.float64),
+             counts=np.array([len(frame.lit) for frame in frames], np.int64),
+             lit=np.concatenate([frame.lit for frame in frames]).astype(np.int64))
+
+
+def _keys(manifest: Manifest) -> dict:
+    """Every field of ``manifest`` but its frames."""
+    return {field.name: getattr(manifest, field.name) for field in fields(manifest) if field.name != "frames"}
+
+
+def read_manifest_copy(path: Path, folder: Path, digest: str) -> Manifest | None:
+    """The manifest of the copy at ``path`` when it was made from ``dataset.json`` bytes of SHA-256
+    ``digest`` and passes the checks of the module docstring; else None."""
+    try:
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None
+        with open(path, "rb") as handle:
+            with zipfile.ZipFile(handle) as archive:
+                if sum(member.file_size for member in archive.infolist()) > MAX_COPY_BYTES:
+                    return None
+            handle.seek(0)
+            with np.load(handle, allow_pickle=False) as stored:
+                if int(stored["version"]) != COPY_VERSION or str(stored["digest"]) != digest:
+                    return None
+                header = json.loads(stored["header"].tobytes().decode("utf-8"))
+                files, exposures = stored["files"].tolist(), stored["exposures"]
+                counts, lit = stored["counts"], stored["lit"]
+    except (OSError, ValueError, KeyError, TypeError, EOFError, RecursionError, zipfile.BadZipFile):
+        return None
+    try:
+        return _rebuild(header, files, exposures, counts, lit, folder, digest)
+    except (DatasetError, ValueError, TypeError, KeyError):
+        return None
+
+
+def _rebuild(header: dict, files: list, exposures: np.ndarray, counts: np.ndarray, lit: np.ndarray,
+             folder: Path, digest: str) -> Manifest | None:
+    frames_count = len(files)
+    if (exposures.shape != (frames_count,) or counts.shape != (frames_count,) or lit.ndim != 2
+            or lit.shape[1] != 2 or lit.dtype != np.int64 or counts.dtype != np.int64
+            or np.any(counts < 1) or int(counts.sum()) != len(lit)):
+        return None
+    height, width = header["grid"]["height"], header["grid"]["width"]
+    if not (np.all((lit[:, 0] >= 0) & (lit[:, 0] < height) & (lit[:, 1] >= 0) & (lit[:, 1] < width))
+            and np.all((exposures >= FLOAT32_TINY) & (exposures <= FLOAT32_MAX))):
+        return None
+    check = Validator(folder / MANIFEST_NAME, DatasetError)
+    for index, file in enumerate(files):
+        check.relative_file(file, f"frames[{index}].file")
+    points = np.split(lit, np.cumsum(counts)[:-1])
+    frames = tuple(FrameEntry(file=file, lit=points_of_frame, exposure=float(exposure))
+                   for file, points_of_frame, exposure in zip(files, points, exposures))
+    return parse_manifest({**header, "frames": []}, folder, source_sha256=digest, frames=frames)
+
+
+def _header(manifest: Manifest) -> dict:
+    """The manifest without its frames, as the JSON document it was read from says it."""
+    grid = {"height": manifest.height, "width": manifest.width}
+    if manifest.pitch_mm is not None:
+        grid["pitch_mm"] = manifest.pitch_mm
+    truth = manifest.ground_truth
+    return {
+        "format": FORMAT_NAME, "version": FORMAT_VERSION, "grid": grid, "colorspace": manifest.colorspace,
+        "frame_space": manifest.frame_space, "mapping": manifest.mapping, "max_radius": manifest.max_radius,
+        "dark": manifest.dark, "notes": manifest.notes,
+        "channels": None if manifest.channels is None else list(manifest.channels), "part": manifest.part,
+        "ground_truth": None if truth is None else {
+            "path_length_images": [{"file": image.file, "min": image.min, "max": image.max}
+                                   for image in truth.path_length_images],
+            "layers": [{"name": layer.name, "depth": list(layer.depth), "rgb": list(layer.rgb)}
+                       for layer in truth.layers],
+        },
+    }

@@ -1,0 +1,98 @@
+"""The store's copy of the manifest: a reopen reads it instead of the JSON, and only when it was
+made from the same bytes and passes the checks again."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import ringlight.core.dataset.manifest_copy as copy_module
+from numpy.testing import assert_array_equal
+from reference import random_impulses, write_dataset
+from ringlight.core import load_manifest, open_dataset, read_manifest
+from ringlight.core.dataset.cache import cache_location
+from ringlight.core.dataset.manifest_copy import COPY_NAME
+
+EXTRA = {"grid": {"height": 9, "width": 8, "pitch_mm": 0.25}, "colorspace": "sRGB", "notes": "two layers",
+         "ground_truth": {"layers": [{"name": "top", "depth": [0, 1.5], "rgb": [0.8, 0.2, 0.1]}]}}
+
+
+@pytest.fixture
+def dataset(tmp_path):
+    impulses = random_impulses(np.random.default_rng(3), 9, 8, support=3)
+    write_dataset(tmp_path / "ds", 9, 8, impulses, max_radius=2.0, multiplex=True, extra=EXTRA)
+    return tmp_path / "ds"
+
+
+def assert_same_manifest(loaded, parsed):
+    for field in dataclasses.fields(parsed):
+        if field.name != "frames":
+            assert getattr(loaded, field.name) == getattr(parsed, field.name), field.name
+    assert len(loaded.frames) == len(parsed.frames) > 1
+    for ours, theirs in zip(loaded.frames, parsed.frames):
+        assert (ours.file, ours.exposure) == (theirs.file, theirs.exposure)
+        assert ours.lit.dtype == theirs.lit.dtype == np.int64
+        assert_array_equal(ours.lit, theirs.lit)
+
+
+def no_json(monkeypatch):
+    """Make decoding the manifest's JSON fail, to prove a load did not do it."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("the manifest's JSON was decoded")
+
+    monkeypatch.setattr(copy_module, "decode_json", refuse)
+
+
+def test_a_reopen_reads_the_stores_copy_and_it_equals_the_parsed_manifest(dataset, monkeypatch):
+    parsed = read_manifest(dataset)
+    assert parsed.multiplexed and parsed.ground_truth.layers and parsed.pitch_mm == 0.25
+    first = open_dataset(dataset)
+    assert (cache_location(dataset) / COPY_NAME).is_file()
+    no_json(monkeypatch)
+    loaded = load_manifest(dataset)
+    assert_same_manifest(loaded, parsed)
+    again = open_dataset(dataset)  # from the copy and the store: no JSON, no frame decoded
+    assert again.store is not None
+    assert_array_equal(again.responses, first.responses)
+
+
+def test_an_edited_manifest_is_parsed_again(dataset):
+    open_dataset(dataset)
+    document = json.loads((dataset / "dataset.json").read_text())
+    document["notes"] = "edited after the store was written"
+    (dataset / "dataset.json").write_text(json.dumps(document))
+    assert load_manifest(dataset).notes == "edited after the store was written"
+
+
+@pytest.mark.parametrize("damage", ["lit outside the grid", "file outside the folder", "counts", "garbage",
+                                    "another digest", "a link"])
+def test_a_copy_that_fails_a_check_is_ignored(dataset, monkeypatch, damage):
+    open_dataset(dataset)
+    path = cache_location(dataset) / COPY_NAME
+    with np.load(path) as stored:
+        arrays = dict(stored)
+    if damage == "lit outside the grid":
+        arrays["lit"][3] = [9, 0]  # row 9 of a 9-row grid
+    elif damage == "file outside the folder":
+        arrays["files"] = np.array(["../elsewhere.exr", *arrays["files"][1:].tolist()])
+    elif damage == "counts":
+        arrays["counts"][0] += 1
+    elif damage == "another digest":
+        arrays["digest"] = np.str_("0" * 64)
+    if damage == "garbage":
+        path.write_bytes(b"PK\x03\x04 not a zip")
+    elif damage == "a link":  # the very copy, moved out of the store and linked in: never followed
+        path.rename(dataset / "moved.npz")
+        path.symlink_to(dataset / "moved.npz")
+    else:
+        np.savez(path, **arrays)
+    calls = []
+    monkeypatch.setattr(copy_module, "decode_json", lambda *args: calls.append(1) or json.loads(args[0]))
+    assert_same_manifest(load_manifest(dataset), read_manifest(dataset))
+    assert calls == [1]  # parsed, not taken from the copy
+
+
+def test_a_manifest_built_in_memory_leaves_no_copy(dataset):
+    manifest = dataclasses.replace(read_manifest(dataset), source_sha256=None)
+    open_dataset(manifest)
+    assert cache_location(dataset).is_dir() and not (cache_location(dataset) / COPY_NAME).exists()
