@@ -77,6 +77,8 @@ class LoadedDataset:
     steady_state: np.ndarray
     truth: PathLengthImages | None
     stacks: ViewStacks
+    notice: str | None = None
+    """A line for the user about the open (the stack asked for could not be made), or None."""
 
 
 def scaled(progress: Progress, low: float, high: float) -> Progress:
@@ -123,10 +125,14 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
         dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
-    if request is None or not _serves(dataset, request):
+    notice = None
+    refusal = None if request is None else _refusal(dataset, request)
+    if refusal is not None:
+        notice = f"The stack last shown for {dataset.path.name} cannot be made now ({refusal}); showing the default"
+    if request is None or refusal is not None:
         request = default_request(dataset.max_radius)
     stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))
-    return LoadedDataset(dataset, steady_state, truth, stacks)
+    return LoadedDataset(dataset, steady_state, truth, stacks, notice)
 
 
 def _band_preview(manifest, preview: Preview):
@@ -152,9 +158,10 @@ def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None,
     return ViewStacks(pair, rings, correlations, coverage.poor(), coverage_warning(coverage))
 
 
-def _serves(dataset: ImpulseDataset, request: StackRequest) -> bool:
+def _refusal(dataset: ImpulseDataset, request: StackRequest) -> str | None:
+    """Why ``dataset`` cannot serve ``request``, or None."""
     try:
         request.check(dataset)
-    except RinglightError:
-        return False
-    return True
+    except RinglightError as error:
+        return str(error)
+    return None

@@ -26,7 +26,7 @@ from ringlight.core import RinglightError
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
-from ringlight.core.simulate.samples import sample_folder
+from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_folder
 from ringlight.core.simulate.transport import simulated_before_camera_measure
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import DisplayControls
@@ -224,7 +224,7 @@ class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus,
     def open_dataset(self, path: str | Path | None) -> None:
         """Open ``path`` (None: the demo dataset) in a worker; the current dataset stays until
         the new one is ready, and stays on failure."""
-        request = self.saved_request(path)
+        request = self.saved_request(sample_folder(DEMO_SAMPLE) if path is None else path)
         name = "the demo dataset" if path is None else Path(path).name
         self.stack_jobs.cancel()
         self.fit_jobs.cancel()
@@ -274,6 +274,8 @@ class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus,
         self._remember_recent(dataset.path)
         self.settings.setValue("last_folder", str(dataset.path.parent))
         self._update_title()
+        if loaded.notice is not None:
+            self.statusBar().showMessage(loaded.notice, 15000)
         if simulated_before_camera_measure(dataset.manifest):
             self._information("Simulated before camera radiance", EXITANCE_NOTICE.format(path=dataset.path))
         self.dataset_loaded.emit()

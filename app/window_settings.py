@@ -21,7 +21,7 @@ REQUEST_LIMIT = 50
 
 
 def _request_key(path) -> str:
-    return "(demo)" if path is None else str(Path(path).resolve())
+    return str(Path(path).resolve())
 
 
 class WindowSettings:
@@ -54,7 +54,7 @@ class WindowSettings:
         return saved if isinstance(saved, dict) else {}
 
     def saved_request(self, path) -> StackRequest | None:
-        """The stack request last shown for dataset ``path`` (None: the demo), if any.
+        """The stack request last shown for dataset ``path`` (the demo's is its sample's), if any.
 
         Requests are remembered per dataset: one clamped to a small dataset's max_radius must
         not become the next dataset's default.

@@ -55,6 +55,36 @@ def test_a_small_dataset_does_not_clamp_the_next_ones_stack(qtbot, window, tmp_p
         again.shutdown()
 
 
+def test_the_demo_dataset_remembers_its_stack_like_any_other(qtbot, window, tmp_path):
+    open_and_wait(qtbot, window, None)  # the demo, opened without a path
+    chosen = window.stacks.pair.request.with_changes(step=0.5, stop=2.0)
+    assert chosen != window.stacks.pair.request
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.request_stacks(chosen)
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "other", 9, 3, seed=4))
+    open_and_wait(qtbot, window, None)
+    assert window.stacks.pair.request == chosen  # was the default: it was saved under a key never read
+    assert window.stack_controls.request() == chosen
+
+
+def test_a_saved_stack_the_dataset_cannot_serve_is_replaced_by_the_default_with_a_notice(qtbot, window, tmp_path):
+    folder = make_dataset(tmp_path / "d", 12, 8, seed=5)
+    open_and_wait(qtbot, window, folder)
+    default = window.stacks.pair.request
+    far = default.with_changes(stop=6.0)
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.request_stacks(far)
+    open_and_wait(qtbot, window, make_dataset(tmp_path / "other", 9, 3, seed=6))  # remembers `far`
+    document = json.loads((folder / "dataset.json").read_text())
+    document["max_radius"] = 4.0  # the dataset changed since: `far` now reaches beyond it
+    (folder / "dataset.json").write_text(json.dumps(document))
+    assert far.reach() > 4.0
+    open_and_wait(qtbot, window, folder)
+    notice = window.statusBar().currentMessage()
+    assert notice.startswith("The stack last shown for d cannot be made now (") and "max_radius 4" in notice
+    assert window.stacks.pair.request.reach() <= 4.0 and window.stack_controls.request() == window.stacks.pair.request
+
+
 @pytest.mark.parametrize("change", [{"stop": 12.0}, {"antialias": True}])
 def test_a_refused_request_leaves_the_controls_showing_the_stack_on_screen(qtbot, window, tmp_path, change):
     open_and_wait(qtbot, window, make_dataset(tmp_path / "d", 9, 3, seed=3))
