@@ -31,6 +31,14 @@ class _JobSignals(QObject):
 
 
 class _Job(QRunnable):
+    """One run of ``work`` in a pool.
+
+    PySide keeps the Python object of a started runnable alive until the pool deletes it, and at
+    times later than that (seen under pytest-xdist: a failed open's job, seconds after the pool was
+    idle); the job lets go of ``work``, the closure that holds its window, as soon as it runs, so
+    that such a job keeps no closed window alive.
+    """
+
     def __init__(self, number: int, work: Work, signals: _JobSignals):
         super().__init__()
         self.setAutoDelete(True)
@@ -45,10 +53,11 @@ class _Job(QRunnable):
         self.signals.progress.emit(self.number, float(fraction))
 
     def run(self) -> None:
+        work, self.work = self.work, None  # a finished job holds nothing of its window (note below)
         try:
             if self.cancel_event.is_set():
                 raise Cancelled("cancelled")
-            result = self.work(self.report)
+            result = work(self.report)
         except Cancelled:
             self.signals.cancelled.emit(self.number)
         except RinglightError as error:
