@@ -106,7 +106,7 @@ def _settle_qt(deadline: float):
     return None
 
 
-def _holders(obj, bookkeeping: tuple, depth: int = 8) -> str:
+def _holders(obj, bookkeeping: tuple, depth: int = 16) -> str:
     """The chain of Python objects that keep ``obj`` alive, outermost last (a dict is named by the
     key that holds the object): at each step the first referrer that is not a container, or else
     the first container, leaving out frames and the guard's own ``bookkeeping`` containers."""
@@ -124,6 +124,9 @@ def _holders(obj, bookkeeping: tuple, depth: int = 8) -> str:
         function = getattr(holder, "__func__", holder)
         if isinstance(function, types.FunctionType):
             name += f" {function.__qualname__}"
+        if isinstance(holder, types.ModuleType):  # a module's global: nothing further to find
+            chain.append(f"module {holder.__name__}")
+            break
         for key, value in holder.items() if isinstance(holder, dict) else ():  # no comprehension: it
             if value is obj:  # would hold ``obj`` in a cell
                 name += f"[{key!r}]"

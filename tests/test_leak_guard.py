@@ -80,7 +80,7 @@ def test_clean():
 
 
 KEPT_LABEL = ("left alive after the test: top-level widget QLabel ''; "
-              "the first is held by list <- dict['kept'] <- module <- Module")
+              "the first is held by list <- dict['kept'] <- module test_leaky")
 
 
 def test_leak_guard_names_what_each_test_left_behind(pytester):
