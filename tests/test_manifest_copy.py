@@ -56,6 +56,21 @@ def test_a_reopen_reads_the_stores_copy_and_it_equals_the_parsed_manifest(datase
     assert_array_equal(again.responses, first.responses)
 
 
+@pytest.mark.parametrize("colorspace", [
+    "ACEScg",
+    {"matrix": [[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]},
+    {"primaries": [[0.68, 0.32], [0.265, 0.69], [0.15, 0.06]], "whitepoint": [0.3127, 0.329]},
+])
+def test_every_kind_of_colourspace_is_kept_in_the_copy(tmp_path, monkeypatch, colorspace):
+    folder = tmp_path / "ds"
+    impulses = random_impulses(np.random.default_rng(7), 6, 5, support=2)
+    write_dataset(folder, 6, 5, impulses, extra={"colorspace": colorspace, "channels": ["R", "G", "B"]})
+    parsed = read_manifest(folder)
+    open_dataset(folder)
+    no_json(monkeypatch)
+    assert_same_manifest(load_manifest(folder), parsed)
+
+
 def test_an_edited_manifest_is_parsed_again(dataset):
     open_dataset(dataset)
     document = json.loads((dataset / "dataset.json").read_text())

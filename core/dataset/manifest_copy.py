@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..colourspaces import colourspace_json
 from ..errors import DatasetError
 from ..validation import Validator, decode_json, read_bounded
 from .cache import cache_location
@@ -67,8 +68,11 @@ def write_manifest_copy(folder: Path, manifest: Manifest) -> None:
     if manifest.source_sha256 is None:
         return
     header = {key: value for key, value in _header(manifest).items() if value is not None}
-    again = parse_manifest({**header, "frames": []}, manifest.folder, source_sha256=manifest.source_sha256,
-                           frames=manifest.frames)
+    try:
+        again = parse_manifest({**header, "frames": []}, manifest.folder, source_sha256=manifest.source_sha256,
+                               frames=manifest.frames)
+    except DatasetError:
+        return
     if _keys(again) != _keys(manifest):
         return
     frames = manifest.frames
@@ -137,7 +141,8 @@ def _header(manifest: Manifest) -> dict:
         grid["pitch_mm"] = manifest.pitch_mm
     truth = manifest.ground_truth
     return {
-        "format": FORMAT_NAME, "version": FORMAT_VERSION, "grid": grid, "colorspace": manifest.colorspace,
+        "format": FORMAT_NAME, "version": FORMAT_VERSION, "grid": grid,
+        "colorspace": colourspace_json(manifest.colorspace),
         "frame_space": manifest.frame_space, "mapping": manifest.mapping, "max_radius": manifest.max_radius,
         "dark": manifest.dark, "notes": manifest.notes,
         "channels": None if manifest.channels is None else list(manifest.channels), "part": manifest.part,
