@@ -101,7 +101,8 @@ class Manifest:
     """Name of the part of multi-part frames to read; None: the one part holding the channels."""
     source_sha256: str | None = None
     """SHA-256 (hex) of the ``dataset.json`` bytes this was read from; None when built in memory.
-    A dataset's store keeps a copy of the manifest under it (:mod:`.manifest_copy`)."""
+    A dataset's store keeps a copy of the manifest under it (:mod:`.manifest_copy`), so a
+    manifest changed after reading (``dataclasses.replace``) must set it to None."""
 
     @property
     def path(self) -> Path:
