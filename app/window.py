@@ -7,13 +7,10 @@ exports) runs in :class:`JobSlot` workers; their results are applied in the GUI 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from PySide6.QtCore import QSettings, Qt, QThreadPool, Signal
 from PySide6.QtWidgets import (
     QDockWidget,
-    QFileDialog,
     QLabel,
     QMainWindow,
     QMessageBox,
@@ -26,8 +23,6 @@ from ringlight.core import RinglightError
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
-from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_folder
-from ringlight.core.simulate.transport import simulated_before_camera_measure
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import DisplayControls
 from ringlight.widgets.image_panel import ImagePanel
@@ -40,22 +35,20 @@ from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
 
 from .capture_tab import CaptureTab
+from .dataset_opening import DatasetOpening
 from .explore_view import ExploreView
 from .export_actions import ExportActions
-from .help_dialogs import EXITANCE_NOTICE, HelpDialogs
+from .help_dialogs import HelpDialogs
 from .layer_tab import LayerTab
 from .noise_view import NoiseView, ViewNoise
-from .session import LoadedDataset, ViewStacks, compute_view_stacks, load_for_viewing
+from .session import LoadedDataset, ViewStacks, compute_view_stacks
 from .view_levels import ViewLevels
 from .window_menus import WindowMenus
 from .window_settings import WindowSettings, first_size
 from .window_tools import LineProfileDock
 
-EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
-
-
-class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus, WindowSettings, HelpDialogs,
-                 LineProfileDock, QMainWindow):
+class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus, WindowSettings,
+                 HelpDialogs, LineProfileDock, QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
     dataset_loaded = Signal()
@@ -214,94 +207,6 @@ class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus,
         self.layer_panel.method_box.setCurrentIndex(self.layer_panel.method_box.findData("inverse"))
         self.layer_tab.fit()
 
-    # ----------------------------------------------------------------- opening
-    def choose_dataset(self) -> None:
-        start = self.settings.value("last_folder", str(Path.home()))
-        folder = QFileDialog.getExistingDirectory(self, "Open impulse dataset", start)
-        if folder:
-            self.open_dataset(folder)
-
-    def open_dataset(self, path: str | Path | None) -> None:
-        """Open ``path`` (None: the demo dataset) in a worker; the current dataset stays until
-        the new one is ready, and stays on failure."""
-        request = self.saved_request(sample_folder(DEMO_SAMPLE) if path is None else path)
-        name = "the demo dataset" if path is None else Path(path).name
-        self.stack_jobs.cancel()
-        self.fit_jobs.cancel()
-        self.load_jobs.start(f"Opening {name}", lambda progress: load_for_viewing(
-            path, request, progress, preview=self.steady_previewed.emit))
-
-    def open_sample(self, name: str) -> None:
-        """Open the bundled sample ``name`` (written into the user cache the first time)."""
-        request = self.saved_request(sample_folder(name))
-        self.stack_jobs.cancel()
-        self.fit_jobs.cancel()
-        self.load_jobs.start(f"Opening the {name} sample",
-                             lambda progress: load_for_viewing(None, request, progress, sample=name,
-                                                               preview=self.steady_previewed.emit))
-
-    def _hint_when_empty(self) -> None:
-        """With no dataset shown (first start, an open cancelled or failed), say how to get one."""
-        if self.loaded is None:
-            self.image_panel.clear_image()  # a steady-state preview of an open that did not finish
-            self.image_panel.set_title(EMPTY_HINT)
-            self.statusBar().showMessage(EMPTY_HINT)
-
-    def _open_captured(self, path: str) -> None:
-        self.main_tabs.setCurrentIndex(0)
-        self.open_dataset(path)
-
-    def _on_loaded(self, loaded: LoadedDataset) -> None:
-        another = self.loaded is None or self.loaded.dataset.path != loaded.dataset.path
-        if self.loaded is not None:
-            self._remember_request()
-        self.loaded = loaded
-        self._impulse_cache = None
-        self._forget_levels()
-        dataset = loaded.dataset
-        self.stack_controls.set_request(loaded.stacks.pair.request, dataset.max_radius)
-        if loaded.truth is not None and self.truth_panel.isHidden():
-            self.truth_panel.show()
-            self.splitter.setSizes([1, 1])  # T_r and its truth side by side at one scale (any extra split alike)
-        self.truth_panel.setVisible(loaded.truth is not None)
-        height, width = dataset.grid_shape
-        self.image_panel.set_scale_bar(dataset.manifest.pitch_mm, width)
-        self._apply_radius_unit()
-        if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
-            self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
-            self.hover_label.clear()
-        self._install_stacks(loaded.stacks)
-        self._remember_recent(dataset.path)
-        self.settings.setValue("last_folder", str(dataset.path.parent))
-        self._update_title()
-        if loaded.notice is not None:
-            self.statusBar().showMessage(loaded.notice, 15000)
-        if simulated_before_camera_measure(dataset.manifest):
-            self._information("Simulated before camera radiance", EXITANCE_NOTICE.format(path=dataset.path))
-        self.dataset_loaded.emit()
-
-    def _apply_radius_unit(self) -> None:
-        """Profiles' radius axis in mm where View > Radius in mm is checked and the dataset's
-        pitch is known (the action is disabled where it is not), else in grid steps."""
-        pitch_mm = self.loaded.dataset.manifest.pitch_mm if self.loaded is not None else None
-        self.radius_mm_action.setEnabled(bool(pitch_mm))
-        self.profile_plot.set_radius_unit(pitch_mm if self.radius_mm_action.isChecked() else None)
-
-    def _update_title(self) -> None:
-        if self.loaded is None:
-            self.setWindowTitle("ringlight")
-            return
-        dataset = self.loaded.dataset
-        manifest = dataset.manifest
-        height, width = dataset.grid_shape
-        radii = self.stacks.pair.radii if self.stacks else np.zeros(1)
-        self.setWindowTitle(f"{dataset.path.name} - ringlight")
-        self.dataset_label.setText(
-            f"{dataset.path.name}: grid {width}x{height}, {len(manifest.frames)} frames, "
-            f"{dataset.missing_count} missing, max_radius {dataset.max_radius:g}, "
-            f"r {radii[0]:g}..{radii[-1]:g}" + ("" if dataset.in_memory else ", read from its store (out of core)")
-        )
-
     # ----------------------------------------------------------------- stacks
     def request_stacks(self, request: StackRequest) -> None:
         """Recompute the stacks for ``request`` in a worker; the old ones stay shown meanwhile."""
@@ -371,29 +276,6 @@ class MainWindow(ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus,
         self.save_settings()
         self.shutdown()
         super().closeEvent(event)
-
-    def dragEnterEvent(self, event) -> None:
-        if _dropped_dataset(event.mimeData()) is not None:
-            event.acceptProposedAction()
-
-    def dropEvent(self, event) -> None:
-        path = _dropped_dataset(event.mimeData())
-        if path is not None:
-            event.acceptProposedAction()
-            self.open_dataset(path)
-
-
-def _dropped_dataset(mime) -> Path | None:
-    """The dataset folder (or dataset.json) among dropped URLs, if any."""
-    if not mime.hasUrls():
-        return None
-    for url in mime.urls():
-        if url.isLocalFile():
-            path = Path(url.toLocalFile())
-            if path.is_dir() or path.name == "dataset.json":
-                return path
-    return None
-
 
 def _safe_radii(request: StackRequest) -> np.ndarray:
     try:

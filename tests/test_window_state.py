@@ -113,7 +113,7 @@ def test_opening_another_dataset_resets_pick_hover_and_diagram(qtbot, window, tm
 
 
 def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, window, tmp_path):
-    from ringlight.app.window import EMPTY_HINT
+    from ringlight.app.dataset_opening import EMPTY_HINT
 
     with qtbot.waitSignal(window.load_jobs.idle, timeout=TIMEOUT_MS):
         window.open_dataset(make_dataset(tmp_path / "d", 9, 3, seed=6))
