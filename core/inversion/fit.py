@@ -13,8 +13,11 @@ shows (noise common to every lit point, database binning).
 
 Uncertainty. Each ``theta_k`` gets an interval where the fit's chi-square stays within
 :data:`JOINT_CHI2` of its minimum: the Fisher (Wald) interval where it is narrow (half-width below
-:data:`WALD_LIMIT`) and inside the bounds, else the profile likelihood's (the others refitted
-with ``theta_k`` held), its end found by Brent's method, out to a bound where it stays within.
+:data:`WALD_LIMIT`), inside the bounds and where the profile chi-square (the others refitted with
+``theta_k`` held) at its ends has risen by at least :data:`JOINT_CHI2`; else the profile
+likelihood's, its end found by Brent's method, out to a bound where it stays within. (Where two
+layers can trade absorption, the chi-square is a curved valley, far from the quadratic the Fisher
+matrix assumes, and a Wald interval can leave out values that fit as well.)
 :data:`JOINT_CHI2` = 5.85 gives each channel 98.4 %, so a layer's three channels together hold the
 truth with 95.4 % (two sigma). A layer whose absorption in some channel can rise to the upper bound
 within that region is *not determined*: the data do not bound that channel's colour.
@@ -119,6 +122,8 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         return ChannelFit(mua, interval, np.ones(layers, bool), used, math.nan, np.full(len(measured), np.nan), sigma)
     best = None
     for _ in range(2):  # the second pass weighs by the white run's noise at the first fit
+        if best is not None:
+            sigma = np.sqrt(error ** 2 + forward.variance(np.exp(best.x)) + (RELATIVE_FLOOR * measured) ** 2)
         target = np.log(measured[:used])
         relative = sigma[:used] / measured[:used]
         residuals, jacobian = _objective(forward, used, target, relative)
@@ -131,8 +136,6 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         loose = {} if intervals else _LOOSE
         best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
                     for start in starts), key=lambda result: result.cost)
-        model_variance = forward.variance(np.exp(best.x))
-        sigma = np.sqrt(error ** 2 + model_variance + (RELATIVE_FLOOR * measured) ** 2)
     theta = best.x
     chi2 = 2.0 * best.cost
     interval = np.empty((layers, 2))
@@ -146,11 +149,15 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
             if theta[k] >= high - 1e-9:
                 upper = high
             elif spread[k] > WALD_LIMIT or upper >= high:
-                upper = _profile_end(residuals, jacobian, theta, k, high, chi2, low, high)
+                upper = _profile_end(residuals, jacobian, theta, k, theta[k], high, chi2, low, high)
+            elif _profile_chi2(residuals, jacobian, theta, k, upper, low, high) - chi2 < JOINT_CHI2:
+                upper = _profile_end(residuals, jacobian, theta, k, upper, high, chi2, low, high)
             if theta[k] <= low + 1e-9:
                 lower = low
             elif spread[k] > WALD_LIMIT or lower <= low:
-                lower = _profile_end(residuals, jacobian, theta, k, low, chi2, low, high)
+                lower = _profile_end(residuals, jacobian, theta, k, theta[k], low, chi2, low, high)
+            elif _profile_chi2(residuals, jacobian, theta, k, lower, low, high) - chi2 < JOINT_CHI2:
+                lower = _profile_end(residuals, jacobian, theta, k, lower, low, chi2, low, high)
             interval[k] = np.exp([lower, upper])
             unbounded[k] = upper >= high - 1e-9
     else:
@@ -185,14 +192,16 @@ def _objective(forward: Forward, used: int, target: np.ndarray, relative: np.nda
     return (lambda theta: evaluate(theta)[0]), (lambda theta: evaluate(theta)[1])
 
 
-def _profile_end(residuals, jacobian, theta: np.ndarray, k: int, bound: float, chi2: float, low: float,
-                 high: float) -> float:
-    """Where, from ``theta[k]`` toward ``bound``, the profile chi-square first exceeds the minimum
-    ``chi2`` by :data:`JOINT_CHI2`: ``bound`` if it never does, else by Brent's method."""
+def _profile_end(residuals, jacobian, theta: np.ndarray, k: int, start: float, bound: float, chi2: float,
+                 low: float, high: float) -> float:
+    """Where, from ``start`` (inside the region) toward ``bound``, the profile chi-square exceeds the
+    minimum ``chi2`` by :data:`JOINT_CHI2`: ``bound`` if it never does, else by Brent's method to
+    within :data:`PROFILE_TOLERANCE`, taken that far outward (an interval errs wide, never narrow)."""
     excess = lambda value: _profile_chi2(residuals, jacobian, theta, k, value, low, high) - chi2 - JOINT_CHI2
     if excess(bound) < 0.0:
         return bound
-    return brentq(excess, theta[k], bound, xtol=PROFILE_TOLERANCE)
+    end = brentq(excess, start, bound, xtol=PROFILE_TOLERANCE)
+    return min(end + PROFILE_TOLERANCE, high) if bound > start else max(end - PROFILE_TOLERANCE, low)
 
 
 def _profile_chi2(residuals, jacobian, theta: np.ndarray, k: int, value: float, low: float,

@@ -37,6 +37,23 @@ class Structure:
         return [(float(top), float(min(bottom, depth))) for top, bottom in zip(self.starts, bottoms)]
 
 
+def embedded_rings(weights: np.ndarray, reach: int) -> np.ndarray:
+    """(R, (2 reach + 1)^2): ring weights ``weights`` (R, S, S) over pixel offsets
+    ``[dy + S // 2, dx + S // 2]`` (:attr:`.measured.MeasuredProfile.ring_weights`) placed on the
+    offsets of a database of ``reach``."""
+    rows, side, _ = weights.shape
+    half = side // 2
+    if half > reach:
+        if np.any(weights[:, :half - reach]) or np.any(weights[:, half + reach + 1:]) \
+                or np.any(weights[:, :, :half - reach]) or np.any(weights[:, :, half + reach + 1:]):
+            raise ValueError(f"rings reach beyond the database's {reach} pixels")
+        weights = weights[:, half - reach:half + reach + 1, half - reach:half + reach + 1]
+        half = reach
+    matrix = np.zeros((rows, 2 * reach + 1, 2 * reach + 1))
+    matrix[:, reach - half:reach + half + 1, reach - half:reach + half + 1] = weights
+    return matrix.reshape(rows, -1)
+
+
 def ring_matrix(radii, reach: int, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
     """(R, (2 reach + 1)^2) float64: each ring's member weights over the pixel offsets of a
     database, normalised to sum 1 per ring (rings must lie within ``reach``)."""
@@ -63,14 +80,20 @@ class Forward:
         How its bins form layers.
     radii, thickness, antialias
         The rings, as the stacks take them.
+    ring_weights
+        (R, S, S) or None: the rings' effective weights per pixel offset, as a measured profile
+        averaged them (:attr:`.measured.MeasuredProfile.ring_weights`: rings cut by the grid's
+        edge); None for whole rings.
     """
 
     def __init__(self, database: WhiteDatabase, structure: Structure, radii, thickness: float = 1.0,
-                 antialias: bool = False):
+                 antialias: bool = False, ring_weights: np.ndarray | None = None):
         self.database = database
         self.structure = structure
         self.radii = np.asarray(radii, np.float64)
-        self.rings = ring_matrix(self.radii, database.optics.reach, thickness, antialias)
+        reach = database.optics.reach
+        self.rings = (ring_matrix(self.radii, reach, thickness, antialias) if ring_weights is None
+                      else embedded_rings(ring_weights, reach))
         used = self.rings.any(axis=0)[database.pixel]
         self.pixel = database.pixel[used]
         self.value = database.value[used].astype(np.float64)

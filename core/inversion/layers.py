@@ -155,7 +155,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
         for number, structure in enumerate(structures):
             report(first + share * number / len(structures), what)
-            forward = Forward(search, structure, measured.radii)
+            forward = Forward(search, structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
             chi2 = sum(f.chi2 for f in fits)
             points = sum(f.used for f in fits)
@@ -196,13 +196,14 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                      and (c.structure != structure or c.mus != mus)), key=lambda c: c.chi2)
     rivals = [c for c in rivals if c.chi2 - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     report((len(mus_choices) + 1) * share, "fitting the chosen structure")
-    forward = Forward(database, structure, measured.radii)
+    forward = Forward(database, structure, measured.radii, ring_weights=measured.ring_weights)
     fits = fit_channels(forward, measured.mean, measured.standard_error)
     layers = _layers(fits, structure, database.optics, colorspace)
     for number, rival in enumerate(rivals):
         report((len(mus_choices) + 1 + (number + 1) / (len(rivals) + 1)) * share,
                "fitting the structures that fit as well")
-        rival_forward = Forward(rival.database, rival.structure, measured.radii)
+        rival_forward = Forward(rival.database, rival.structure, measured.radii,
+                                 ring_weights=measured.ring_weights)
         rival_fits = fit_channels(rival_forward, measured.mean, measured.standard_error)
         layers = [_widened(layer, other) for layer, other in
                   zip(layers, _layers(rival_fits, rival.structure, rival.database.optics, colorspace))]

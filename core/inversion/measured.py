@@ -7,6 +7,14 @@ region the mean of ``P_q(r)`` over lit points is the region mean of E_r, and its
 is the spread of ``P_q(r)`` over the ``m`` lit points divided by ``sqrt(m)``: the ring members'
 spread, lit point by lit point. Light common to every lit point (a simulator's shared kernel)
 does not show in that spread; the fit adds a floor for it (:mod:`.fit`).
+
+A ring cut by the grid's edge (or by unobserved pixels) keeps the members left, renormalised: its
+mean leans toward the members that remain, and a ring's members lie at different distances (at
+r = 1: 1 and sqrt 2). Averaged over a region with edge points this moves the mean by up to 1 % at
+r = 1 on a 24 x 24 grid. So the profile also carries each ring's *effective* weights: the mean over
+the region's lit points of the renormalised weights each offset got. For a laterally homogeneous
+region (impulse response ``I(d)`` at offset ``d`` for every lit point) the measured mean is exactly
+``sum_d weight_d I(d)``, and the forward model (:class:`.forward.Forward`) uses these weights.
 """
 
 from __future__ import annotations
@@ -22,12 +30,14 @@ from ..rings.geometry import ring_geometry
 @dataclass(frozen=True)
 class MeasuredProfile:
     """``mean`` and ``standard_error`` (R, C) of the region-mean E_r at ``radii`` (R,), over
-    ``points`` lit points."""
+    ``points`` lit points. ``ring_weights`` (R, S, S), S odd: each ring's effective weight of the
+    pixel offset ``[dy + S // 2, dx + S // 2]`` (each row sums to 1), or None for whole rings."""
 
     radii: np.ndarray
     mean: np.ndarray
     standard_error: np.ndarray
     points: int
+    ring_weights: np.ndarray | None = None
 
 
 def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickness: float = 1.0,
@@ -55,14 +65,43 @@ def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickne
         block = dataset.rows(row0, row1)
         for row, (ring, ks) in enumerate(rings):
             for (dy, dx), weight, k in zip(ring.offsets, ring.weights, ks):
-                py, px = qy + dy, qx + dx
-                inside = (py >= row0) & (py < row1) & (px >= 0) & (px < width)
-                inside[inside] &= dataset.observed[py[inside], px[inside]]
-                total[row, inside] += weight * block[py[inside] - row0, px[inside], k]
+                inside = _members_inside(dataset, qy, qx, dy, dx, row0, row1, width)
+                py, px = qy[inside] + dy, qx[inside] + dx
+                total[row, inside] += weight * block[py - row0, px, k]
                 weights[row, inside] += weight
     with np.errstate(invalid="ignore", divide="ignore"):
         profiles = (total / weights[..., None]).transpose(1, 0, 2)
     counts = np.isfinite(profiles).sum(axis=0)
     mean = np.nanmean(profiles, axis=0)
     spread = np.nanstd(profiles, axis=0, ddof=1)
-    return MeasuredProfile(np.asarray(radii, np.float64), mean, spread / np.sqrt(counts), int(len(qy)))
+    effective = _effective_weights(dataset, qy, qx, rings, weights, np.isfinite(profiles).all(axis=2).T, reach)
+    return MeasuredProfile(np.asarray(radii, np.float64), mean, spread / np.sqrt(counts), int(len(qy)), effective)
+
+
+def _members_inside(dataset: ImpulseDataset, qy, qx, dy: int, dx: int, row0: int, row1: int, width: int):
+    """(m,) bool: the ring member ``q + (dy, dx)`` of each lit point lies in rows ``[row0, row1)``,
+    inside the grid and observed."""
+    py, px = qy + dy, qx + dx
+    inside = (py >= row0) & (py < row1) & (px >= 0) & (px < width)
+    inside[inside] &= dataset.observed[py[inside], px[inside]]
+    return inside
+
+
+def _effective_weights(dataset: ImpulseDataset, qy, qx, rings, weights: np.ndarray, finite: np.ndarray,
+                       reach: int) -> np.ndarray:
+    """(R, S, S) each ring's weight per offset, renormalised per lit point as its profile was and
+    averaged over the lit points whose profile is finite (``finite`` (R, m)); S = 2 reach + 1."""
+    height, width = dataset.grid_shape
+    side = 2 * reach + 1
+    effective = np.zeros((len(rings), side, side))
+    for row, (ring, _) in enumerate(rings):
+        used = finite[row] & (weights[row] > 0)
+        if not used.any():
+            continue
+        share = np.zeros(len(qy))
+        share[used] = 1.0 / weights[row, used]
+        for (dy, dx), weight in zip(ring.offsets, ring.weights):
+            inside = _members_inside(dataset, qy, qx, dy, dx, 0, height, width)
+            effective[row, dy + reach, dx + reach] += weight * share[inside].sum()
+        effective[row] /= used.sum()
+    return effective
