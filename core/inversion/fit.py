@@ -121,21 +121,29 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         interval = np.tile(np.array(MUA_BOUNDS), (layers, 1))
         return ChannelFit(mua, interval, np.ones(layers, bool), used, math.nan, np.full(len(measured), np.nan), sigma)
     best = None
-    for _ in range(2):  # the second pass weighs by the white run's noise at the first fit
+    # The second pass weighs by the white run's noise at the first pass's best fit, and starts
+    # again from each of the first pass's full fits that fits about as well under the new weights:
+    # another minimum may then be lower (a quick fit goes on from its best only).
+    for _ in range(2):
         if best is not None:
             sigma = np.sqrt(error ** 2 + forward.variance(np.exp(best.x)) + (RELATIVE_FLOOR * measured) ** 2)
         target = np.log(measured[:used])
         relative = sigma[:used] / measured[:used]
         residuals, jacobian = _objective(forward, used, target, relative)
-        if best is not None:
+        if best is not None and intervals:
+            # Each first-pass minimum under the new weights; those within JOINT_CHI2 of the lowest.
+            costs = np.array([np.sum(residuals(result.x) ** 2) for result in results])
+            starts = [result.x for result, cost in zip(results, costs) if cost <= costs.min() + JOINT_CHI2]
+        elif best is not None:
             starts = [best.x]
         elif intervals:
             starts = _starts(residuals, jacobian, layers, low, high)
         else:  # a structure search's quick fit: equal starting absorptions only
             starts = [np.full(layers, math.log(value)) for value in COARSE_GRID]
         loose = {} if intervals else _LOOSE
-        best = min((least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
-                    for start in starts), key=lambda result: result.cost)
+        results = [least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
+                   for start in starts]
+        best = min(results, key=lambda result: result.cost)
     theta = best.x
     chi2 = 2.0 * best.cost
     interval = np.empty((layers, 2))
