@@ -120,7 +120,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         mua = np.full(layers, np.nan)
         interval = np.tile(np.array(MUA_BOUNDS), (layers, 1))
         return ChannelFit(mua, interval, np.ones(layers, bool), used, math.nan, np.full(len(measured), np.nan), sigma)
-    best = None
+    best, results = None, []
     # The second pass weighs by the white run's noise at the first pass's best fit, and starts
     # again from each of the first pass's full fits that fits about as well under the new weights:
     # another minimum may then be lower (a quick fit goes on from its best only).
