@@ -161,6 +161,52 @@ def test_every_absorption_that_fits_as_well_lies_in_its_interval(layers3_sample,
     assert inside_values >= 3  # the scan did find values that fit as well
 
 
+# layers-mus's red channel as tools/evaluate_inversion.py measured it (24 x 24, every point lit and
+# its region mean over all of them, 4000 photons per point): E(r) and its standard error, r = 0..11.
+LAYERS_MUS_RED = [0.09493716806173325, 0.011143683470975331, 0.0048064796361523, 0.0027699676782174856,
+                  0.0016047226918513115, 0.000938734326889376, 0.0005993710467902687, 0.00038344446326919003,
+                  0.0002531878414288412, 0.00016008642728511372, 0.00010059595333159338, 6.789802762960411e-05]
+LAYERS_MUS_RED_SE = [0.0, 7.596847551600391e-06, 1.2082458148901998e-06, 7.136703463355016e-07,
+                     4.6836621300215144e-07, 1.6782574245577723e-07, 1.1810487591440449e-07, 6.749907294471349e-08,
+                     5.782022698001701e-08, 3.125506286227232e-08, 1.5713448953584144e-08, 1.4292250663062736e-08]
+
+
+def edge_ring_weights(height, width, radii, reach):
+    """(R, 2 reach + 1, 2 reach + 1) by the definition: for every point of the grid, each ring's
+    members inside it, renormalised; averaged over the points."""
+    weights = np.zeros((len(radii), 2 * reach + 1, 2 * reach + 1))
+    for row, radius in enumerate(radii):
+        ring = ring_geometry(float(radius))
+        for y in range(height):
+            for x in range(width):
+                inside = [(dy, dx, w) for (dy, dx), w in zip(ring.offsets, ring.weights)
+                          if 0 <= y + dy < height and 0 <= x + dx < width]
+                total = sum(w for _, _, w in inside)
+                for dy, dx, w in inside:
+                    weights[row, dy + reach, dx + reach] += w / total
+        weights[row] /= height * width
+    return weights
+
+
+def test_the_noise_weighted_pass_leaves_a_false_minimum(shared_cache, monkeypatch):
+    """The fit's second pass (weighted by the white run's noise at the first) once went on from the
+    first pass's best only, and stayed in a false minimum on layers-mus's red channel: mua (0.038,
+    0.021) at chi-square 24.8, against 11.2 at the truth (0.005, 0.1). It must reach at least as low
+    as the truth, and there."""
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000)
+    database = white_database(database_optics(settings, settings.mus), settings.photons)
+    radii = np.arange(12.0)
+    forward = Forward(database, Structure((0, 2)), radii, ring_weights=edge_ring_weights(24, 24, radii, 12))
+    measured, error = np.array(LAYERS_MUS_RED), np.array(LAYERS_MUS_RED_SE)
+    fit = fit_channel(forward, measured, error)
+    relative = fit.sigma[:fit.used] / measured[:fit.used]
+    truth = np.array([0.005, 0.1])
+    at_truth = np.sum((np.log(measured[:fit.used] / forward.profile(truth)[:fit.used]) / relative) ** 2)
+    assert fit.chi2 <= at_truth + 1e-6, (fit.mua, fit.chi2, at_truth)
+    np.testing.assert_allclose(fit.mua, truth, rtol=0.6)
+
+
 def test_a_wrong_scattering_coefficient_is_caught_by_chi_square(layers3_sample, shared_cache, monkeypatch):
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
     dataset = open_dataset(layers3_sample)
