@@ -125,10 +125,9 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
         dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
-    notice = None
     refusal = None if request is None else _refusal(dataset, request)
-    if refusal is not None:
-        notice = f"The stack last shown for {dataset.path.name} cannot be made now ({refusal}); showing the default"
+    notice = None if refusal is None else (f"The stack last shown for {dataset.path.name} cannot be made now "
+                                           f"({refusal}); showing the default")
     if request is None or refusal is not None:
         request = default_request(dataset.max_radius)
     stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))

@@ -164,11 +164,12 @@ def no_leaks(request):
     while qt_after is not None and _new(qt_after[0], qt_before[0] if qt_before else {}):
         qt_after = None  # hold no wrapper while the cycles that may own the widgets are collected
         gc.collect()
-        if time.monotonic() > deadline:
-            qt_after = _settle_qt(deadline)
-            break
-        time.sleep(0.05)
+        expired = time.monotonic() > deadline
+        if not expired:
+            time.sleep(0.05)
         qt_after = _settle_qt(deadline)
+        if expired:
+            break
     if qt_after is not None:
         widgets_before, timers_before, pools_before = qt_before or ({}, {}, {})
         widgets, timers, pools = qt_after

@@ -140,24 +140,23 @@ def test_every_absorption_that_fits_as_well_lies_in_its_interval(layers3_sample,
     target = np.log(measured.mean[:used, 0])
     relative = fit.sigma[:used] / measured.mean[:used, 0]
 
-    def chi2(theta):
-        return np.sum(((target - np.log(forward.profile(np.exp(theta))[:used])) / relative) ** 2)
+    def residuals(theta):
+        return (target - np.log(forward.profile(np.exp(theta))[:used])) / relative
 
     low, high = np.log(MUA_BOUNDS)
     inside_values = 0
-    for k in (1,):  # the middle layer, whose interval left out values that fit as well
-        others = [j for j in range(3) if j != k]
-        for value in np.linspace(low, high, 10):
-            def residuals(free):
-                theta = np.empty(3)
-                theta[k], theta[others] = value, free
-                return (target - np.log(forward.profile(np.exp(theta))[:used])) / relative
-            best = min(least_squares(residuals, start, bounds=(low, high)).cost
-                       for start in (np.log(fit.mua[others]), np.full(2, np.log(0.05))))
-            if 2 * best - fit.chi2 < 0.95 * JOINT_CHI2:
-                inside_values += 1
-                assert fit.interval[k, 0] <= np.exp(value) <= fit.interval[k, 1], (k, np.exp(value), fit.interval[k])
-    assert fit.chi2 <= chi2(np.log(fit.mua)) + 1e-6
+    k, others = 1, [0, 2]  # the middle layer, whose interval left out values that fit as well
+    for value in np.linspace(low, high, 10):
+        def profile_residuals(free):
+            theta = np.empty(3)
+            theta[k], theta[others] = value, free
+            return residuals(theta)
+        best = min(least_squares(profile_residuals, start, bounds=(low, high)).cost
+                   for start in (np.log(fit.mua[others]), np.full(2, np.log(0.05))))
+        if 2 * best - fit.chi2 < 0.95 * JOINT_CHI2:
+            inside_values += 1
+            assert fit.interval[k, 0] <= np.exp(value) <= fit.interval[k, 1], (np.exp(value), fit.interval[k])
+    assert fit.chi2 <= np.sum(residuals(np.log(fit.mua)) ** 2) + 1e-6
     assert inside_values >= 3  # the scan did find values that fit as well
 
 

@@ -136,6 +136,7 @@ def test_band_assembly_keeps_memory_within_the_budget(tmp_path):
     assert_array_equal(ring_stack(lazy, [0, 2, 4]).images,
                        ring_stack(open_dataset(tmp_path / "ds", use_cache=False), [0, 2, 4]).images)
 
+
 def test_without_the_cache_a_dataset_over_the_budget_is_refused_in_one_line(folder):
     from ringlight.core.errors import DatasetError
 

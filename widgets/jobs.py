@@ -53,7 +53,7 @@ class _Job(QRunnable):
         self.signals.progress.emit(self.number, float(fraction))
 
     def run(self) -> None:
-        work, self.work = self.work, None  # a finished job holds nothing of its window (note below)
+        work, self.work = self.work, None  # a finished job holds nothing of its window (class docstring)
         try:
             if self.cancel_event.is_set():
                 raise Cancelled("cancelled")

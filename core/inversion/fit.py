@@ -120,56 +120,46 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         mua = np.full(layers, np.nan)
         interval = np.tile(np.array(MUA_BOUNDS), (layers, 1))
         return ChannelFit(mua, interval, np.ones(layers, bool), used, math.nan, np.full(len(measured), np.nan), sigma)
-    best, results = None, []
-    # The second pass weighs by the white run's noise at the first pass's best fit, and starts
-    # again from each of the first pass's full fits that fits about as well under the new weights:
-    # another minimum may then be lower (a quick fit goes on from its best only).
-    for _ in range(2):
-        if best is not None:
-            sigma = np.sqrt(error ** 2 + forward.variance(np.exp(best.x)) + (RELATIVE_FLOOR * measured) ** 2)
-        target = np.log(measured[:used])
-        relative = sigma[:used] / measured[:used]
-        residuals, jacobian = _objective(forward, used, target, relative)
-        if best is not None and intervals:
-            # Each first-pass minimum under the new weights; those within JOINT_CHI2 of the lowest.
-            costs = np.array([np.sum(residuals(result.x) ** 2) for result in results])
-            starts = [result.x for result, cost in zip(results, costs) if cost <= costs.min() + JOINT_CHI2]
-        elif best is not None:
-            starts = [best.x]
-        elif intervals:
-            starts = _starts(residuals, jacobian, layers, low, high)
-        else:  # a structure search's quick fit: equal starting absorptions only
-            starts = [np.full(layers, math.log(value)) for value in COARSE_GRID]
-        loose = {} if intervals else _LOOSE
-        results = [least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
-                   for start in starts]
-        best = min(results, key=lambda result: result.cost)
+    loose = {} if intervals else _LOOSE
+
+    def weighted(deviation):
+        """The objective with each ring weighted by ``deviation`` (R,)."""
+        return _objective(forward, used, np.log(measured[:used]), deviation[:used] / measured[:used])
+
+    def fitted(residuals, jacobian, starts):
+        return [least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
+                for start in starts]
+
+    residuals, jacobian = weighted(sigma)
+    if intervals:
+        starts = _starts(residuals, jacobian, layers, low, high)
+    else:  # a structure search's quick fit: equal starting absorptions only
+        starts = [np.full(layers, math.log(value)) for value in COARSE_GRID]
+    results = fitted(residuals, jacobian, starts)
+    best = min(results, key=lambda result: result.cost)
+    # The second pass weighs by the white run's noise at the first pass's best fit too, and starts
+    # again from each first-pass fit that fits about as well under the new weights (within
+    # JOINT_CHI2 of the lowest): another minimum may then be lower. A quick fit goes on from its best.
+    sigma = np.sqrt(error ** 2 + forward.variance(np.exp(best.x)) + (RELATIVE_FLOOR * measured) ** 2)
+    residuals, jacobian = weighted(sigma)
+    if intervals:
+        costs = np.array([np.sum(residuals(result.x) ** 2) for result in results])
+        starts = [result.x for result, cost in zip(results, costs) if cost <= costs.min() + JOINT_CHI2]
+    else:
+        starts = [best.x]
+    best = min(fitted(residuals, jacobian, starts), key=lambda result: result.cost)
     theta = best.x
     chi2 = 2.0 * best.cost
-    interval = np.empty((layers, 2))
+    interval = np.full((layers, 2), np.nan)
     unbounded = np.zeros(layers, bool)
     if intervals:
         covariance = np.linalg.pinv(best.jac.T @ best.jac)
         spread = math.sqrt(JOINT_CHI2) * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
         for k in range(layers):
-            lower = max(theta[k] - spread[k], low)
-            upper = min(theta[k] + spread[k], high)
-            if theta[k] >= high - 1e-9:
-                upper = high
-            elif spread[k] > WALD_LIMIT or upper >= high:
-                upper = _profile_end(residuals, jacobian, theta, k, theta[k], high, chi2, low, high)
-            elif _profile_chi2(residuals, jacobian, theta, k, upper, low, high) - chi2 < JOINT_CHI2:
-                upper = _profile_end(residuals, jacobian, theta, k, upper, high, chi2, low, high)
-            if theta[k] <= low + 1e-9:
-                lower = low
-            elif spread[k] > WALD_LIMIT or lower <= low:
-                lower = _profile_end(residuals, jacobian, theta, k, theta[k], low, chi2, low, high)
-            elif _profile_chi2(residuals, jacobian, theta, k, lower, low, high) - chi2 < JOINT_CHI2:
-                lower = _profile_end(residuals, jacobian, theta, k, lower, low, chi2, low, high)
-            interval[k] = np.exp([lower, upper])
-            unbounded[k] = upper >= high - 1e-9
-    else:
-        interval[:] = np.nan
+            ends = [_interval_end(residuals, jacobian, theta, k, spread[k], bound, chi2, low, high)
+                    for bound in (low, high)]
+            interval[k] = np.exp(ends)
+            unbounded[k] = ends[1] >= high - 1e-9
     return ChannelFit(np.exp(theta), interval, unbounded, used, chi2, forward.profile(np.exp(theta)), sigma)
 
 
@@ -198,6 +188,22 @@ def _objective(forward: Forward, used: int, target: np.ndarray, relative: np.nda
         return memo[key]
 
     return (lambda theta: evaluate(theta)[0]), (lambda theta: evaluate(theta)[1])
+
+
+def _interval_end(residuals, jacobian, theta: np.ndarray, k: int, spread: float, bound: float, chi2: float,
+                  low: float, high: float) -> float:
+    """The end of ``theta[k]``'s interval toward ``bound`` (``low`` or ``high``): the Wald end
+    ``theta[k] -+ spread`` where it is narrow, inside the bounds and confirmed by the profile
+    chi-square there; else the profile likelihood's end (:func:`_profile_end`), searched beyond the
+    Wald end where only the confirmation failed."""
+    if abs(theta[k] - bound) <= 1e-9:
+        return bound
+    wald = theta[k] + math.copysign(spread, bound - theta[k])
+    if spread > WALD_LIMIT or (wald - bound) * (theta[k] - bound) <= 0.0:  # wide, or at or past the bound
+        return _profile_end(residuals, jacobian, theta, k, theta[k], bound, chi2, low, high)
+    if _profile_chi2(residuals, jacobian, theta, k, wald, low, high) - chi2 < JOINT_CHI2:
+        return _profile_end(residuals, jacobian, theta, k, wald, bound, chi2, low, high)
+    return wald
 
 
 def _profile_end(residuals, jacobian, theta: np.ndarray, k: int, start: float, bound: float, chi2: float,

@@ -44,11 +44,10 @@ def embedded_rings(weights: np.ndarray, reach: int) -> np.ndarray:
     rows, side, _ = weights.shape
     half = side // 2
     if half > reach:
-        if np.any(weights[:, :half - reach]) or np.any(weights[:, half + reach + 1:]) \
-                or np.any(weights[:, :, :half - reach]) or np.any(weights[:, :, half + reach + 1:]):
+        inner = weights[:, half - reach:half + reach + 1, half - reach:half + reach + 1]
+        if np.count_nonzero(inner) != np.count_nonzero(weights):
             raise ValueError(f"rings reach beyond the database's {reach} pixels")
-        weights = weights[:, half - reach:half + reach + 1, half - reach:half + reach + 1]
-        half = reach
+        weights, half = inner, reach
     matrix = np.zeros((rows, 2 * reach + 1, 2 * reach + 1))
     matrix[:, reach - half:reach + half + 1, reach - half:reach + half + 1] = weights
     return matrix.reshape(rows, -1)
