@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 pytest.importorskip("PySide6")
+from PySide6.QtCore import QEvent, QObject  # noqa: E402
 from PySide6.QtGui import QImage, QPainter  # noqa: E402
+from PySide6.QtWidgets import QApplication  # noqa: E402
 from reference import random_impulses, write_dataset  # noqa: E402
-from ringlight.widgets.profile_plot import ProfilePlot, ValueAxis  # noqa: E402
+from ringlight.widgets.profile_plot import BAND_SE, ProfilePlot, ValueAxis  # noqa: E402
 
 
 @pytest.mark.parametrize("low, high", [(4e4, 9e4), (1e-3, 1e3), (2.5e2, 3.1e2)])
@@ -128,3 +130,50 @@ def test_view_radius_in_mm_is_offered_only_when_the_pitch_is_known(qtbot, window
     qtbot.wait(50)
     assert window.profile_plot.pitch_mm is None
     assert float(dict((round(value, 6), text) for value, text in drawn_labels(axis))[2.0]) == 2.0
+
+
+class PaintCounter(QObject):
+    """Counts the paint events ``widget`` receives."""
+
+    def __init__(self, widget):
+        super().__init__()
+        self.count = 0
+        widget.installEventFilter(self)
+
+    def eventFilter(self, watched, event) -> bool:
+        if event.type() == QEvent.Type.Paint:
+            self.count += 1
+        return False
+
+
+def test_new_profiles_are_painted_once_and_the_view_fits_them(qtbot, plot):
+    """A pick used to paint the plots twice: the auto range and the view's transform were
+    brought up to date while painting, which moved every item and asked for another paint."""
+    counter = PaintCounter(plot.viewport())
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        ring = RING * rng.uniform(0.5, 3.0, RING.shape)
+        se = 0.1 * ring
+        qtbot.wait(20)
+        counter.count = 0
+        plot.set_profiles(RADII, ring, ring - 0.5 * ring, se, se)
+        for _ in range(5):
+            QApplication.processEvents()
+        assert counter.count == 1
+        # The y range holds every band edge, and pyqtgraph's auto range would leave it as it is.
+        low, high = plot.ring_plot.vb.viewRange()[1]
+        assert low <= (ring - BAND_SE * se).min() and (ring + BAND_SE * se).max() <= high
+        assert plot.ring_plot.vb.autoRangeEnabled()[1]
+
+
+def test_in_log_y_the_radius_range_holds_every_e_even_where_t_starts_later(qtbot, plot):
+    ring = RING.copy()
+    transient = ring - np.vstack([ring[1:], ring[-1:]])
+    transient[:3] = -1.0  # T <= 0 at r = 0, 1, 2: left out in log y
+    plot.set_profiles(RADII, ring, transient)
+    plot.set_log_y(True)
+    qtbot.wait(50)
+    for axes in (plot.ring_plot, plot.transient_plot):
+        low, high = axes.vb.viewRange()[0]
+        assert low < 0.0 and high > 10.0  # E(0) and E(10) in view, in both linked plots
+    assert plot.transient_curves[0].getData()[0].min() == 3.0

@@ -15,8 +15,9 @@ from math import ceil
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QSize, Qt, Signal
-from PySide6.QtWidgets import QWidget
+from PySide6.QtCore import QPointF, QSize, Qt, Signal
+from PySide6.QtGui import QPainterPath, QPen, QPolygonF
+from PySide6.QtWidgets import QGraphicsPathItem, QWidget
 
 CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
 BAND_SE = 2.0
@@ -31,18 +32,41 @@ POINT_LABEL_ROOM = 100
 """Least width of each plot's view box, pixels: room for the point label ("at y 123 x 456")."""
 
 
-def _band(plot: pg.PlotItem, colour: str) -> pg.FillBetweenItem:
-    """A FillBetweenItem in ``colour`` (translucent) between two invisible curves of ``plot``
-    (PlotDataItems, so that they follow the plot's log mode), drawn under the value curves."""
-    edges = [pg.PlotDataItem(pen=pg.mkPen(0, 0, 0, 0)) for _ in range(2)]  # pen None: no path to fill
-    for edge in edges:
-        plot.addItem(edge)
-    brush = pg.mkColor(colour)
-    brush.setAlpha(60)
-    fill = pg.FillBetweenItem(edges[0], edges[1], brush=brush)
-    fill.setZValue(-5)
-    plot.addItem(fill, ignoreBounds=True)  # its edges count; an empty fill would add y = 0 (1 in log y)
-    return fill
+class Band(QGraphicsPathItem):
+    """A translucent band between two edges over the same radii, drawn under the value curves as
+    one closed polygon (upper edge forward, lower edge back) in the plot's coordinates: log10 of
+    the values in log y. Hidden when empty, so that it adds nothing to the plot's auto range."""
+
+    def __init__(self, colour: str):
+        super().__init__()
+        brush = pg.mkColor(colour)
+        brush.setAlpha(60)
+        self.setBrush(brush)
+        self.setPen(QPen(Qt.PenStyle.NoPen))
+        self.setZValue(-5)
+        self._log_y = False
+
+    def set_edges(self, radii: np.ndarray, low: np.ndarray, high: np.ndarray, log_y: bool) -> None:
+        """Span (n,) ``low`` .. ``high`` at (n,) ``radii`` (all finite; positive in log y)."""
+        self._log_y = log_y
+        plotted = np.log10 if log_y else np.asarray
+        polygon = QPolygonF([QPointF(float(x), float(y)) for x, y in
+                             zip(np.concatenate([radii, radii[::-1]]),
+                                 np.concatenate([plotted(high), plotted(low)[::-1]]))])
+        path = QPainterPath()
+        path.addPolygon(polygon)
+        self.setPath(path)
+        self.setVisible(len(radii) > 1)
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radii, low, high) read back from the polygon drawn (values, not their log10)."""
+        points = self.path().toFillPolygon()
+        xy = np.array([(point.x(), point.y()) for point in points], np.float64).reshape(-1, 2)
+        count = len(xy) // 2  # a closed polygon may repeat its first point at the end
+        radii, high, low = xy[:count, 0], xy[:count, 1], xy[count:2 * count, 1][::-1]
+        if self._log_y:
+            high, low = 10.0 ** high, 10.0 ** low
+        return radii, low, high
 
 
 class ValueAxis(pg.AxisItem):
@@ -108,10 +132,14 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr)",
                                            axisItems={"left": ValueAxis("left"), "bottom": RadiusAxis("bottom")})
         self.transient_plot.setXLink(self.ring_plot)
-        self.ring_bands = [_band(self.ring_plot, pen) for pen in CHANNEL_PENS]
-        self.transient_bands = [_band(self.transient_plot, pen) for pen in CHANNEL_PENS]
-        self.ring_curves = [self.ring_plot.plot(pen=pen) for pen in CHANNEL_PENS]
-        self.transient_curves = [self.transient_plot.plot(pen=pen) for pen in CHANNEL_PENS]
+        self.ring_bands = [Band(colour) for colour in CHANNEL_PENS]
+        self.transient_bands = [Band(colour) for colour in CHANNEL_PENS]
+        self.ring_curves = [pg.PlotCurveItem(pen=colour) for colour in CHANNEL_PENS]
+        self.transient_curves = [pg.PlotCurveItem(pen=colour) for colour in CHANNEL_PENS]
+        for plot, items in ((self.ring_plot, self.ring_bands + self.ring_curves),
+                            (self.transient_plot, self.transient_bands + self.transient_curves)):
+            for item in items:
+                plot.addItem(item)
         self.setToolTip(BAND_TIP)
         self.zero_line = pg.InfiniteLine(0, angle=0, pen=pg.mkPen("#888", style=Qt.PenStyle.DotLine))
         self.transient_plot.addItem(self.zero_line)
@@ -119,7 +147,15 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         for plot in (self.ring_plot, self.transient_plot):
             plot.showGrid(x=False, y=False)
             plot.getAxis("left").setWidth(64)
+            for side in ("left", "bottom"):
+                # Major and minor ticks: a third level is never drawn at the dock's size, yet
+                # pyqtgraph lays out its ticks and texts on every range change (3 ms a pick).
+                plot.getAxis(side).setStyle(maxTickLevel=1, maxTextLevel=1)
             plot.vb.setMinimumWidth(POINT_LABEL_ROOM)
+            # pyqtgraph's own transforms (log, FFT, derivative) would act on the axes but not on
+            # curves and bands drawn in plot coordinates: the Display panel's "log y" sets log mode.
+            plot.ctrl.transformGroup.setEnabled(False)
+            plot.ctrl.transformGroup.setToolTip("Log y: the Display panel's \"log y\" box")
             line = pg.InfiniteLine(0, angle=90, movable=True, pen=pg.mkPen("#ffd600", width=2))
             line.sigDragged.connect(self._on_line_dragged)
             plot.addItem(line)
@@ -187,6 +223,8 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
 
     def set_radius(self, radius: float) -> None:
         for line in self.radius_lines:
+            if line.value() == radius:
+                continue  # moving a line, even nowhere, makes the plots compute their auto range again
             line.blockSignals(True)
             line.setValue(radius)
             line.blockSignals(False)
@@ -198,39 +236,39 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
 
     def band_data(self) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], list]:
         """The bands drawn now: for E and for T, per channel ``(radii, lower, upper)``, read back
-        from the curves that bound each FillBetweenItem (their data before any log transform)."""
-        bands = []
-        for plot_bands in (self.ring_bands, self.transient_bands):
-            rows = []
-            for fill in plot_bands:
-                upper, lower = fill.curves
-                x, high = upper.getOriginalDataset()
-                _, low = lower.getOriginalDataset()
-                rows.append((np.asarray(x, np.float64), np.asarray(low, np.float64), np.asarray(high, np.float64)))
-            bands.append(rows)
-        return bands[0], bands[1]
+        from the polygons drawn (values, not their log10)."""
+        return [band.edges() for band in self.ring_bands], [band.edges() for band in self.transient_bands]
 
     def _redraw(self) -> None:
+        """Curves and bands from the data, in the plot's coordinates (log10 of values in log y:
+        the items are plain PlotCurveItems and paths, cheaper to update than PlotDataItems, and
+        the axes alone are in log mode). The auto range and the view's transform are brought up
+        to date here, not when the plots are painted: changing them while painting moves every
+        item again and paints the plots twice per pick."""
         x = self._radii
+        plotted = np.log10 if self._log_y else np.asarray
         for curves, bands, values, errors in (
                 (self.ring_curves, self.ring_bands, self._ring, self._ring_se),
                 (self.transient_curves, self.transient_bands, self._transient, self._transient_se)):
-            for channel, (curve, fill) in enumerate(zip(curves, bands)):
+            for channel, (curve, band) in enumerate(zip(curves, bands)):
                 y = values[:, channel] if len(values) else np.zeros(0)
                 keep = np.isfinite(y) & ((y > 0) if self._log_y else True)
-                curve.setData(x[keep], y[keep])
+                curve.setData(x[keep], plotted(y[keep]))
                 error = errors[:, channel] if len(errors) else np.zeros(0)
                 shown = keep & np.isfinite(error)
                 low, high = y - BAND_SE * error, y + BAND_SE * error
                 if self._log_y:
                     low = np.where(low > 0, low, LOG_BAND_FLOOR * y)
-                upper, lower = fill.curves
-                upper.setData(x[shown], high[shown])
-                lower.setData(x[shown], low[shown])
+                band.set_edges(x[shown], low[shown], high[shown], self._log_y)
+        for plot in (self.ring_plot, self.transient_plot):
+            plot.vb.prepareForPaint()
 
     def _set_axes(self) -> None:
         for plot in (self.ring_plot, self.transient_plot):
-            plot.setLogMode(False, self._log_y)
+            plot.setLogMode(False, self._log_y)  # also turns both plots' auto range back on
+        # The radius range follows E(r) alone: with two linked auto ranges the one that came last
+        # wins, and in log y T(r) often starts later (T <= 0 is left out), cutting off E(0).
+        self.transient_plot.enableAutoRange(x=False)
         self.ring_plot.setLabel("left", "radiance")
         self.transient_plot.setLabel("left", "radiance" + (" (T > 0 only)" if self._log_y else ""))
         for plot in (self.ring_plot, self.transient_plot):
