@@ -6,6 +6,7 @@ light / transient images are computed by brute force straight from FORMAT.md's d
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -113,10 +114,12 @@ def brute_ring_image(impulses, height, width, radius, thickness=1.0, weight=None
 
 
 def supersampled_annulus_weight(radius, thickness, samples=64):
-    """Pixel coverage of the annulus by supersampling (an independent check of exact areas)."""
+    """Pixel coverage of the annulus by supersampling (an independent check of exact areas);
+    each offset's weight is computed once (brute-force images ask for it at every pixel)."""
     inner, outer = max(radius - thickness / 2, 0.0), radius + thickness / 2
     u = (np.arange(samples) + 0.5) / samples - 0.5
 
+    @functools.cache
     def weight(dy, dx):
         if math.hypot(dy, dx) > outer + 1 or math.hypot(dy, dx) < inner - 1:
             return 0.0
