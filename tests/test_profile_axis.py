@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 pytest.importorskip("PySide6")
-from PySide6.QtCore import QEvent, QObject  # noqa: E402
 from PySide6.QtGui import QImage, QPainter  # noqa: E402
 from PySide6.QtWidgets import QApplication  # noqa: E402
+from qt_paints import PaintCounter  # noqa: E402
 from reference import random_impulses, write_dataset  # noqa: E402
 from ringlight.widgets.profile_plot import BAND_SE, ProfilePlot, ValueAxis  # noqa: E402
 
@@ -130,20 +130,6 @@ def test_view_radius_in_mm_is_offered_only_when_the_pitch_is_known(qtbot, window
     qtbot.wait(50)
     assert window.profile_plot.pitch_mm is None
     assert float(dict((round(value, 6), text) for value, text in drawn_labels(axis))[2.0]) == 2.0
-
-
-class PaintCounter(QObject):
-    """Counts the paint events ``widget`` receives."""
-
-    def __init__(self, widget):
-        super().__init__()
-        self.count = 0
-        widget.installEventFilter(self)
-
-    def eventFilter(self, watched, event) -> bool:
-        if event.type() == QEvent.Type.Paint:
-            self.count += 1
-        return False
 
 
 def test_new_profiles_are_painted_once_and_the_view_fits_them(qtbot, plot):

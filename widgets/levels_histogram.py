@@ -54,6 +54,9 @@ class LevelsHistogram(pg.PlotWidget):
         self._updating = True
         self.region.setRegion(levels)
         self._updating = False
+        # Range and view transform brought up to date now: done while painting (pyqtgraph's way)
+        # they move the items and ask for a second paint of the histogram every scrub step.
+        self.getPlotItem().vb.prepareForPaint()
 
     def _on_dragged(self) -> None:
         if not self._updating:
