@@ -18,9 +18,10 @@ from PySide6.QtCore import QEvent, QPoint, QPointF, Qt  # noqa: E402
 from PySide6.QtGui import QMouseEvent  # noqa: E402
 from PySide6.QtWidgets import QApplication  # noqa: E402
 
+from qt_paints import PaintCounter  # noqa: E402
 from ringlight.core.atomic import OutputError  # noqa: E402
 from ringlight.widgets.image_panel import ImagePanel  # noqa: E402
-from ringlight.widgets.line_profile import DISTANCE_LABEL, LineProfileTool  # noqa: E402
+from ringlight.widgets.line_profile import DISTANCE_LABEL, LineProfilePlot, LineProfileTool  # noqa: E402
 
 HEIGHT, WIDTH = 40, 60
 Y_FACTORS = np.array([3.0, -1.0, 0.5])
@@ -271,3 +272,27 @@ def test_save_csv_writes_a_header_and_the_profile_and_leaves_no_temporary(tmp_pa
 def test_data_of_another_shape_are_refused(tool):
     with pytest.raises(ValueError, match=r"\(H, W\) or \(H, W, 3\)"):
         tool.set_data(np.zeros((HEIGHT, WIDTH, 4)))
+
+
+def test_each_new_profile_is_painted_once_and_fits_the_view(qtbot):
+    """Once its axes have their width (labels of the same size), a new profile paints the plot once:
+    pyqtgraph brought the range up to date while painting, which asked for a second paint."""
+    plot = LineProfilePlot()
+    qtbot.addWidget(plot)
+    plot.resize(320, 160)
+    plot.show()
+    qtbot.waitExposed(plot)
+    view = plot.plot.getViewBox()
+    counter = PaintCounter(plot.findChild(pg.PlotWidget).viewport())
+    rng = np.random.default_rng(4)
+    for index, length in enumerate((30, 10, 40, 25)):
+        distances = np.arange(length, dtype=float)
+        values = 20 + 60 * rng.random((length, 3))  # labels 20 .. 80 whatever the draw
+        qtbot.wait(20)
+        counter.count = 0
+        plot.set_profile(distances, values, f"{length} samples")
+        for _ in range(5):
+            QApplication.processEvents()
+        assert index == 0 or counter.count == 1  # the first profile lays the axes out
+        (x0, x1), (y0, y1) = view.viewRange()
+        assert x0 <= 0 and x1 >= length - 1 and y0 <= values.min() and y1 >= values.max()

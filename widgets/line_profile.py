@@ -117,6 +117,7 @@ class LineProfilePlot(QWidget):
             curve.setData(distances if rgb else empty, values[:, channel] if rgb else empty)
         self.scalar_curve.setData(empty if rgb else distances, empty if rgb else values[:, 0])
         self.plot.setTitle(title)
+        self.plot.vb.prepareForPaint()  # the range now, not while painting (which paints twice)
 
     def clear(self) -> None:
         """No curves and no title."""
