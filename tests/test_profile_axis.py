@@ -163,3 +163,9 @@ def test_in_log_y_the_radius_range_holds_every_e_even_where_t_starts_later(qtbot
         low, high = axes.vb.viewRange()[0]
         assert low < 0.0 and high > 10.0  # E(0) and E(10) in view, in both linked plots
     assert plot.transient_curves[0].getData()[0].min() == 3.0
+    # After a zoom, T(r)'s own "A" (auto range) button brings back the range E(r) needs.
+    plot.transient_plot.vb.setXRange(4.0, 6.0)
+    plot.transient_plot.autoBtn.clicked.emit(plot.transient_plot.autoBtn)
+    qtbot.wait(50)
+    low, high = plot.transient_plot.vb.viewRange()[0]
+    assert low < 0.0 and high > 10.0

@@ -132,6 +132,8 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self.transient_plot = self.addPlot(row=1, col=0, title="T(r) = E(r) - E(r+dr)",
                                            axisItems={"left": ValueAxis("left"), "bottom": RadiusAxis("bottom")})
         self.transient_plot.setXLink(self.ring_plot)
+        # After pyqtgraph's own handler, which turns on both of T(r)'s auto ranges: see _set_axes.
+        self.transient_plot.autoBtn.clicked.connect(self._radius_range_follows_e)
         self.ring_bands = [Band(colour) for colour in CHANNEL_PENS]
         self.transient_bands = [Band(colour) for colour in CHANNEL_PENS]
         self.ring_curves = [pg.PlotCurveItem(pen=colour) for colour in CHANNEL_PENS]
@@ -266,15 +268,19 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
     def _set_axes(self) -> None:
         for plot in (self.ring_plot, self.transient_plot):
             plot.setLogMode(False, self._log_y)  # also turns both plots' auto range back on
-        # The radius range follows E(r) alone: with two linked auto ranges the one that came last
-        # wins, and in log y T(r) often starts later (T <= 0 is left out), cutting off E(0).
-        self.transient_plot.enableAutoRange(x=False)
+        self._radius_range_follows_e()
         self.ring_plot.setLabel("left", "radiance")
         self.transient_plot.setLabel("left", "radiance" + (" (T > 0 only)" if self._log_y else ""))
         for plot in (self.ring_plot, self.transient_plot):
             plot.getAxis("bottom").setScale(self._pitch_mm or 1.0)
         self.transient_plot.setLabel("bottom", "radius r (mm)" if self._pitch_mm else "radius r (grid steps)")
         self.zero_line.setVisible(not self._log_y)
+
+    def _radius_range_follows_e(self) -> None:
+        """The radius range follows E(r) alone: with two linked auto ranges the one that came last
+        wins, and in log y T(r) often starts later (T <= 0 is left out), cutting off E(0)."""
+        self.transient_plot.enableAutoRange(x=False)
+        self.ring_plot.enableAutoRange(x=True)
 
     def _on_line_dragged(self, line: pg.InfiniteLine) -> None:
         self.radius_requested.emit(float(line.value()))
