@@ -27,18 +27,23 @@ class ViewNoise:
     ----------
     snr
         (n, H, W) float32 SNR of each T_r's luminance (:func:`transient_snr`).
+    image_median_snr
+        (n,) median of each SNR image over its defined pixels (:func:`median_snr`): computed
+        with the rest in the worker, as on a 1024 x 1024 grid it takes about 0.4 s.
     """
 
     pair: StackPair
     noise: StackNoise
     snr: np.ndarray
+    image_median_snr: np.ndarray
 
 
 def compute_view_noise(dataset: ImpulseDataset, pair: StackPair, progress) -> ViewNoise:
     """Standard errors and SNR of ``pair``'s stacks (a worker job)."""
     request = pair.request
     noise = stack_noise(dataset, pair.radii, request.dr, request.thickness, request.antialias, progress)
-    return ViewNoise(pair, noise, transient_snr(pair.transient.images, noise))
+    snr = transient_snr(pair.transient.images, noise)
+    return ViewNoise(pair, noise, snr, median_snr(snr))
 
 
 class NoiseView:
@@ -79,8 +84,8 @@ class NoiseView:
         region = self.layer_tab.region
         whole = region.shape != self.noise.snr.shape[1:] or region.all()
         where = "the image" if whole else "the Layers region"
-        self.scrub_bar.set_snr(median_snr(self.noise.snr, None if whole else region),
-                               f"median {SNR_LABEL} of T_r over {where}:")
+        medians = self.noise.image_median_snr if whole else median_snr(self.noise.snr, region)
+        self.scrub_bar.set_snr(medians, f"median {SNR_LABEL} of T_r over {where}:")
 
     def _refresh_snr_image(self) -> None:
         """The SNR map of T_r on the shared colour scale, with its colour bar."""
