@@ -12,6 +12,8 @@ from PySide6.QtCore import QSize, Signal
 from PySide6.QtWidgets import QWidget
 from ringlight.core.colour.display import value_histogram
 
+from .view_settling import settle
+
 
 class LevelsHistogram(pg.PlotWidget):
     """Signals: ``levels_dragged(low, high)`` when the user drags the levels region."""
@@ -54,9 +56,7 @@ class LevelsHistogram(pg.PlotWidget):
         self._updating = True
         self.region.setRegion(levels)
         self._updating = False
-        # Range and view transform brought up to date now: done while painting (pyqtgraph's way)
-        # they move the items and ask for a second paint of the histogram every scrub step.
-        self.getPlotItem().vb.prepareForPaint()
+        settle(self.getPlotItem().vb)  # one paint per shown image (a scrub step painted it twice)
 
     def _on_dragged(self) -> None:
         if not self._updating:

@@ -24,6 +24,7 @@ from PySide6.QtWidgets import QVBoxLayout, QWidget
 from ringlight.core.atomic import atomic_file
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.profile_plot import CHANNEL_PENS
+from ringlight.widgets.view_settling import settle
 
 LINE_RGB = (255, 64, 255)
 """The line's colour: apart from the ring (yellow) and the region (cyan) on the same image."""
@@ -117,7 +118,7 @@ class LineProfilePlot(QWidget):
             curve.setData(distances if rgb else empty, values[:, channel] if rgb else empty)
         self.scalar_curve.setData(empty if rgb else distances, empty if rgb else values[:, 0])
         self.plot.setTitle(title)
-        self.plot.vb.prepareForPaint()  # the range now, not while painting (which paints twice)
+        settle(self.plot.vb)  # one paint per profile
 
     def clear(self) -> None:
         """No curves and no title."""

@@ -19,6 +19,8 @@ from PySide6.QtCore import QPointF, QSize, Qt, Signal
 from PySide6.QtGui import QPainterPath, QPen, QPolygonF
 from PySide6.QtWidgets import QGraphicsPathItem, QWidget
 
+from .view_settling import settle
+
 CHANNEL_PENS = ("#ff5a5a", "#5adc5a", "#5a8cff")
 BAND_SE = 2.0
 """Half-width of the noise bands in standard errors (about 95 % for Gaussian noise)."""
@@ -244,9 +246,8 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
     def _redraw(self) -> None:
         """Curves and bands from the data, in the plot's coordinates (log10 of values in log y:
         the items are plain PlotCurveItems and paths, cheaper to update than PlotDataItems, and
-        the axes alone are in log mode). The auto range and the view's transform are brought up
-        to date here, not when the plots are painted: changing them while painting moves every
-        item again and paints the plots twice per pick."""
+        the axes alone are in log mode), and the views settled (:mod:`.view_settling`): one
+        paint per pick."""
         x = self._radii
         plotted = np.log10 if self._log_y else np.asarray
         for curves, bands, values, errors in (
@@ -262,8 +263,7 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
                 if self._log_y:
                     low = np.where(low > 0, low, LOG_BAND_FLOOR * y)
                 band.set_edges(x[shown], low[shown], high[shown], self._log_y)
-        for plot in (self.ring_plot, self.transient_plot):
-            plot.vb.prepareForPaint()
+        settle(self.ring_plot.vb, self.transient_plot.vb)
 
     def _set_axes(self) -> None:
         for plot in (self.ring_plot, self.transient_plot):
