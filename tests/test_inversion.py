@@ -321,3 +321,26 @@ def test_the_fit_finds_a_strongly_absorbing_top_over_a_clear_base_not_the_mirror
         for c in range(3):
             low, high = layer.mua_interval[c]
             assert low <= truth[c] <= high, (layer.mua_interval, truth)
+
+
+def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache, monkeypatch):
+    """layers-mus's slab (2 steps of a weakly scattering red skin, mus 0.5, over a pale blue base
+    scattering four times as much) by the direct simulator. With no scattering given, the search
+    must find the boundary and both scatterings (a base of its own scattering: every pair of
+    MUS_GRID), fit (chi-square) and hold the truth in each layer's region. One common scattering,
+    the only model searched before, does not fit this slab at all (its chi-square is asserted
+    below)."""
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    mua = [[0.005, 0.2, 0.25], [0.1, 0.03, 0.005]]
+    mean, error = direct_profile([0.5, 2.0], mua, [0, 2], 0.0, 1.4, 24.0, 20_000, seed=7)
+    measured = MeasuredProfile(RADII, mean, error, 1)
+    searched = invert(measured, InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=10_000))
+    assert "boundaries [2] (searched), mus 0.5, 2 (chosen from" in searched.notes
+    assert searched.warning is None
+    for layer, truth, mus in zip(searched.layers, mua, (0.5, 2.0)):
+        truth_xy = chromaticity(thick_slab_reflectance(np.full(3, mus), np.array(truth), 0.0, 1.4), "sRGB")
+        assert region_contains(layer.region, truth_xy)
+        if layer.determined:
+            assert np.hypot(*(layer.xy - truth_xy)) < 0.03
+    common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000))
+    assert common.chi2 > 10 * common.dof and "does not fit" in common.warning

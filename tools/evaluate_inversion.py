@@ -1,5 +1,6 @@
 """Evaluate layer colour recovery on layered scenes: the paper's and the radiance method against the
-inverse method (known structure, and a structure search with one common scattering coefficient).
+inverse method (known structure, and a structure search: boundaries and scattering, common or with
+a base of its own).
 
 Each scene is simulated by ringlight's own simulator (reference estimator) at SIZE x SIZE with its
 photons per point times each --scale, written as a dataset and read back; the methods see only the
@@ -66,7 +67,7 @@ def main() -> None:
                               flush=True)
                 runs = [("inverse, known structure", InversionSettings(count, boundaries, mus if len(set(mus)) > 1
                                                                        else mus[0], scene.n, g, scene.depth)),
-                        ("inverse, searched, common mus", InversionSettings(count, None, None, scene.n, g,
+                        ("inverse, searched", InversionSettings(count, None, None, scene.n, g,
                                                                              scene.depth))]
                 for label, settings in runs:
                     result = invert_region(dataset, region, "all pixels", settings)
@@ -79,7 +80,7 @@ def main() -> None:
                               f"{'yes' if layer.determined else 'no'} | {width:.3f} | "
                               f"{'yes' if inside else 'no'} | {inversion.seconds:.1f} | "
                               f"{inversion.chi2_per_dof:.2f} |", flush=True)
-                    if label.endswith("common mus"):
+                    if label.endswith("searched"):
                         print(f"|  |  | ({inversion.notes}) |  |  |  |  |  |  |  |", flush=True)
     sys.exit(0)
 

@@ -40,6 +40,8 @@ PLAUSIBLE_CHI2 = JOINT_CHI2
 are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
 MAX_RIVALS = 4
 """At most this many of them (the best-fitting), to bound the time."""
+REACH = 13
+"""Pixels from the lit point (in y and in x) that a white database keeps."""
 MISFIT_P = 1e-3
 """A fit whose chi-square is this improbable under the model is reported as not fitting, and none
 of its layers as determined."""
@@ -149,64 +151,74 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         raise InversionError("the region's profile holds no values")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
-    share = 1.0 / (len(mus_choices) + 2)
 
-    def try_structures(structures, database, mus, first: float, what: str) -> None:
-        search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
-        for number, structure in enumerate(structures):
-            report(first + share * number / len(structures), what)
+    def try_structures(trials, first: float, what: str) -> None:
+        """Quick fits of ``trials``, (structure, database, mus) each, added to the candidates."""
+        for number, (structure, database, mus) in enumerate(trials):
+            report(first + share * number / len(trials), what)
+            search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
             forward = Forward(search, structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
             chi2 = sum(f.chi2 for f in fits)
-            points = sum(f.used for f in fits)
-            bic = chi2 + 3 * structure.layers * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
-            candidates.append(Candidate(bic, chi2, mus, structure, database))
+            candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
+                                        structure, database))
 
     databases = {}
-    structures = []
+    structures = list(_structures(settings, database_optics(settings, mus_choices[0]).bins))
+    base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
+    share = 1.0 / (len(mus_choices) + 2 + base_search)
     for index, mus in enumerate(mus_choices):
         what = f"white Monte Carlo for mus {_mus_text(mus)}"
         report(index * share, what)
         optics = database_optics(settings, mus)
         databases[index] = white_database(optics, settings.photons,
                                           progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
-        structures = list(_structures(settings, optics.bins))
         if len(structures) == 1 and len(mus_choices) == 1:
             candidates.append(Candidate(0.0, 0.0, mus, structures[0], databases[index]))
             break
         # With several scatterings to try, each is scouted on the structures with even boundaries;
         # the others are tried for the best scattering only.
         scouts = _scouts(structures) if len(mus_choices) > 1 else structures
-        try_structures(scouts, databases[index], mus, (index + 0.5) * share,
+        try_structures([(structure, databases[index], mus) for structure in scouts], (index + 0.5) * share,
                        f"fitting structures for mus {_mus_text(mus)}")
     if len(mus_choices) > 1:
         scouted = [c for c in candidates if math.isfinite(c.bic)]
         if scouted:
             _, _, mus, _, database = min(scouted, key=lambda c: c.bic)
             rest = [structure for structure in structures if structure not in _scouts(structures)]
-            try_structures(rest, database, mus, len(mus_choices) * share,
+            try_structures([(structure, database, mus) for structure in rest], len(mus_choices) * share,
                            f"fitting every structure for mus {_mus_text(mus)}")
+    if base_search and any(math.isfinite(c.bic) for c in candidates):
+        # A base of its own scattering is tried for the layer count that fitted best (two at least).
+        count = max(min((c for c in candidates if math.isfinite(c.bic)), key=lambda c: c.bic).structure.layers, 2)
+        _base_search(settings, [structure for structure in structures if structure.layers == count], candidates,
+                     try_structures,
+                     lambda fraction: (len(mus_choices) + 1 + fraction) * share, report)
     usable = [c for c in candidates if math.isfinite(c.bic)]
     if not usable:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
-    _, best_chi2, mus, structure, database = min(usable, key=lambda c: c.bic)
+    best = min(usable, key=lambda c: c.bic)
     # Structures and scatterings that fit about as well are as plausible as the best: each layer's
     # region spans theirs too, so the choice of model is part of its uncertainty.
-    rivals = sorted((c for c in usable if c.structure.layers == structure.layers
-                     and (c.structure != structure or c.mus != mus)), key=lambda c: c.chi2)
-    rivals = [c for c in rivals if c.chi2 - best_chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
-    report((len(mus_choices) + 1) * share, "fitting the chosen structure")
-    forward = Forward(database, structure, measured.radii, ring_weights=measured.ring_weights)
-    fits = fit_channels(forward, measured.mean, measured.standard_error)
+    rivals = sorted((c for c in usable if c.structure.layers == best.structure.layers
+                     and (c.structure != best.structure or c.mus != best.mus)), key=lambda c: c.chi2)
+    rivals = [c for c in rivals if c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
+    fitted = []
+    for number, candidate in enumerate([best, *rivals]):
+        report((len(mus_choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
+               "fitting the chosen structure" if not number else "fitting the structures that fit as well")
+        forward = Forward(candidate.database, candidate.structure, measured.radii,
+                          ring_weights=measured.ring_weights)
+        fitted.append((candidate, fit_channels(forward, measured.mean, measured.standard_error)))
+    # The search compared quick fits on thinned databases, each with noise of its own: of the
+    # chosen one and its rivals, the one that fits best with every photon is reported.
+    (_, _, mus, structure, database), fits = min(fitted, key=lambda pair: _bic(
+        sum(f.chi2 for f in pair[1]), sum(f.used for f in pair[1]), pair[0].structure, pair[0].mus))
     layers = _layers(fits, structure, database.optics, colorspace)
-    for number, rival in enumerate(rivals):
-        report((len(mus_choices) + 1 + (number + 1) / (len(rivals) + 1)) * share,
-               "fitting the structures that fit as well")
-        rival_forward = Forward(rival.database, rival.structure, measured.radii,
-                                 ring_weights=measured.ring_weights)
-        rival_fits = fit_channels(rival_forward, measured.mean, measured.standard_error)
-        layers = [_widened(layer, other) for layer, other in
-                  zip(layers, _layers(rival_fits, rival.structure, rival.database.optics, colorspace))]
+    for other, other_fits in fitted:
+        if other.structure != structure or other.mus != mus:
+            layers = [_widened(layer, widening) for layer, widening in
+                      zip(layers, _layers(other_fits, other.structure, other.database.optics, colorspace))]
     chi2 = float(sum(f.chi2 for f in fits))
     dof = int(sum(f.dof for f in fits))
     warning = None
@@ -217,7 +229,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                           "uncertainty regions do not hold") for layer in layers]
     notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
              f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
-             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ')' if settings.mus is None else ''}"
+             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ', common or with a base of its own)' if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
              + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
@@ -226,6 +238,47 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     return Inversion(layers, measured, np.stack([f.model for f in fits], axis=1),
                      np.stack([f.sigma for f in fits], axis=1), np.array([f.used for f in fits]), chi2, dof,
                      warning, notes, time.perf_counter() - start)
+
+
+def _bic(chi2: float, points: int, structure: Structure, mus) -> float:
+    """The Bayesian information criterion of a fit of ``points`` rings (every channel's): each
+    channel's absorption per layer is an unknown, and a base with a scattering of its own
+    (``mus`` a tuple) one more; infinite for a fit that failed."""
+    unknowns = 3 * structure.layers + (1 if isinstance(mus, tuple) else 0)
+    return chi2 + unknowns * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
+
+
+def _base_search(settings: InversionSettings, structures: list[Structure], candidates: list[Candidate],
+                 try_structures, fraction_done: Callable[[float], float], report: Progress) -> None:
+    """Try structures of two or more layers again with a base that scatters otherwise than the
+    layers above: every pair of scatterings of :data:`MUS_GRID` on those of ``structures`` with even
+    boundaries, then on every other one with the pair that fitted best. A thin upper layer over a base that scatters otherwise (skin over
+    flesh) is the common case; a model with one scattering for all may then fit a wrong structure
+    as well as the right one, and its regions leave out the truth, or fit none.
+    ``try_structures`` adds its quick fits to ``candidates``."""
+    databases: dict[tuple[float, float, int], WhiteDatabase] = {}
+
+    def trial(structure: Structure, common: float, base: float):
+        key = (common, base, structure.starts[-1])
+        if key not in databases:
+            report(fraction_done(0.0), f"white Monte Carlo for mus {common:g} over a base of {base:g}")
+            databases[key] = white_database(_base_optics(settings, common, base, structure.starts[-1]),
+                                            settings.photons)
+        return structure, databases[key], (common,) * (structure.layers - 1) + (base,)
+
+    scouts = _scouts([structure for structure in structures if structure.layers > 1])
+    first = len(candidates)
+    try_structures([trial(structure, common, base) for common in MUS_GRID for base in MUS_GRID if base != common
+                    for structure in scouts], fraction_done(0.0),
+                   "fitting structures with a base that scatters otherwise")
+    tried = [c for c in candidates[first:] if math.isfinite(c.bic)]
+    if not tried:
+        return
+    chosen = min(tried, key=lambda c: c.bic)
+    common, base = chosen.mus[0], chosen.mus[-1]
+    rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
+    try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
+                   f"fitting every structure with mus {common:g} over a base of {base:g}")
 
 
 def _widened(layer: InvertedLayer, other: InvertedLayer) -> InvertedLayer:
@@ -250,15 +303,25 @@ def _mus_text(mus) -> str:
 def database_optics(settings: InversionSettings, mus) -> SlabOptics:
     """The white database's optics: per-layer scattering over the given boundaries, or a common
     one over :data:`SEARCH_BINS` bins."""
-    reach = 13
     if isinstance(mus, tuple):
         edges = [0, *settings.boundaries]
         bins = []
         for k, top in enumerate(edges):
             bottom = edges[k + 1] if k + 1 < len(edges) else top + 1
             bins += [mus[k]] * (bottom - top)
-        return SlabOptics(tuple(float(m) for m in bins), settings.g, settings.n, settings.depth, reach)
-    return SlabOptics((float(mus),) * SEARCH_BINS, settings.g, settings.n, settings.depth, reach)
+        return _optics(settings, bins)
+    return _optics(settings, [mus] * SEARCH_BINS)
+
+
+def _base_optics(settings: InversionSettings, common: float, base: float, top: int) -> SlabOptics:
+    """A database's optics for a structure whose base, from bin ``top`` down, scatters with ``base``
+    and every bin above with ``common``."""
+    return _optics(settings, [common if b < top else base for b in range(max(SEARCH_BINS, top + 1))])
+
+
+def _optics(settings: InversionSettings, bins) -> SlabOptics:
+    """Optics of scattering ``bins`` per depth bin, with ``settings``' g, n and depth."""
+    return SlabOptics(tuple(float(m) for m in bins), settings.g, settings.n, settings.depth, REACH)
 
 
 def _structures(settings: InversionSettings, bins: int):
