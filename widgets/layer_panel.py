@@ -98,7 +98,7 @@ class LayerPanel(QWidget):
         self.mus_edit = QLineEdit()
         self.mus_edit.setPlaceholderText("auto")
         self.mus_edit.setToolTip("Scattering coefficient per grid step: one common value, or one per layer "
-                                 "(with boundaries); empty: a common one chosen by chi-square")
+                                 "(with boundaries); empty: searched, common or with a base of its own")
         self.n_box = QDoubleSpinBox()
         self.n_box.setRange(1.0, 3.0)
         self.n_box.setSingleStep(0.05)

@@ -45,7 +45,7 @@ def add_command(subparsers) -> None:
                          help="depths (whole grid steps) where layers meet (default: searched down to 8)")
     inverse.add_argument("--mus", metavar="MUS|M1,M2,...",
                          help="scattering coefficient per grid step: one common value, or one per layer with "
-                              "--boundaries (default: a common one chosen by chi-square)")
+                              "--boundaries (default: searched, common or with a base of its own, chosen by BIC)")
     inverse.add_argument("--n", type=float, default=1.4, help="refractive index of the sample (default 1.4)")
     inverse.add_argument("--g", type=float, default=0.0, help="scattering anisotropy g (default 0)")
     inverse.add_argument("--depth", type=float, default=DEFAULT_DEPTH,

@@ -3,8 +3,9 @@
 The model (:mod:`.forward`, :mod:`.white_mc`): layers of a common or given scattering
 coefficient, each with its own absorption per channel, index ``n`` and anisotropy ``g`` given.
 The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
-searched by chi-square; the number of layers is given or chosen by BIC. A common scattering
-coefficient is given or chosen from :data:`MUS_GRID` by chi-square. Each layer's colour is what
+searched by chi-square; the number of layers is given or chosen by BIC. The scattering is given
+(common or per layer) or chosen from :data:`MUS_GRID`: common to every layer, or one for the layers
+above and another for the base (:func:`_base_search`), by BIC. Each layer's colour is what
 FORMAT.md defines as the truth: the thick-slab reflectance of its fitted material (adding-doubling),
 with a two-sigma region in xy (:mod:`.fit`): the chromaticities of every combination of per-channel
 reflectances within the channels' intervals (a convex polygon: the image of a box in RGB).
