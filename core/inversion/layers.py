@@ -253,10 +253,10 @@ def _base_search(settings: InversionSettings, structures: list[Structure], candi
                  try_structures, fraction_done: Callable[[float], float], report: Progress) -> None:
     """Try structures of two or more layers again with a base that scatters otherwise than the
     layers above: every pair of scatterings of :data:`MUS_GRID` on those of ``structures`` with even
-    boundaries, then on every other one with the pair that fitted best. A thin upper layer over a base that scatters otherwise (skin over
-    flesh) is the common case; a model with one scattering for all may then fit a wrong structure
-    as well as the right one, and its regions leave out the truth, or fit none.
-    ``try_structures`` adds its quick fits to ``candidates``."""
+    boundaries, then every other one with the pair that fitted best. A thin upper layer over a base
+    that scatters otherwise (skin over flesh) is the common case; one scattering for all may then
+    fit a wrong structure as well as the right one, with regions that leave out the truth, or fit
+    none. ``try_structures`` adds its quick fits to ``candidates``."""
     databases: dict[tuple[float, float, int], WhiteDatabase] = {}
 
     def trial(structure: Structure, common: float, base: float):
