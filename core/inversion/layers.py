@@ -152,12 +152,16 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         raise InversionError("the region's profile holds no values")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
+    searched = {}  # id of a database -> the records its quick fits use
 
     def try_structures(trials, first: float, what: str) -> None:
         """Quick fits of ``trials``, (structure, database, mus) each, added to the candidates."""
         for number, (structure, database, mus) in enumerate(trials):
             report(first + share * number / len(trials), what)
-            search = _thinned(database, SEARCH_SHARE) if settings.boundaries is None else database
+            if id(database) not in searched:
+                searched[id(database)] = (_thinned(database, SEARCH_SHARE) if settings.boundaries is None
+                                          else database)
+            search = searched[id(database)]
             forward = Forward(search, structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
             chi2 = sum(f.chi2 for f in fits)
