@@ -54,7 +54,7 @@ def main() -> None:
     report("layers3, known structure", *timed(dataset, known), KNOWN_TARGET_S)
     # A search also makes the databases of a base that scatters otherwise (cached as it goes): the
     # first search pays for them once, the second is timed as in use.
-    result, seconds = timed(dataset, search)
+    _, seconds = timed(dataset, search)
     print(f"first structure search, making its base databases: {seconds:.1f} s", flush=True)
     report("layers3, structure search (1-4 layers, scattering common or the base's own)", *timed(dataset, search),
            SEARCH_TARGET_S)

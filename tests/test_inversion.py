@@ -340,7 +340,6 @@ def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache
     for layer, truth, mus in zip(searched.layers, mua, (0.5, 2.0)):
         truth_xy = chromaticity(thick_slab_reflectance(np.full(3, mus), np.array(truth), 0.0, 1.4), "sRGB")
         assert region_contains(layer.region, truth_xy)
-        if layer.determined:
-            assert np.hypot(*(layer.xy - truth_xy)) < 0.03
+        assert layer.determined and np.hypot(*(layer.xy - truth_xy)) < 0.03
     common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000))
     assert common.chi2 > 10 * common.dof and "does not fit" in common.warning

@@ -186,23 +186,20 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         scouts = _scouts(structures) if len(mus_choices) > 1 else structures
         try_structures([(structure, databases[index], mus) for structure in scouts], (index + 0.5) * share,
                        f"fitting structures for mus {_mus_text(mus)}")
-    if len(mus_choices) > 1:
-        scouted = [c for c in candidates if math.isfinite(c.bic)]
-        if scouted:
-            _, _, mus, _, database = min(scouted, key=lambda c: c.bic)
-            rest = [structure for structure in structures if structure not in _scouts(structures)]
-            try_structures([(structure, database, mus) for structure in rest], len(mus_choices) * share,
-                           f"fitting every structure for mus {_mus_text(mus)}")
-    if base_search and any(math.isfinite(c.bic) for c in candidates):
+    if len(mus_choices) > 1 and (scouted := _best(candidates)):
+        _, _, mus, _, database = scouted
+        rest = [structure for structure in structures if structure not in _scouts(structures)]
+        try_structures([(structure, database, mus) for structure in rest], len(mus_choices) * share,
+                       f"fitting every structure for mus {_mus_text(mus)}")
+    if base_search and (leading := _best(candidates)):
         # A base of its own scattering is tried for the layer count that fitted best (two at least).
-        count = max(min((c for c in candidates if math.isfinite(c.bic)), key=lambda c: c.bic).structure.layers, 2)
+        count = max(leading.structure.layers, 2)
         _base_search(settings, [structure for structure in structures if structure.layers == count], candidates,
-                     try_structures,
-                     lambda fraction: (len(mus_choices) + 1 + fraction) * share, report)
-    usable = [c for c in candidates if math.isfinite(c.bic)]
-    if not usable:
+                     try_structures, lambda fraction: (len(mus_choices) + 1 + fraction) * share, report)
+    best = _best(candidates)
+    if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
-    best = min(usable, key=lambda c: c.bic)
+    usable = [c for c in candidates if math.isfinite(c.bic)]
     # Structures and scatterings that fit about as well are as plausible as the best: each layer's
     # region spans theirs too, so the choice of model is part of its uncertainty.
     rivals = sorted((c for c in usable if c.structure.layers == best.structure.layers
@@ -232,9 +229,10 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                    f"(check n, g, the scattering, the layer count and whether the region is laterally uniform)")
         layers = [replace(layer, determined=False, reason="the model does not fit the profile (chi-square), so its "
                           "uncertainty regions do not hold") for layer in layers]
+    searched_mus = f" (chosen from {', '.join(map(str, MUS_GRID))}, common or with a base of its own)"
     notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
              f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
-             f"{' (chosen from ' + ', '.join(map(str, MUS_GRID)) + ', common or with a base of its own)' if settings.mus is None else ''}"
+             f"{searched_mus if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
              + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
@@ -243,6 +241,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     return Inversion(layers, measured, np.stack([f.model for f in fits], axis=1),
                      np.stack([f.sigma for f in fits], axis=1), np.array([f.used for f in fits]), chi2, dof,
                      warning, notes, time.perf_counter() - start)
+
+
+def _best(candidates: list[Candidate]) -> Candidate | None:
+    """The candidate of lowest BIC, or None when no fit succeeded."""
+    return min((c for c in candidates if math.isfinite(c.bic)), key=lambda c: c.bic, default=None)
 
 
 def _bic(chi2: float, points: int, structure: Structure, mus) -> float:
@@ -276,10 +279,9 @@ def _base_search(settings: InversionSettings, structures: list[Structure], candi
     try_structures([trial(structure, common, base) for common in MUS_GRID for base in MUS_GRID if base != common
                     for structure in scouts], fraction_done(0.0),
                    "fitting structures with a base that scatters otherwise")
-    tried = [c for c in candidates[first:] if math.isfinite(c.bic)]
-    if not tried:
+    chosen = _best(candidates[first:])
+    if chosen is None:
         return
-    chosen = min(tried, key=lambda c: c.bic)
     common, base = chosen.mus[0], chosen.mus[-1]
     rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
     try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
