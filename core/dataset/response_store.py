@@ -8,11 +8,14 @@ ringlight's ``meta.json``:
   chunks). Inside a chunk the values are stored offset-major, (K, 3, tile, tile): one offset's
   responses over neighbouring points form a smooth image (light from the same distance and
   direction), which compresses 2.5x better than one point's profile after another (measured on
-  ``benchmarks/bench_scale.py``'s data: 42 against 105 MiB at 128 px). Then Blosc-zstd with bit
-  shuffling (float32 values from half-float frames leave 13 zero bits that it packs away), then a
-  CRC-32C of each compressed chunk. Byte shuffling packs the smooth benchmark data twice as well,
-  but bit shuffling is 20 % smaller on data with 5 % noise (0.27 against 0.34 of raw float32),
-  which real captures have;
+  ``benchmarks/bench_scale.py``'s data: 42 against 105 MiB at 128 px). Then Blosc-LZ4 at level 9
+  with bit shuffling (float32 values from half-float frames leave 13 zero bits that it packs away),
+  then a CRC-32C of each compressed chunk. Byte shuffling packs the smooth benchmark data better,
+  but bit shuffling is smaller on data with 5 % noise, which real captures have. Measured on the
+  benchmark's 256 px responses (1.31 GiB) and on the same with 5 % noise, store GiB and write /
+  read CPU seconds: Blosc-zstd level 1, bit shuffle 0.171 / 3.2-3.4 / 2.7-3.0 (noisy 0.402 GiB);
+  LZ4 level 9, bit shuffle 0.168 / 2.0-2.1 / 2.2-2.5 (noisy 0.424 GiB); LZ4 level 1 0.310 (byte
+  shuffle 0.216, noisy 0.628);
 - ``lit_counts`` (H, W) int32, ``observed`` (H, W) bool, ``steady`` (H, W, 3) float32 (the steady
   state, so that an open shows it without reading the responses), same codecs;
 - ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
@@ -64,7 +67,7 @@ walk of the names then lists a few folders, not one per chunk."""
 
 
 def _codecs():
-    return [BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle"), Crc32cCodec()]
+    return [BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"), Crc32cCodec()]
 
 
 def store_tile(grid_shape: tuple[int, int], offsets: int) -> int:
