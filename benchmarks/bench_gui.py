@@ -15,7 +15,7 @@ is over the memory budget; the paper-scale issue's target is an 800 px one).
 
 Also measured: the longest event-loop stall (gap between ticks of a 5 ms QTimer) while the window
 opens a 128 x 128 dataset from EXR frames (multiplexed, written first) and recomputes its stack
-in worker threads. Target: no stall over 100 ms.
+in worker threads. Target (paper-scale issue): no stall over 50 ms.
 
     python benchmarks/bench_gui.py [--size 128] [--max-radius 24] [--events 200] [--dataset PATH]
 """
@@ -38,6 +38,7 @@ from PySide6.QtWidgets import QApplication
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_stack import synthetic_dataset  # noqa: E402
+from ringlight.app.gui import settle_heap  # noqa: E402
 from ringlight.app.session import LoadedDataset, compute_view_stacks  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402
 from ringlight.core import DatasetWriter, open_dataset  # noqa: E402
@@ -120,6 +121,7 @@ def measure_stalls(app, folder: Path, size: int) -> None:
     window = MainWindow(QSettings(str(folder / "stall.ini"), QSettings.Format.IniFormat))
     window.resize(1400, 860)
     window.show()
+    settle_heap()  # as the app does once its window is up
     for _ in range(20):  # the new window's first paint is start-up, not part of opening
         app.processEvents()
         time.sleep(0.01)
