@@ -36,7 +36,8 @@ def band_ring_sums(store_path: str, row0: int, row1: int, lit: np.ndarray, obser
     first, stop, weight_start, weights = tables
     images = np.empty((len(first), row1 - row0, responses.shape[1], 3), np.float32)
     counts = np.empty((len(first), row1 - row0, responses.shape[1]), np.int32)
-    _ring_sums(responses, validity, first, stop, weight_start, weights, 0, row1 - row0, images, counts)
+    _ring_sums(np.ascontiguousarray(responses), validity, first, stop, weight_start, weights, 0, row1 - row0, images,
+               counts)
     return images, counts
 
 
