@@ -37,7 +37,8 @@ from .memory import zeroed
 from .response_store import StoreWriter
 
 BATCH_BYTES = 256 * 2**20
-"""Frame rows (radiance, owner and weight: 20 bytes a point) scattered together."""
+"""Frame rows waiting for the scatter, both batches together (radiance, owner and weight: 20 bytes
+a point)."""
 WRITE_SHARE = 0.1
 """Share of an in-memory open's progress given to writing its store."""
 
@@ -141,7 +142,7 @@ class Assembler:
         """Decode ``frame``'s rows ``row0 .. row1`` (unless ``decoded`` holds what
         :meth:`.FrameReader.read` gave) into ``batch`` at ``slot`` and mark which offset and weight
         each point takes from it; returns its count of NaN or Inf values."""
-        batch.radiance[slot], bad = decoded or self.reader.read(frame, (row0, row1))
+        batch.radiance[slot], bad = decoded if decoded is not None else self.reader.read(frame, (row0, row1))
         batch.owner[slot] = -1
         _owners(batch.owner[slot], batch.weight[slot], frame.lit, self.dy, self.dx, self.offset_index,
                 self.inverse_counts, row0)
