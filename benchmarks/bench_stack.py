@@ -2,14 +2,14 @@
 
 A synthetic 96 x 96 grid with max_radius 24 and a 25-radius transient stack spanning the usable
 radii. Printed, all measured in this run:
-  - stack time (best of 3) and the floor: one pass reading the whole response array on every
-    core (a compiled parallel sum: the machine's parallel read bandwidth), and numpy's
-    single-threaded sum beside it;
+  - stack time and the floor: one pass reading the whole response array on every core (a
+    compiled parallel sum: the machine's parallel read bandwidth), each the best of 7 rounds
+    that take them in turn, and numpy's single-threaded sum beside them;
   - a naive per-pixel Python loop over ring points, timed on a subset of pixels and scaled;
   - peak memory during the stack over the response array's size (tracemalloc).
 Targets (core issue): stack <= 2x floor, >= 500x faster than naive, peak <= 2x the array.
 
-    python benchmarks/bench_stack.py [--size 96] [--max-radius 24] [--radii 25]
+    python benchmarks/bench_stack.py [--size 96] [--max-radius 24] [--radii 25] [--repeats 7]
 """
 
 from __future__ import annotations
@@ -88,12 +88,26 @@ def best_of(repeats, function):
     return min(times)
 
 
+def interleaved_best(repeats, *functions):
+    """Best time of each function over ``repeats`` rounds that call them in turn, so that the
+    speed of a shared machine (on these VMs the same pass takes up to 1.6x longer for seconds at a
+    time) weighs on each alike."""
+    times = [[] for _ in functions]
+    for _ in range(repeats):
+        for function, taken in zip(functions, times):
+            start = time.perf_counter()
+            function()
+            taken.append(time.perf_counter() - start)
+    return [min(taken) for taken in times]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--size", type=int, default=96)
     parser.add_argument("--max-radius", type=float, default=24.0)
     parser.add_argument("--radii", type=int, default=25)
     parser.add_argument("--naive-pixels", type=int, default=24)
+    parser.add_argument("--repeats", type=int, default=7, help="rounds of stack and floor, taken in turn")
     args = parser.parse_args()
 
     dataset = synthetic_dataset(args.size, args.max_radius)
@@ -104,9 +118,9 @@ def main() -> None:
     transient_stack(synthetic_dataset(8, 4), [0, 1])  # compile outside the timing
 
     array_bytes = dataset.responses.nbytes
-    stack_time = best_of(3, lambda: transient_stack(dataset, radii, step))
     parallel_sum(dataset.responses)  # compile outside the timing
-    floor_time = best_of(3, lambda: parallel_sum(dataset.responses))
+    stack_time, floor_time = interleaved_best(args.repeats, lambda: transient_stack(dataset, radii, step),
+                                              lambda: parallel_sum(dataset.responses))
     numpy_time = best_of(3, lambda: dataset.responses.sum())
 
     rng = np.random.default_rng(1)

@@ -1,5 +1,7 @@
 """Ring light and transient stacks against brute force over FORMAT.md's definitions."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -12,6 +14,7 @@ from reference import (
 )
 from ringlight.core import (
     StackError,
+    disc_offsets,
     annulus_pixel_area,
     open_dataset,
     radius_range,
@@ -233,3 +236,34 @@ def test_ring_beyond_max_radius_is_refused_with_the_limit_named(tmp_path):
     dataset = open_dataset(tmp_path / "ds")
     with pytest.raises(StackError, match="beyond the dataset's max_radius 3"):
         transient_stack(dataset, [2.0, 3.0], step=1.0)
+
+
+@pytest.mark.parametrize("antialias", [False, True])
+def test_ring_members_of_a_band_equal_the_sums_of_its_validity_flags(antialias):
+    """The members counted from the lit mask (whole rows at once) against a sum over the
+    dataset's per-offset validity flags, for a band that starts inside the grid and with
+    unobserved and missing points."""
+    from ringlight.core.rings.members import ring_members
+    from ringlight.core.rings.stacks import _ring_tables
+
+    rng = np.random.default_rng(11)
+    height, width, row0, row1 = 13, 9, 4, 11
+    lit = rng.random((height, width)) > 0.25
+    observed = rng.random((height, width)) > 0.1
+    offsets = disc_offsets(4.0)
+    radii = np.array([0.0, 1.0, 1.7, 2.5, 3.0])
+    tables = _ring_tables(SimpleNamespace(offsets=offsets, max_radius=4.0), radii, 1.0, antialias)
+    counts, totals = ring_members(lit, observed, offsets, tables, row0, row1)
+    validity = np.zeros((row1 - row0, width, len(offsets)))
+    for y in range(row0, row1):
+        for x in range(width):
+            for k, (dy, dx) in enumerate(offsets):
+                qy, qx = y + dy, x + dx
+                validity[y - row0, x, k] = observed[y, x] and 0 <= qy < height and 0 <= qx < width and lit[qy, qx]
+    first, stop, weight_start, weights = tables
+    for j in range(len(radii)):
+        ring = np.zeros(len(offsets))
+        ring[first[j]:stop[j]] = weights[weight_start[j]:weight_start[j + 1]]
+        assert np.array_equal(counts[j], (validity * (ring > 0)).sum(-1))
+        assert_allclose(totals[j], validity @ ring, rtol=1e-12)
+        assert counts[j].max() > 0

@@ -1,9 +1,9 @@
 """Ring light images on a dask cluster: one task per band of the dataset's store.
 
 A point's ring means need only its own responses, so bands of rows are independent. Each task
-opens the store (zarr, read-only) at its path, reads its band (every chunk's checksum checked),
-computes the band's validity flags and runs the same compiled kernel as the local path
-(:func:`ringlight.core.rings.stacks._ring_sums`), so the images equal the local ones bit for bit.
+opens the store (zarr, read-only) at its path, reads its band (every chunk's checksum checked)
+and computes its images as the local path does (:func:`ringlight.core.rings.stacks.band_images`), so
+the images equal the local ones bit for bit.
 The store and the frames' dataset folder must be on a file system every worker sees at the same
 path (a shared or network file system); the workers need ringlight installed.
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.impulse_dataset import ImpulseDataset, fill_validity
+from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled, StackError
 
 
@@ -27,17 +27,13 @@ def band_ring_sums(store_path: str, row0: int, row1: int, lit: np.ndarray, obser
     """One band's ring images and counts: (n, rows, W, 3) float32 and (n, rows, W) int32."""
     import zarr
 
-    from .stacks import _ring_sums
+    from .stacks import band_images
 
     responses = zarr.open_array(zarr.storage.LocalStore(Path(store_path), read_only=True), path="responses",
                                 mode="r")[row0:row1]
-    validity = np.empty(responses.shape[:3], np.uint8)
-    fill_validity(lit, observed, offsets, validity, row0)
-    first, stop, weight_start, weights = tables
-    images = np.empty((len(first), row1 - row0, responses.shape[1], 3), np.float32)
-    counts = np.empty((len(first), row1 - row0, responses.shape[1]), np.int32)
-    _ring_sums(np.ascontiguousarray(responses), validity, first, stop, weight_start, weights, 0, row1 - row0, images,
-               counts)
+    images = np.empty((len(tables[0]), row1 - row0, responses.shape[1], 3), np.float32)
+    counts = np.empty((len(tables[0]), row1 - row0, responses.shape[1]), np.int32)
+    band_images(responses, lit, observed, offsets, tables, row0, images, counts)
     return images, counts
 
 

@@ -22,6 +22,7 @@ from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_off
 from ..dataset.manifest import Manifest
 from ..errors import StackError
 from .geometry import ring_geometry
+from .members import ring_members
 
 _RADIUS_DECIMALS = 9
 
@@ -233,16 +234,26 @@ def _ring_images(dataset, radii, thickness, antialias, progress, scheduler=None)
         from .distributed import distributed_ring_images
 
         return distributed_ring_images(dataset, tables, scheduler, progress)
-    first, stop, weight_start, weights = tables
     height, width = dataset.grid_shape
     images = np.empty((len(radii), height, width, 3), np.float32)
     counts = np.empty((len(radii), height, width), np.int32)
+    lit = dataset.lit
     for row0, row1 in dataset.bands():
-        _ring_sums(np.ascontiguousarray(dataset.rows(row0, row1)), dataset.validity_rows(row0, row1), first, stop,
-                   weight_start, weights, 0, row1 - row0, images[:, row0:row1], counts[:, row0:row1])
+        band_images(dataset.rows(row0, row1), lit, dataset.observed, dataset.offsets, tables, row0,
+                    images[:, row0:row1], counts[:, row0:row1])
         if progress is not None:
             progress(row1 / height)
     return images, counts
+
+
+def band_images(responses: np.ndarray, lit: np.ndarray, observed: np.ndarray, offsets: np.ndarray, tables: tuple,
+                row0: int, images: np.ndarray, counts: np.ndarray) -> None:
+    """Ring images of the band of grid rows from ``row0``: fill ``images`` (n, rows, W, 3) float32 and
+    ``counts`` (n, rows, W) int32 from its ``responses`` (rows, W, K, 3), the (H, W) bool ``lit`` and
+    ``observed`` points, the (K, 2) ``offsets`` and the rings' ``tables`` (:func:`_ring_tables`)."""
+    counts[...], totals = ring_members(lit, observed, offsets, tables, row0, row0 + len(responses))
+    first, stop, weight_start, weights = tables
+    _ring_sums(np.ascontiguousarray(responses), first, stop, weight_start, weights, counts, totals, images)
 
 
 LANES = 12
@@ -252,31 +263,29 @@ channel over them is a strided read that it vectorises poorly)."""
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _ring_sums(responses, validity, first, stop, weight_start, weights, row0, row1, images, counts):
-    """Weighted mean over each ring's valid members, rows row0 <= y < row1; ``responses``
-    C-contiguous.
+def _ring_sums(responses, first, stop, weight_start, weights, counts, totals, images):
+    """images[j, y, x] = the weighted sum of ring j's responses at (y, x) / totals[j, y, x], NaN
+    where counts[j, y, x] is 0; ``responses`` (rows, W, K, 3) C-contiguous, ``counts`` and
+    ``totals`` the ring members' count and weight (:func:`.members.ring_members`).
 
-    Each ring reads one contiguous run of a pixel's responses and validity flags (invalid
-    responses are 0 by the dataset's invariant, so only the denominator needs the flags);
-    reassociation lets the compiler vectorise the sums. A ring whose run holds weights of 1 only
-    (every default ring) is summed without them, over the run's interleaved R, G, B values as one
-    flat run in :data:`LANES` partial sums (lane ``l`` holds channel ``l % 3``): on the stack
-    benchmark's rings 27.6 -> 16.4 ms against a read of the whole array in 9.4 ms (a sum per
-    channel with weights took 1.6x longer still).
+    Each ring reads one contiguous run of a pixel's responses (invalid responses are 0 by the
+    dataset's invariant, so only the denominator needs to know the members); reassociation lets
+    the compiler vectorise the sums. A ring whose run holds weights of 1 only (every default ring)
+    is summed without them, over the run's interleaved R, G, B values as one flat run in
+    :data:`LANES` partial sums (lane ``l`` holds channel ``l % 3``): on the stack benchmark's rings
+    27.6 -> 16.4 ms against a read of the whole array in 9.4 ms (a sum per channel with weights
+    took 1.6x longer still), and 12.0-12.5 ms once the members were counted apart (1.2 ms).
     """
-    width = validity.shape[1]
-    offsets = responses.shape[2]
-    flat = responses.reshape(responses.shape[0], width, offsets * 3)
+    rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
+    flat = responses.reshape(rows, width, offsets * 3)
     unweighted = np.empty(first.size, np.bool_)
     for j in range(first.size):
         unweighted[j] = np.all(weights[weight_start[j]:weight_start[j + 1]] == 1.0)
-    for y in numba.prange(row0, row1):
+    for y in numba.prange(rows):
         lanes = np.empty(LANES)
         for x in range(width):
             pixel = flat[y, x]
-            valid = validity[y, x]
             for j in range(first.size):
-                count = 0
                 if unweighted[j]:
                     start = 3 * first[j]
                     end = 3 * stop[j]
@@ -296,28 +305,22 @@ def _ring_sums(responses, validity, first, stop, weight_start, weights, row0, ro
                         s0 += pixel[i]
                         s1 += pixel[i + 1]
                         s2 += pixel[i + 2]
-                    for k in range(first[j], stop[j]):
-                        count += valid[k]
-                    total = float(count)
                 else:
                     s0 = 0.0
                     s1 = 0.0
                     s2 = 0.0
-                    total = 0.0
                     shift = weight_start[j] - first[j]
                     for k in range(first[j], stop[j]):
                         w = weights[shift + k]
                         s0 += w * pixel[3 * k]
                         s1 += w * pixel[3 * k + 1]
                         s2 += w * pixel[3 * k + 2]
-                        total += w * valid[k]
-                        count += valid[k] * (w > 0.0)
-                counts[j, y, x] = count
-                if count == 0:
+                if counts[j, y, x] == 0:
                     images[j, y, x, 0] = np.nan
                     images[j, y, x, 1] = np.nan
                     images[j, y, x, 2] = np.nan
                 else:
+                    total = totals[j, y, x]
                     images[j, y, x, 0] = s0 / total
                     images[j, y, x, 1] = s1 / total
                     images[j, y, x, 2] = s2 / total
