@@ -253,3 +253,16 @@ def test_exports_refuse_bad_pixels_and_leave_nothing_when_cancelled(tmp_path):
     with pytest.raises(Cancelled):
         write_movie(tmp_path / "m.mp4", frames.__getitem__, ["a"] * 5, 10.0, cancel)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_negative_fraction_counts_finite_values_below_zero(dtype):
+    rng = np.random.default_rng(4)
+    image = rng.normal(size=(37, 41, 3)).astype(dtype)
+    flat = image.reshape(-1)
+    flat[rng.choice(flat.size, 300, replace=False)] = rng.choice([np.nan, np.inf, -np.inf, -0.0], 300)
+    finite = np.isfinite(image)
+    assert negative_fraction(image) == pytest.approx((image[finite] < 0).sum() / finite.sum(), rel=1e-12)
+    assert negative_fraction(image[:, ::2]) == pytest.approx(  # a view that is not contiguous
+        (image[:, ::2][finite[:, ::2]] < 0).sum() / finite[:, ::2].sum(), rel=1e-12)
+    assert negative_fraction(np.full((2, 2, 3), np.nan, dtype)) == 0.0

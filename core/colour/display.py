@@ -211,10 +211,23 @@ def _scalar_colours(position: np.ndarray, settings: DisplaySettings, lut: np.nda
 def negative_fraction(image: np.ndarray) -> float:
     """Fraction of finite values below zero in ``image`` (any shape): what a non-diverging
     display clips to black, reported so that the clipping is never silent."""
-    values = np.asarray(image)
-    finite = np.isfinite(values)
-    count = int(finite.sum())
-    return float((values[finite] < 0).sum() / count) if count else 0.0
+    finite, negative = _finite_and_negative(np.ravel(image))
+    return negative / finite if finite else 0.0
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _finite_and_negative(values):  # pragma: no cover - compiled
+    """Counts of finite and of negative finite values in flat float ``values``, in one pass (at
+    every scrub step: numpy's masks and copies took 4 ms of an 800 x 800 step)."""
+    finite = 0
+    negative = 0
+    for i in numba.prange(values.size):
+        value = values[i]
+        if np.isfinite(value):
+            finite += 1
+            if value < 0:
+                negative += 1
+    return finite, negative
 
 
 def _log_position(values: np.ndarray, low: float, high: float) -> np.ndarray:
