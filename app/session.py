@@ -121,8 +121,6 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     steady_state = dataset.steady_state()
     if preview is not None:
         preview(steady_state, manifest.height, manifest.colorspace)
-    if dataset.in_memory:
-        dataset.validity  # made here, in the worker, not on the first click
     progress(0.55)
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
     refusal = None if request is None else _refusal(dataset, request)

@@ -36,7 +36,7 @@ class OpenPlan:
 
     @property
     def memory(self) -> int:
-        """About what the open holds: the array and its validity flags (1/12 of it) in memory, or
+        """About what the open holds: the array and a band's validity flags (at most 1/12 of it) in memory, or
         (out of core, or a reopen of a large store) bands up to the budget."""
         if self.out_of_core or (self.stored is not None and self.response_bytes > WHOLE_READ_BYTES):
             return min(self.budget, self.response_bytes)

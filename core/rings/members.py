@@ -1,7 +1,7 @@
 """Ring members of every point, counted from the lit points rather than from validity flags.
 
 A ring's member ``q = p + d`` counts when ``q`` is inside the grid and lit and ``p`` is observed
-(:attr:`ringlight.core.dataset.impulse_dataset.ImpulseDataset.validity`). For a band of rows, each
+(:meth:`ringlight.core.dataset.impulse_dataset.ImpulseDataset.validity_rows`). For a band of rows, each
 ring's count is therefore the lit mask shifted by each of the ring's offsets and summed: whole rows
 of points added at once, where reading a (rows, W, K) array of flags point by point took a quarter
 of a stack's time on ``benchmarks/bench_stack.py``.

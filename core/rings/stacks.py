@@ -172,7 +172,7 @@ def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, a
     Row ``i`` holds the weight of each offset ``dataset.offsets[k]`` in the ring of radius
     ``radii[i]`` (0 outside it), so that for one point ``p = (y, x)``::
 
-        w = matrix * dataset.validity[y, x]           # drop missing and outside lit points
+        w = matrix * dataset.validity_rows(y, y + 1)[0, x]   # drop missing and outside lit points
         E = (w @ dataset.point(y, x)) / w.sum(1)        # (n, 3): E_r(p) for every radius
     """
     radii = _as_radii(radii)
