@@ -5,6 +5,8 @@ radii. Printed, all measured in this run:
   - stack time and the floor: one pass reading the whole response array on every core (a
     compiled parallel sum: the machine's parallel read bandwidth), each the best of 7 rounds
     that take them in turn, and numpy's single-threaded sum beside them;
+  - the standard errors of the same stack (``stack_noise``), timed in the same rounds, against
+    the stack;
   - a naive per-pixel Python loop over ring points, timed on a subset of pixels and scaled;
   - peak memory during the stack over the response array's size (tracemalloc).
 Targets (core issue): stack <= 2x floor, >= 500x faster than naive, peak <= 2x the array.
@@ -23,6 +25,7 @@ import numba
 import numpy as np
 from ringlight.core import ImpulseDataset, disc_offsets, ring_geometry, transient_stack
 from ringlight.core.dataset.manifest import Manifest
+from ringlight.core.rings.noise import stack_noise
 
 
 def synthetic_dataset(size: int, max_radius: float, seed: int = 0) -> ImpulseDataset:
@@ -119,8 +122,10 @@ def main() -> None:
 
     array_bytes = dataset.responses.nbytes
     parallel_sum(dataset.responses)  # compile outside the timing
-    stack_time, floor_time = interleaved_best(args.repeats, lambda: transient_stack(dataset, radii, step),
-                                              lambda: parallel_sum(dataset.responses))
+    stack_noise(dataset, radii[:2], step)  # compile outside the timing
+    stack_time, floor_time, noise_time = interleaved_best(
+        args.repeats, lambda: transient_stack(dataset, radii, step), lambda: parallel_sum(dataset.responses),
+        lambda: stack_noise(dataset, radii, step))
     numpy_time = best_of(3, lambda: dataset.responses.sum())
 
     rng = np.random.default_rng(1)
@@ -144,6 +149,8 @@ def main() -> None:
     print(f"floor (parallel read) {floor_time * 1e3:9.1f} ms   ({array_bytes / floor_time / 2**30:.1f} GiB/s; "
           f"numpy's sum {numpy_time * 1e3:.1f} ms)")
     print(f"stack / floor         {stack_time / floor_time:9.2f}   (target <= 2)")
+    print(f"noise of the stack    {noise_time * 1e3:9.1f} ms   ({noise_time / stack_time:.2f}x the stack; "
+          "the noise issue: about the stack's cost)")
     print(f"naive loop (scaled)   {naive_time:9.1f} s    from {len(pixels)} pixels, values checked")
     print(f"naive / stack         {naive_time / stack_time:9.0f}   (target >= 500)")
     print(f"peak memory / array   {(array_bytes + peak) / array_bytes:9.3f}   "
