@@ -243,7 +243,7 @@ def test_ring_members_of_a_band_equal_the_sums_of_its_validity_flags(antialias):
     """The members counted from the lit mask (whole rows at once) against a sum over the
     dataset's per-offset validity flags, for a band that starts inside the grid and with
     unobserved and missing points."""
-    from ringlight.core.rings.members import ring_members
+    from ringlight.core.rings.members import ring_members, unit_weight_rings
     from ringlight.core.rings.stacks import _ring_tables
 
     rng = np.random.default_rng(11)
@@ -253,7 +253,7 @@ def test_ring_members_of_a_band_equal_the_sums_of_its_validity_flags(antialias):
     offsets = disc_offsets(4.0)
     radii = np.array([0.0, 1.0, 1.7, 2.5, 3.0])
     tables = _ring_tables(SimpleNamespace(offsets=offsets, max_radius=4.0), radii, 1.0, antialias)
-    counts, totals = ring_members(lit, observed, offsets, tables, row0, row1)
+    counts, totals = ring_members(lit, observed, offsets, tables, unit_weight_rings(tables), row0, row1)
     validity = np.zeros((row1 - row0, width, len(offsets)))
     for y in range(row0, row1):
         for x in range(width):

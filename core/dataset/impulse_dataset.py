@@ -134,7 +134,7 @@ class ImpulseDataset:
         1/12 of its responses (a whole dataset's, once kept in memory, 110 MB at 256 x 256 and
         R 24), and a compiled pass makes them at a few GB/s."""
         validity = np.empty((row1 - row0, self.grid_shape[1], len(self.offsets)), np.uint8)
-        fill_validity(self.lit_counts > 0, self.observed, self.offsets, validity, row0)
+        fill_validity(self.lit, self.observed, self.offsets, validity, row0)
         return validity
 
     @property

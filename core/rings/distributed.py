@@ -57,7 +57,7 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
         counts = np.empty((len(tables[0]), height, width), np.int32)
         # The small arrays go with each task (a few MB at 800 x 800): no scatter step, which can
         # wait forever on a cluster that another client in the process also holds.
-        lit, observed = np.ascontiguousarray(dataset.lit_counts > 0), np.ascontiguousarray(dataset.observed)
+        lit, observed = np.ascontiguousarray(dataset.lit), np.ascontiguousarray(dataset.observed)
         bands = {client.submit(band_ring_sums, str(dataset.store.path), row0, row1, lit, observed, dataset.offsets,
                                tables, pure=False): (row0, row1)
                  for row0, row1 in _store_bands(dataset)}

@@ -22,7 +22,7 @@ from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_off
 from ..dataset.manifest import Manifest
 from ..errors import StackError
 from .geometry import ring_geometry
-from .members import ring_members
+from .members import ring_members, unit_weight_rings
 
 _RADIUS_DECIMALS = 9
 
@@ -251,9 +251,11 @@ def band_images(responses: np.ndarray, lit: np.ndarray, observed: np.ndarray, of
     """Ring images of the band of grid rows from ``row0``: fill ``images`` (n, rows, W, 3) float32 and
     ``counts`` (n, rows, W) int32 from its ``responses`` (rows, W, K, 3), the (H, W) bool ``lit`` and
     ``observed`` points, the (K, 2) ``offsets`` and the rings' ``tables`` (:func:`_ring_tables`)."""
-    counts[...], totals = ring_members(lit, observed, offsets, tables, row0, row0 + len(responses))
     first, stop, weight_start, weights = tables
-    _ring_sums(np.ascontiguousarray(responses), first, stop, weight_start, weights, counts, totals, images)
+    unweighted = unit_weight_rings(tables)
+    counts[...], totals = ring_members(lit, observed, offsets, tables, unweighted, row0, row0 + len(responses))
+    _ring_sums(np.ascontiguousarray(responses), first, stop, weight_start, weights, unweighted, counts, totals,
+               images)
 
 
 LANES = 12
@@ -263,10 +265,11 @@ channel over them is a strided read that it vectorises poorly)."""
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _ring_sums(responses, first, stop, weight_start, weights, counts, totals, images):
+def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts, totals, images):
     """images[j, y, x] = the weighted sum of ring j's responses at (y, x) / totals[j, y, x], NaN
     where counts[j, y, x] is 0; ``responses`` (rows, W, K, 3) C-contiguous, ``counts`` and
-    ``totals`` the ring members' count and weight (:func:`.members.ring_members`).
+    ``totals`` the ring members' count and weight (:func:`.members.ring_members`), ``unweighted``
+    (n,) bool the rings whose run holds weights of 1 only.
 
     Each ring reads one contiguous run of a pixel's responses (invalid responses are 0 by the
     dataset's invariant, so only the denominator needs to know the members); reassociation lets
@@ -278,9 +281,6 @@ def _ring_sums(responses, first, stop, weight_start, weights, counts, totals, im
     """
     rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
     flat = responses.reshape(rows, width, offsets * 3)
-    unweighted = np.empty(first.size, np.bool_)
-    for j in range(first.size):
-        unweighted[j] = np.all(weights[weight_start[j]:weight_start[j + 1]] == 1.0)
     for y in numba.prange(rows):
         lanes = np.empty(LANES)
         for x in range(width):
