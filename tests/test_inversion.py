@@ -14,7 +14,8 @@ from ringlight.core.dataset.impulse_dataset import open_dataset
 import ringlight.core.inversion.fit as fit_module
 from ringlight.core.inversion.fit import JOINT_CHI2, MUA_BOUNDS, fit_channel
 from ringlight.core.inversion.forward import Forward, Structure, ring_matrix
-from ringlight.core.inversion.layers import database_optics, invert, region_contains
+from ringlight.core.inversion.layer_colour import region_contains
+from ringlight.core.inversion.layers import database_optics, invert
 from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
 from ringlight.core.inversion.report import invert_region, profile_radii
 from ringlight.core.inversion.settings import InversionSettings
@@ -111,10 +112,12 @@ def test_layers3_sample_top_and_middle_recovered_base_honestly_undetermined(laye
     inversion = result.inversion
     assert inversion.warning is None and inversion.chi2 < 2 * inversion.dof
     top, middle, base = inversion.layers
-    # Measured here: top 0.041, middle 0.040 xy (the thin, weakly scattering top layers' albedo
-    # is close to 1, so a 1 % profile pins their colour only to a few hundredths).
-    assert top.determined and middle.determined
-    assert result.errors[0] < 0.05 and result.errors[1] < 0.05
+    # Measured here: top 0.007, middle 0.037 xy with the channels fitted together (0.041 and 0.040
+    # one by one: the simulator's noise common to the channels turned the colours). The thin,
+    # weakly scattering top layers' albedo is close to 1, so a 1 % profile pins their colour only
+    # to a few hundredths.
+    assert top.determined and middle.determined and "channels fitted together" in inversion.notes
+    assert result.errors[0] < 0.02 and result.errors[1] < 0.05
     # The base's green is absorbed by the magenta layer above: no bound from the data.
     assert not base.determined and "G" in base.reason
     assert all(result.inside), result.errors

@@ -5,10 +5,11 @@ coefficient, each with its own absorption per channel, index ``n`` and anisotrop
 The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
 searched by chi-square; the number of layers is given or chosen by BIC. The scattering is given
 (common or per layer) or chosen from :data:`MUS_GRID`: common to every layer, or one for the layers
-above and another for the base (:func:`_base_search`), by BIC. Each layer's colour is what
-FORMAT.md defines as the truth: the thick-slab reflectance of its fitted material (adding-doubling),
-with a two-sigma region in xy (:mod:`.fit`): the chromaticities of every combination of per-channel
-reflectances within the channels' intervals (a convex polygon: the image of a box in RGB).
+above and another for the base (:func:`_base_search`), by BIC. The search compares quick
+per-channel fits (:mod:`.fit`) on thinned databases; the chosen structure and those that fit about
+as well are fitted again with every photon, per channel and with the channels together
+(:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each layer's colour and
+its two-sigma region in xy: :mod:`.layer_colour`.
 """
 
 from __future__ import annotations
@@ -20,14 +21,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
-import cv2
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from ..colour.chroma import chromaticity, srgb_swatch
-from ..simulate.adding_doubling import thick_slab_reflectance
-from .fit import JOINT_CHI2, MUA_BOUNDS, ChannelFit, fit_channels
+from .fit import JOINT_CHI2, ChannelFit, fit_channels
 from .forward import Forward, Structure
+from .joint import JointFit, fit_jointly
+from .layer_colour import InvertedLayer, layer_colours, widened
 from .measured import MeasuredProfile
 from .settings import MAX_LAYERS, MUS_GRID, SEARCH_BINS, InversionError, InversionSettings
 from .white_mc import SlabOptics, WhiteDatabase, white_database
@@ -35,7 +35,6 @@ from .white_mc import SlabOptics, WhiteDatabase, white_database
 SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
-CHANNEL_NAMES = ("R", "G", "B")
 PLAUSIBLE_CHI2 = JOINT_CHI2
 """Structures (and common scatterings) whose search chi-square is within this of the chosen one's
 are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
@@ -46,46 +45,6 @@ REACH = 13
 MISFIT_P = 1e-3
 """A fit whose chi-square is this improbable under the model is reported as not fitting, and none
 of its layers as determined."""
-
-
-@dataclass(frozen=True)
-class InvertedLayer:
-    """One fitted layer.
-
-    Attributes
-    ----------
-    top, bottom
-        Depth range, grid steps.
-    mus
-        Scattering coefficient, per grid step.
-    mua, mua_interval
-        (3,) fitted absorption and (3, 2) its two-sigma range per channel, per grid step.
-    determined
-        False when some channel's absorption is not bounded by the data; ``reason`` says which.
-    rgb, xy
-        Thick-slab colour (linear, the dataset's colourspace) and its chromaticity.
-    region
-        (K, 2) the two-sigma region in xy, a convex polygon.
-    swatch
-        8-bit sRGB of ``rgb``.
-    """
-
-    top: float
-    bottom: float
-    mus: float
-    mua: np.ndarray
-    mua_interval: np.ndarray
-    determined: bool
-    reason: str
-    rgb: np.ndarray
-    xy: np.ndarray
-    region: np.ndarray
-    swatch: tuple[int, int, int]
-
-    @property
-    def region_width(self) -> float:
-        """The two-sigma region's larger extent in x or y (NaN without a region)."""
-        return float(np.ptp(self.region, axis=0).max()) if len(self.region) else float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,6 +98,20 @@ class Candidate(NamedTuple):
     mus: float | tuple[float, ...]
     structure: Structure
     database: WhiteDatabase
+
+
+class Fitted(NamedTuple):
+    """A candidate fitted with every white photon: per channel, and jointly (None when that failed)."""
+
+    candidate: Candidate
+    fits: list[ChannelFit]
+    joint: JointFit | None
+
+    def chi2_points(self, together: bool) -> tuple[float, int]:
+        """Chi-square and residual count of the joint fit (``together``) or of the channels' own."""
+        if together:
+            return self.joint.chi2, self.joint.points
+        return sum(f.chi2 for f in self.fits), sum(f.used for f in self.fits)
 
 
 def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: str = "sRGB",
@@ -211,18 +184,24 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
         forward = Forward(candidate.database, candidate.structure, measured.radii,
                           ring_weights=measured.ring_weights)
-        fitted.append((candidate, fit_channels(forward, measured.mean, measured.standard_error)))
+        fits = fit_channels(forward, measured.mean, measured.standard_error)
+        fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits)))
     # The search compared quick fits on thinned databases, each with noise of its own: of the
-    # chosen one and its rivals, the one that fits best with every photon is reported.
-    (_, _, mus, structure, database), fits = min(fitted, key=lambda pair: _bic(
-        sum(f.chi2 for f in pair[1]), sum(f.used for f in pair[1]), pair[0].structure, pair[0].mus))
-    layers = _layers(fits, structure, database.optics, colorspace)
-    for other, other_fits in fitted:
-        if other.structure != structure or other.mus != mus:
-            layers = [_widened(layer, widening) for layer, widening in
-                      zip(layers, _layers(other_fits, other.structure, other.database.optics, colorspace))]
-    chi2 = float(sum(f.chi2 for f in fits))
-    dof = int(sum(f.dof for f in fits))
+    # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
+    # fits' chi-square when every one has one (it weighs the noise common to the channels as such).
+    together = all(fit.joint is not None for fit in fitted)
+    chosen = min(fitted, key=lambda fit: _bic(*fit.chi2_points(together), fit.candidate.structure, fit.candidate.mus))
+    (_, _, mus, structure, database), fits, joint = chosen
+    layers = layer_colours(fits, structure, database.optics, colorspace, joint)
+    for other in fitted:
+        if other is not chosen:
+            layers = [widened(layer, widening) for layer, widening in zip(layers, layer_colours(
+                other.fits, other.candidate.structure, other.candidate.database.optics, colorspace, other.joint))]
+    if joint is not None:
+        chi2, dof, model, sigma = joint.chi2, joint.dof, joint.model, joint.sigma
+    else:
+        chi2, dof = float(sum(f.chi2 for f in fits)), int(sum(f.dof for f in fits))
+        model, sigma = np.stack([f.model for f in fits], axis=1), np.stack([f.sigma for f in fits], axis=1)
     warning = None
     if dof and chi2_distribution.sf(chi2, dof) < MISFIT_P:
         warning = (f"the model does not fit: chi-square {chi2:.0f} for {dof} degrees of freedom "
@@ -236,11 +215,12 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
              + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
-                if rivals else ""))
+                if rivals else "")
+             + ("; channels fitted together" if joint is not None else "; channels fitted one by one (the joint fit "
+                "needs every channel's own fit)"))
     report(1.0, "done")
-    return Inversion(layers, measured, np.stack([f.model for f in fits], axis=1),
-                     np.stack([f.sigma for f in fits], axis=1), np.array([f.used for f in fits]), chi2, dof,
-                     warning, notes, time.perf_counter() - start)
+    return Inversion(layers, measured, model, sigma, np.array([f.used for f in fits]), chi2, dof, warning, notes,
+                     time.perf_counter() - start)
 
 
 def _best(candidates: list[Candidate]) -> Candidate | None:
@@ -286,21 +266,6 @@ def _base_search(settings: InversionSettings, structures: list[Structure], candi
     rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
     try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
                    f"fitting every structure with mus {common:g} over a base of {base:g}")
-
-
-def _widened(layer: InvertedLayer, other: InvertedLayer) -> InvertedLayer:
-    """``layer`` with its region and absorption ranges grown to cover ``other`` (the same layer in
-    a rival structure); determined only if both are."""
-    points = np.vstack([layer.region, other.region, layer.xy[None], other.xy[None]]).astype(np.float32)
-    points = points[np.isfinite(points).all(axis=1)]
-    region = cv2.convexHull(points).reshape(-1, 2).astype(np.float64) if len(points) else layer.region
-    interval = np.stack([np.minimum(layer.mua_interval[:, 0], other.mua_interval[:, 0]),
-                         np.maximum(layer.mua_interval[:, 1], other.mua_interval[:, 1])], axis=1)
-    determined = layer.determined and other.determined
-    reason = layer.reason or other.reason
-    if not determined and not reason:
-        reason = "not determined under a structure that fits as well"
-    return replace(layer, region=region, mua_interval=interval, determined=determined, reason=reason)
 
 
 def _mus_text(mus) -> str:
@@ -353,38 +318,3 @@ def _thinned(database, share: int):
     keep = database.photon < database.photons // share
     return WhiteDatabase(database.optics, database.photons // share, database.pixel[keep], database.value[keep],
                          database.lengths[keep], database.photon[keep], database.seconds)
-
-
-def _layers(fits: list[ChannelFit], structure: Structure, optics: SlabOptics, colorspace: str) -> list[InvertedLayer]:
-    ranges = structure.depth_ranges(optics.depth)
-    layers = []
-    for k, (top, bottom) in enumerate(ranges):
-        mus = optics.mus[structure.starts[k]]
-        mua = np.array([f.mua[k] for f in fits])
-        interval = np.array([f.interval[k] for f in fits])
-        open_channels = [CHANNEL_NAMES[c] for c, f in enumerate(fits) if f.unbounded[k] or not np.isfinite(f.mua[k])]
-        reason = ""
-        if open_channels:
-            reason = (f"absorption in {', '.join(open_channels)} is not bounded by the data (the two-sigma range "
-                      f"reaches {MUA_BOUNDS[1]:g} per grid step): the layers above absorb that light, or too "
-                      f"few rings stand out of the noise")
-        filled = np.where(np.isfinite(mua), mua, MUA_BOUNDS[1])
-        rgb = thick_slab_reflectance(np.full(3, mus), filled, optics.g, optics.n)
-        corners = np.array(list(itertools.product(*[interval[c] for c in range(3)])))  # (8, 3) mua
-        corner_rgb = thick_slab_reflectance(np.full(corners.size, mus), corners.ravel(), optics.g,
-                                            optics.n).reshape(corners.shape)
-        corner_xy = chromaticity(corner_rgb, colorspace)
-        corner_xy = corner_xy[np.isfinite(corner_xy).all(axis=1)]
-        region = cv2.convexHull(corner_xy.astype(np.float32)).reshape(-1, 2).astype(np.float64) \
-            if len(corner_xy) else np.zeros((0, 2))
-        layers.append(InvertedLayer(top, bottom, float(mus), mua, interval, not open_channels, reason, rgb,
-                                    chromaticity(rgb, colorspace), region, srgb_swatch(rgb, colorspace)))
-    return layers
-
-
-def region_contains(region: np.ndarray, xy) -> bool:
-    """Whether the polygon ``region`` (K, 2) contains ``xy`` (on the edge counts)."""
-    if len(region) < 3:
-        return False
-    return cv2.pointPolygonTest(region.astype(np.float32).reshape(-1, 1, 2), (float(xy[0]), float(xy[1])),
-                                False) >= 0

@@ -11,7 +11,8 @@ import numpy as np
 from ..colour.chroma import chromaticity
 from ..colour.layer_report import finite_or_none, truth_layers
 from ..dataset.impulse_dataset import ImpulseDataset
-from .layers import Inversion, Progress, invert, region_contains
+from .layer_colour import region_contains
+from .layers import Inversion, Progress, invert
 from .settings import InversionSettings
 from .measured import measured_profile
 
@@ -74,7 +75,8 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
         "fit": {"chi2": _number(inversion.chi2), "dof": inversion.dof, "chi2_per_dof": _number(inversion.chi2_per_dof),
                 "rings_used": {"R": int(inversion.used[0]), "G": int(inversion.used[1]), "B": int(inversion.used[2])},
                 "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
-        "uncertainty": "two-sigma (95.4 %) region of the three channels together; see ringlight.core.inversion.fit",
+        "uncertainty": ("two-sigma (95.4 %) region of the three channels together: the per-channel profile-likelihood "
+                        "region joined with the joint fit's ellipse; see ringlight.core.inversion.layer_colour"),
         "profile": {"radii": finite_or_none(inversion.measured.radii),
                     "measured": [finite_or_none(row) for row in inversion.measured.mean],
                     "standard_error": [finite_or_none(row) for row in inversion.measured.standard_error],

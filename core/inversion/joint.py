@@ -1,0 +1,215 @@
+"""Fit the three channels of a region's profile together, with the noise they share.
+
+The per-channel fits (:mod:`.fit`) treat R, G and B as independent. Neither of the two noises that
+set the fit's weights is: the white run serves every channel from the same photons, and noise
+common to every lit point (a projector's flicker, a simulator's shared walks) moves every channel
+alike. A deviation common to the channels then pulls each channel's absorption its own way and
+turns the colour, which a fit that knows the deviation is common does not do.
+
+The joint fit is generalised least squares on log E over all channels' parameters
+``theta[c, k] = log mua[c, k]``: at each ring the residuals of the channels fitted there (the rings
+each channel's own fit used) are whitened by the Cholesky factor of their covariance, in log space,
+
+    S_r = diag(error_c^2) / E_c^2 + cov_white(r)[c, c'] / (E_c E_c') + f^2 (rho + (1 - rho) delta_cc'),
+
+the measured standard errors (independent between channels), the white run's covariance between
+channels from its photons (as :meth:`.forward.Forward.variance`, for every pair), and the relative
+floor ``f`` (:data:`.fit.RELATIVE_FLOOR`) with correlation :data:`FLOOR_CORRELATION` between
+channels. It starts from the per-channel fits, and like them weighs by the white run's noise at the
+start, then again at the result; its chi-square and Fisher matrix are those under the weights at
+its result. Its Fisher matrix gives each layer's chromaticity a two-sigma ellipse (the delta
+method), which :mod:`.layer_colour` joins with the per-channel profile-likelihood region where the
+chi-square is close to quadratic.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_distribution
+
+from .fit import MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
+from .forward import Forward
+
+FLOOR_CORRELATION = 0.9
+"""Correlation between channels of the relative floor: measured on layers3 (five simulator seeds,
+stop 27) the seed-to-seed differences of the region mean correlate 0.90-0.99 between channels."""
+ELLIPSE_CHI2 = float(chi2_distribution.ppf(0.954, 2))
+"""Chi-square (2 degrees of freedom) of a two-sigma (95.4 %) region in xy: 6.18."""
+ELLIPSE_POINTS = 32
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """The channels' joint fit.
+
+    Attributes
+    ----------
+    mua
+        (C, L) absorption per channel and layer, per grid step.
+    covariance
+        (C L, C L) Fisher covariance of ``log mua`` (flattened channel-major), from the Gauss-Newton
+        matrix at the fit (pseudo-inverse).
+    chi2
+        Generalised chi-square over the rings used, under the weights ``S_r`` at ``mua``.
+    points
+        Residuals fitted (every channel's rings).
+    model, sigma
+        (R, C) the fitted profile and each ring's standard deviation (the diagonal of ``S_r``,
+        times E), NaN-free.
+    at_bound
+        (C, L) bool: the absorption lies at a bound of :data:`.fit.MUA_BOUNDS`.
+    """
+
+    mua: np.ndarray
+    covariance: np.ndarray
+    chi2: float
+    points: int
+    model: np.ndarray
+    sigma: np.ndarray
+    at_bound: np.ndarray
+
+    @property
+    def dof(self) -> int:
+        return max(self.points - self.mua.size, 0)
+
+    def layer_covariance(self, layer: int) -> np.ndarray:
+        """(C, C) covariance of ``log mua[:, layer]``."""
+        channels, layers = self.mua.shape
+        index = np.arange(channels) * layers + layer
+        return self.covariance[np.ix_(index, index)]
+
+
+def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits: list[ChannelFit]) -> JointFit | None:
+    """Refit the channels of ``fits`` (per-channel fits of ``measured`` and ``error`` (R, C) with
+    ``forward``) together. None when a channel's own fit
+    failed (too few rings), or the joint fit does not fit better than the channels' fits under its
+    own weights (it starts from them, so it cannot, unless the optimiser fails)."""
+    if any(not np.all(np.isfinite(f.mua)) for f in fits):
+        return None
+    channels = len(fits)
+    layers = len(fits[0].mua)
+    used = np.array([f.used for f in fits])
+    low, high = math.log(MUA_BOUNDS[0]), math.log(MUA_BOUNDS[1])
+    start = np.log(np.clip(np.array([f.mua for f in fits]), *MUA_BOUNDS)).ravel()
+    target = np.log(np.where(measured > 0, measured, np.nan))
+    pool = ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1)))
+    try:
+        def profiles(theta):
+            """Per channel ``(profile (R,), slopes (R, L))`` at ``theta`` (C L,)."""
+            mua = np.exp(theta.reshape(channels, layers))
+            return list(pool.map(lambda c: forward.profile(mua[c], derivatives=True), range(channels)))
+
+        def weighted(theta):
+            """``(residuals, jacobian, S_r)`` under the weights at ``theta``."""
+            covariance = _ring_covariances(forward, np.exp(theta.reshape(channels, layers)), measured, error, used)
+            return *_objective(profiles, _whitening(covariance, used), target, used, channels, layers), covariance
+
+        theta = start
+        for _ in range(2):  # weights at the channels' fits, then at the joint fit's first result
+            residuals, jacobian, _ = weighted(theta)
+            start_cost = 0.5 * float(np.sum(residuals(theta) ** 2))
+            best = least_squares(residuals, theta, jac=jacobian, bounds=(low, high), method="trf")
+            if not best.success or best.cost > start_cost:
+                return None
+            theta = best.x
+        residuals, jacobian, covariance = weighted(theta)  # chi-square and Fisher matrix at the result
+        chi2 = float(np.sum(residuals(theta) ** 2))
+        fisher = jacobian(theta).T @ jacobian(theta)
+        mua = np.exp(theta.reshape(channels, layers))
+        model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
+    finally:
+        pool.shutdown()
+    relative = np.sqrt(np.stack([np.diagonal(s) for s in covariance]))
+    sigma = np.nan_to_num(relative * np.abs(measured))
+    at_bound = (np.abs(theta - low) < 1e-6) | (np.abs(theta - high) < 1e-6)
+    return JointFit(mua, np.linalg.pinv(fisher), chi2, int(used.sum()), model, sigma,
+                    at_bound.reshape(channels, layers))
+
+
+def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
+                      used: np.ndarray) -> np.ndarray:
+    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L); rings no channel uses are
+    left at the identity."""
+    rings, channels = measured.shape
+    covariance = np.tile(np.eye(channels), (rings, 1, 1))
+    last = int(used.max())
+    white = _white_covariance(forward, mua, last)
+    scale = np.abs(measured[:last])
+    relative_white = white / (scale[:, :, None] * scale[:, None, :])
+    floor = RELATIVE_FLOOR ** 2 * (FLOOR_CORRELATION + (1.0 - FLOOR_CORRELATION) * np.eye(channels))
+    data = np.zeros((last, channels, channels))
+    data[:, np.arange(channels), np.arange(channels)] = (error[:last] / scale) ** 2
+    covariance[:last] = np.nan_to_num(data + relative_white + floor)
+    return covariance
+
+
+def _white_covariance(forward: Forward, mua: np.ndarray, rings: int) -> np.ndarray:
+    """(rings, C, C) covariance between channels of the white run's profile estimates: each photon's
+    contribution per channel, their covariance over the run's photons, over the photon count."""
+    channels = len(mua)
+    photons = forward.database.photons
+    covariance = np.empty((rings, channels, channels))
+    weights = [forward.value * np.exp(-(forward.lengths @ mua[c])) for c in range(channels)]
+    for row in range(rings):
+        member = forward.rings[row, forward.pixel]
+        per_photon = np.stack([np.bincount(forward.photon, weights[c] * member, photons) for c in range(channels)])
+        covariance[row] = np.cov(per_photon, bias=True) / photons
+    return covariance
+
+
+def _whitening(covariance: np.ndarray, used: np.ndarray) -> list[np.ndarray]:
+    """Per ring, the inverse Cholesky factor of ``S_r`` over the channels that use that ring (empty
+    for a ring none uses)."""
+    whiten = []
+    for row, matrix in enumerate(covariance):
+        active = np.flatnonzero(row < used)
+        whiten.append(np.linalg.inv(np.linalg.cholesky(matrix[np.ix_(active, active)])) if len(active)
+                      else np.zeros((0, 0)))
+    return whiten
+
+
+def _objective(profiles, whiten: list[np.ndarray], target: np.ndarray, used: np.ndarray, channels: int,
+               layers: int):
+    """``(residuals, jacobian)`` of ``theta`` (C L,): each ring's whitened log residuals over the
+    channels that use it; both from one evaluation of the model per ``theta``."""
+    memo = {}
+    rows = [(row, np.flatnonzero(row < used)) for row in range(len(whiten)) if len(whiten[row])]
+
+    def evaluate(theta):
+        key = theta.tobytes()
+        if key not in memo:
+            memo.clear()
+            mua = np.exp(theta.reshape(channels, layers))
+            evaluated = profiles(theta)
+            residual_blocks, jacobian_blocks = [], []
+            for row, active in rows:
+                raw = np.array([target[row, c] - math.log(evaluated[c][0][row]) for c in active])
+                slope = np.zeros((len(active), channels * layers))
+                for i, c in enumerate(active):
+                    profile, slopes = evaluated[c]
+                    slope[i, c * layers:(c + 1) * layers] = -slopes[row] * mua[c] / profile[row]
+                residual_blocks.append(whiten[row] @ raw)
+                jacobian_blocks.append(whiten[row] @ slope)
+            memo[key] = np.concatenate(residual_blocks), np.vstack(jacobian_blocks)
+        return memo[key]
+
+    return (lambda theta: evaluate(theta)[0]), (lambda theta: evaluate(theta)[1])
+
+
+def chromaticity_ellipse(centre: np.ndarray, gradient: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """(ELLIPSE_POINTS, 2) the two-sigma ellipse in xy of a colour at ``centre`` (2,) whose
+    chromaticity changes by ``gradient`` (2, C) per unit of ``log mua`` (C,) with ``covariance``
+    (C, C): the delta method, ``G S G^T``, at :data:`ELLIPSE_CHI2`. Empty when that is not finite."""
+    spread = gradient @ covariance @ gradient.T
+    if not np.all(np.isfinite(spread)):
+        return np.zeros((0, 2))
+    values, vectors = np.linalg.eigh(0.5 * (spread + spread.T))
+    angles = np.linspace(0.0, 2.0 * math.pi, ELLIPSE_POINTS, endpoint=False)
+    circle = np.stack([np.cos(angles), np.sin(angles)])
+    return centre + (vectors @ (np.sqrt(np.clip(values, 0.0, None) * ELLIPSE_CHI2)[:, None] * circle)).T

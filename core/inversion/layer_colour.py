@@ -1,0 +1,153 @@
+"""Each fitted layer's colour and its two-sigma region in xy.
+
+A layer's colour is what FORMAT.md defines as the truth: the thick-slab reflectance of its fitted
+material (adding-doubling). Its region joins two things: the chromaticities of every combination
+of per-channel absorptions within the channels' profile-likelihood intervals (:mod:`.fit`; a
+convex polygon, the image of a box), and, when the channels were fitted jointly (:mod:`.joint`),
+the joint fit's two-sigma ellipse around its colour where that fit's chi-square is close to
+quadratic (:data:`QUADRATIC_SPREAD`). The box treats the channels as independent, which misstates
+the colour's uncertainty where their errors move together, and the ellipse is a quadratic
+approximation, which fails where an absorption is weakly determined: their convex hull keeps
+both, so the region never shrinks below what either shows.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from ..colour.chroma import chromaticity, srgb_swatch
+from ..simulate.adding_doubling import thick_slab_reflectance
+from .fit import MUA_BOUNDS, ChannelFit
+from .forward import Structure
+from .joint import JointFit, chromaticity_ellipse
+from .white_mc import SlabOptics
+
+CHANNEL_NAMES = ("R", "G", "B")
+GRADIENT_STEP = 1e-4
+"""Step in log absorption of the central differences that give a colour's gradient."""
+QUADRATIC_SPREAD = 0.5
+"""The joint fit's ellipse joins a layer's region only where the Fisher standard deviation of every
+channel's log absorption is at most this (two sigma within a factor e either way): there the
+chi-square is close to quadratic (the calibration test of :mod:`.joint`). A weakly absorbing
+channel's is not (its chi-square is flat towards no absorption and steep away from it): the Wald
+ellipse then spans colours far outside the profile-likelihood box (layers3's top, red near 0 with
+standard deviation 284 in log: 1.4 wide in xy)."""
+
+
+@dataclass(frozen=True)
+class InvertedLayer:
+    """One fitted layer.
+
+    Attributes
+    ----------
+    top, bottom
+        Depth range, grid steps.
+    mus
+        Scattering coefficient, per grid step.
+    mua, mua_interval
+        (3,) fitted absorption and (3, 2) its two-sigma range per channel, per grid step.
+    determined
+        False when some channel's absorption is not bounded by the data; ``reason`` says which.
+    rgb, xy
+        Thick-slab colour (linear, the dataset's colourspace) and its chromaticity.
+    region
+        (K, 2) the two-sigma region in xy, a convex polygon.
+    swatch
+        8-bit sRGB of ``rgb``.
+    """
+
+    top: float
+    bottom: float
+    mus: float
+    mua: np.ndarray
+    mua_interval: np.ndarray
+    determined: bool
+    reason: str
+    rgb: np.ndarray
+    xy: np.ndarray
+    region: np.ndarray
+    swatch: tuple[int, int, int]
+
+    @property
+    def region_width(self) -> float:
+        """The two-sigma region's larger extent in x or y (NaN without a region)."""
+        return float(np.ptp(self.region, axis=0).max()) if len(self.region) else float("nan")
+
+
+def layer_colours(fits: list[ChannelFit], structure: Structure, optics: SlabOptics, colorspace: str,
+                  joint: JointFit | None = None) -> list[InvertedLayer]:
+    """The layers of ``structure`` as ``fits`` (one per channel) found them; with ``joint``, each
+    layer's absorption and colour are the joint fit's, its intervals grown to hold them and its
+    region joined with the joint fit's ellipse."""
+    layers = []
+    for k, (top, bottom) in enumerate(structure.depth_ranges(optics.depth)):
+        mus = float(optics.mus[structure.starts[k]])
+        interval = np.array([f.interval[k] for f in fits])
+        open_channels = [CHANNEL_NAMES[c] for c, f in enumerate(fits) if f.unbounded[k] or not np.isfinite(f.mua[k])]
+        reason = ""
+        if open_channels:
+            reason = (f"absorption in {', '.join(open_channels)} is not bounded by the data (the two-sigma range "
+                      f"reaches {MUA_BOUNDS[1]:g} per grid step): the layers above absorb that light, or too "
+                      f"few rings stand out of the noise")
+        mua = np.array([f.mua[k] for f in fits]) if joint is None else joint.mua[:, k]
+        filled = np.where(np.isfinite(mua), mua, MUA_BOUNDS[1])
+        colour = lambda absorption: thick_slab_reflectance(np.full(absorption.shape, mus), absorption, optics.g,
+                                                           optics.n)
+        rgb = colour(filled)
+        xy = chromaticity(rgb, colorspace)
+        corners = np.array(list(itertools.product(*interval)))  # (8, 3) absorption
+        points = [chromaticity(colour(corners.ravel()).reshape(corners.shape), colorspace)]
+        if joint is not None:
+            interval = np.stack([np.minimum(interval[:, 0], mua), np.maximum(interval[:, 1], mua)], axis=1)
+            points += [xy[None]]
+            covariance = joint.layer_covariance(k)
+            if (not open_channels and not joint.at_bound[:, k].any()
+                    and np.all(np.sqrt(np.diagonal(covariance)) <= QUADRATIC_SPREAD)):
+                gradient = _gradient(lambda theta: chromaticity(colour(np.exp(theta)), colorspace), np.log(mua))
+                points.append(chromaticity_ellipse(xy, gradient, covariance))
+        layers.append(InvertedLayer(top, bottom, mus, mua, interval, not open_channels, reason, rgb, xy,
+                                    _hull(np.vstack(points)), srgb_swatch(rgb, colorspace)))
+    return layers
+
+
+def widened(layer: InvertedLayer, other: InvertedLayer) -> InvertedLayer:
+    """``layer`` with its region and absorption ranges grown to cover ``other`` (the same layer in
+    a rival structure); determined only if both are."""
+    region = _hull(np.vstack([layer.region, other.region, layer.xy[None], other.xy[None]]))
+    interval = np.stack([np.minimum(layer.mua_interval[:, 0], other.mua_interval[:, 0]),
+                         np.maximum(layer.mua_interval[:, 1], other.mua_interval[:, 1])], axis=1)
+    determined = layer.determined and other.determined
+    reason = layer.reason or other.reason
+    if not determined and not reason:
+        reason = "not determined under a structure that fits as well"
+    return replace(layer, region=region, mua_interval=interval, determined=determined, reason=reason)
+
+
+def region_contains(region: np.ndarray, xy) -> bool:
+    """Whether the polygon ``region`` (K, 2) contains ``xy`` (on the edge counts)."""
+    if len(region) < 3:
+        return False
+    return cv2.pointPolygonTest(region.astype(np.float32).reshape(-1, 1, 2), (float(xy[0]), float(xy[1])),
+                                False) >= 0
+
+
+def _hull(points: np.ndarray) -> np.ndarray:
+    """(K, 2) float64 convex hull of the finite ``points`` (N, 2); empty without any."""
+    points = points[np.isfinite(points).all(axis=1)]
+    if not len(points):
+        return np.zeros((0, 2))
+    return cv2.convexHull(points.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+
+
+def _gradient(function, theta: np.ndarray) -> np.ndarray:
+    """(2, C) central-difference derivatives of ``function`` (C,) -> (2,) at ``theta``."""
+    columns = []
+    for c in range(len(theta)):
+        step = np.zeros_like(theta)
+        step[c] = GRADIENT_STEP
+        columns.append((function(theta + step) - function(theta - step)) / (2.0 * GRADIENT_STEP))
+    return np.stack(columns, axis=1)
