@@ -85,8 +85,7 @@ def test_joint_chi2_is_the_generalised_chi_square_and_no_minimiser_finds_lower()
     covariance = log_covariance(forward, joint.mua, measured, error)
     assert joint.points == used.sum() and joint.dof == used.sum() - 6
     np.testing.assert_allclose(joint.chi2, generalised_chi2(forward, joint.mua, measured, covariance, used), rtol=1e-6)
-    np.testing.assert_allclose(joint.sigma[:used.max()],
-                               measured[:used.max()] * np.sqrt(np.diagonal(covariance, axis1=1, axis2=2)),
+    np.testing.assert_allclose(joint.sigma, measured * np.sqrt(np.diagonal(covariance, axis1=1, axis2=2)),
                                rtol=1e-6)
     # Nelder-Mead on that chi-square (weights held at the result) from the channels' own fits
     # finds nothing lower.
@@ -96,6 +95,30 @@ def test_joint_chi2_is_the_generalised_chi_square_and_no_minimiser_finds_lower()
                       options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 20_000, "maxfev": 20_000})
     assert search.fun >= joint.chi2 - 1e-3, (search.fun, joint.chi2)
     np.testing.assert_allclose(np.exp(search.x.reshape(3, 2)), joint.mua, rtol=0.02)
+
+
+def test_channels_fitting_different_rings_and_a_profile_falling_to_zero():
+    """Blue is 0 beyond ring 3 (below any noise), red and green go on: each channel's residuals
+    enter only at its own rings, nothing divides by the zeros (warnings are errors here), and every
+    ring's sigma is its own noise, fitted or not."""
+    forward = white_forward()
+    measured = np.stack([forward.profile(TRUTH[c]) for c in range(3)], axis=1)
+    measured *= np.exp(0.01 * np.random.default_rng(2).standard_normal(measured.shape))
+    measured[4:, 2] = 0.0
+    error = 0.005 * measured
+    error[5:, :2] = 0.5 * measured[5:, :2]  # red and green stop at ring 5 (below 3 sigma there)
+    fits = fit_channels(forward, measured, error, intervals=False)
+    used = np.array([f.used for f in fits])
+    assert used.tolist() == [5, 5, 4]
+    joint = fit_jointly(forward, measured, error, fits)
+    assert joint.points == 14
+    scale = np.where(measured > 0, measured, 1.0)  # where it is 0 the log covariance is not used
+    covariance = log_covariance(forward, joint.mua, scale, error)
+    np.testing.assert_allclose(joint.chi2, generalised_chi2(forward, joint.mua, measured, covariance, used), rtol=1e-6)
+    white = np.diagonal(brute_white_covariance(forward, joint.mua), axis1=1, axis2=2)
+    expected = np.sqrt(error ** 2 + white + (RELATIVE_FLOOR * measured) ** 2)
+    np.testing.assert_allclose(joint.sigma, expected, rtol=1e-6)
+    assert np.all(joint.sigma[4:, 2] > 0) and np.all(joint.sigma[5:, :2] > 0.4 * measured[5:, :2])
 
 
 def test_joint_fit_is_calibrated_under_its_own_noise_model():

@@ -60,8 +60,8 @@ class JointFit:
     points
         Residuals fitted (every channel's rings).
     model, sigma
-        (R, C) the fitted profile and each ring's standard deviation (the diagonal of ``S_r``,
-        times E), NaN-free.
+        (R, C) the fitted profile and each ring's standard deviation at every ring, fitted or not
+        (the diagonal of ``S_r`` times E where fitted).
     at_bound
         (C, L) bool: the absorption lies at a bound of :data:`.fit.MUA_BOUNDS`.
     """
@@ -125,8 +125,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
         pool.shutdown()
-    relative = np.sqrt(np.stack([np.diagonal(s) for s in covariance]))
-    sigma = np.nan_to_num(relative * np.abs(measured))
+    sigma = np.sqrt(error ** 2 + np.stack([forward.variance(mua[c]) for c in range(channels)], axis=1)
+                    + (RELATIVE_FLOOR * measured) ** 2)
     at_bound = (np.abs(theta - low) < 1e-6) | (np.abs(theta - high) < 1e-6)
     return JointFit(mua, np.linalg.pinv(fisher), chi2, int(used.sum()), model, sigma,
                     at_bound.reshape(channels, layers))
@@ -134,13 +134,15 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
 
 def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
                       used: np.ndarray) -> np.ndarray:
-    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L); rings no channel uses are
-    left at the identity."""
+    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L), for the channels that use
+    each ring (the other entries are finite and unused); rings no channel uses are left at the
+    identity."""
     rings, channels = measured.shape
     covariance = np.tile(np.eye(channels), (rings, 1, 1))
     last = int(used.max())
     white = _white_covariance(forward, mua, last)
-    scale = np.abs(measured[:last])
+    fitted = np.arange(last)[:, None] < used[None, :]
+    scale = np.where(fitted, np.abs(measured[:last]), 1.0)  # a ring a channel does not use may hold 0
     relative_white = white / (scale[:, :, None] * scale[:, None, :])
     floor = RELATIVE_FLOOR ** 2 * (FLOOR_CORRELATION + (1.0 - FLOOR_CORRELATION) * np.eye(channels))
     data = np.zeros((last, channels, channels))
