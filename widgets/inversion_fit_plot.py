@@ -8,6 +8,8 @@ import pyqtgraph as pg
 from PySide6.QtWidgets import QWidget
 
 CHANNEL_PENS = ("#ff5a5a", "#5ad65a", "#6a8cff")
+KEY = "dots: measured (open: not fitted)<br>lines: model &middot; bars: 2 sigma"
+"""Two short lines: a plot's title holds the plot at least as wide as itself."""
 
 
 class InversionFitPlot(pg.GraphicsLayoutWidget):
@@ -22,10 +24,8 @@ class InversionFitPlot(pg.GraphicsLayoutWidget):
         self.profile.setLabel("left", "E(r)")
         self.profile.showGrid(x=True, y=True, alpha=0.15)
         self.profile.getAxis("left").enableAutoSIPrefix(False)
-        key = pg.TextItem("dots: measured (open: not fitted)\nlines: model   bars: 2 sigma",
-                          color="#bbbbbb", anchor=(1, 0))
-        key.setParentItem(self.profile.vb)
-        self.profile.vb.sigResized.connect(lambda vb: key.setPos(vb.width() - 4, 2))
+        # The key above the plot: inside it, the far rings of a short plot ran under the text.
+        self.profile.setTitle(KEY, color="#bbbbbb", size="7pt")
         self.residuals = self.addPlot(row=1, col=0)
         self.residuals.setXLink(self.profile)
         self.residuals.setLabel("left", "resid. / sigma")
