@@ -14,10 +14,11 @@ each channel's own fit used) are whitened by the Cholesky factor of their covari
 
 the measured standard errors (independent between channels), the white run's covariance between
 channels from its photons (as :meth:`.forward.Forward.variance`, for every pair), and the relative
-floor ``f`` (:data:`.fit.RELATIVE_FLOOR`) with correlation :data:`FLOOR_CORRELATION` between
-channels. It starts from the per-channel fits, and like them weighs by the white run's noise at the
-start, then again at the result; its chi-square and Fisher matrix are those under the weights at
-its result. Its Fisher matrix gives each layer's chromaticity a two-sigma ellipse (the delta
+floor ``f`` (:data:`.fit.RELATIVE_FLOOR`) with correlation ``rho`` between channels, which is
+fitted too: each of :data:`FLOOR_CORRELATIONS` is tried and the fit of the highest likelihood
+(lowest ``chi2 + sum log det S_r``) kept. Each starts from the per-channel fits, and like them
+weighs by the white run's noise at the start, then again at the result; its chi-square and Fisher
+matrix are those under the weights at its result. Its Fisher matrix gives each layer's chromaticity a two-sigma ellipse (the delta
 method), which :mod:`.layer_colour` joins with the per-channel profile-likelihood region where the
 chi-square is close to quadratic.
 """
@@ -33,12 +34,21 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_distribution
 
-from .fit import MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
+from .fit import LOOSE_TOLERANCE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
 from .forward import Forward
 
-FLOOR_CORRELATION = 0.9
-"""Correlation between channels of the relative floor: measured on layers3 (five simulator seeds,
-stop 27) the seed-to-seed differences of the region mean correlate 0.90-0.99 between channels."""
+FLOOR_CORRELATIONS = (0.0, 0.5, 0.9)
+"""Correlations between channels of the relative floor that the fit chooses from, by likelihood.
+The simulator's samples have it high (layers3, five seeds: the seed-to-seed differences of the
+region mean correlate 0.90-0.99 between channels); a capture whose unexplained noise is the
+channels' own has it near 0, and a fit that assumed 0.9 there averaged chi2/dof 2.0 (up to 4.3:
+past the misfit threshold) where the channels' own fits had 0.4."""
+MAX_EVALUATIONS = 200
+"""A fit's profile evaluations at most. An absorption that the data hardly bound (a channel that
+hardly absorbs) has a chi-square almost flat towards the lower bound, and the optimiser crawls
+along it: 900 evaluations (9 s) on layers3's top red, for a chi-square 0.5 lower. The fit then
+stops where it is, which fits as well as the bound would."""
+_TOLERANCES = {"ftol": LOOSE_TOLERANCE, "xtol": LOOSE_TOLERANCE, "gtol": LOOSE_TOLERANCE}
 ELLIPSE_CHI2 = float(chi2_distribution.ppf(0.954, 2))
 """Chi-square (2 degrees of freedom) of a two-sigma (95.4 %) region in xy: 6.18."""
 ELLIPSE_POINTS = 32
@@ -57,6 +67,11 @@ class JointFit:
         matrix at the fit (pseudo-inverse).
     chi2
         Generalised chi-square over the rings used, under the weights ``S_r`` at ``mua``.
+    deviance
+        ``chi2 + sum log det S_r``: minus twice the log-likelihood (up to a constant), which
+        compares fits under different covariances (floor correlations, structures).
+    floor_correlation
+        The one of :data:`FLOOR_CORRELATIONS` whose fit has the lowest deviance.
     points
         Residuals fitted (every channel's rings).
     model, sigma
@@ -69,6 +84,8 @@ class JointFit:
     mua: np.ndarray
     covariance: np.ndarray
     chi2: float
+    deviance: float
+    floor_correlation: float
     points: int
     model: np.ndarray
     sigma: np.ndarray
@@ -105,22 +122,36 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
             mua = np.exp(theta.reshape(channels, layers))
             return list(pool.map(lambda c: forward.profile(mua[c], derivatives=True), range(channels)))
 
-        def weighted(theta):
-            """``(residuals, jacobian, S_r)`` under the weights at ``theta``."""
-            covariance = _ring_covariances(forward, np.exp(theta.reshape(channels, layers)), measured, error, used)
-            return *_objective(profiles, _whitening(covariance, used), target, used, channels, layers), covariance
+        def weighted(theta, correlation):
+            """``(residuals, jacobian, log_det)`` under the weights at ``theta``; ``log_det`` sums
+            ``log det S_r`` over the rings and channels fitted."""
+            covariance = _ring_covariances(forward, np.exp(theta.reshape(channels, layers)), measured, error, used,
+                                           correlation)
+            whiten, log_det = _whitening(covariance, used)
+            return *_objective(profiles, whiten, target, used, channels, layers), log_det
 
-        theta = start
-        for _ in range(2):  # weights at the channels' fits, then at the joint fit's first result
-            residuals, jacobian, _ = weighted(theta)
-            start_cost = 0.5 * float(np.sum(residuals(theta) ** 2))
-            best = least_squares(residuals, theta, jac=jacobian, bounds=(low, high), method="trf")
-            if not best.success or best.cost > start_cost:
-                return None
-            theta = best.x
-        residuals, jacobian, covariance = weighted(theta)  # chi-square and Fisher matrix at the result
-        chi2 = float(np.sum(residuals(theta) ** 2))
-        fisher = jacobian(theta).T @ jacobian(theta)
+        def fitted(correlation):
+            """``(deviance, chi2, theta, Fisher matrix)`` with the floor correlated ``correlation``
+            between channels; None when the optimiser fails or ends worse than it started."""
+            theta = start
+            for _ in range(2):  # weights at the channels' fits, then at the joint fit's first result
+                residuals, jacobian, _ = weighted(theta, correlation)
+                start_cost = 0.5 * float(np.sum(residuals(theta) ** 2))
+                best = least_squares(residuals, theta, jac=jacobian, bounds=(low, high), method="trf",
+                                     max_nfev=MAX_EVALUATIONS, **_TOLERANCES)
+                if best.status < 0 or best.cost > start_cost:
+                    return None
+                theta = best.x
+            residuals, jacobian, log_det = weighted(theta, correlation)  # at the result
+            chi2 = float(np.sum(residuals(theta) ** 2))
+            return chi2 + log_det, chi2, theta, jacobian(theta).T @ jacobian(theta)
+
+        results = {correlation: fitted(correlation) for correlation in FLOOR_CORRELATIONS}
+        results = {correlation: result for correlation, result in results.items() if result is not None}
+        if not results:
+            return None
+        correlation = min(results, key=lambda value: results[value][0])
+        deviance, chi2, theta, fisher = results[correlation]
         mua = np.exp(theta.reshape(channels, layers))
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
@@ -128,13 +159,14 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
     sigma = np.sqrt(error ** 2 + np.stack([forward.variance(mua[c]) for c in range(channels)], axis=1)
                     + (RELATIVE_FLOOR * measured) ** 2)
     at_bound = (np.abs(theta - low) < 1e-6) | (np.abs(theta - high) < 1e-6)
-    return JointFit(mua, np.linalg.pinv(fisher), chi2, int(used.sum()), model, sigma,
+    return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma,
                     at_bound.reshape(channels, layers))
 
 
 def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
-                      used: np.ndarray) -> np.ndarray:
-    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L), for the channels that use
+                      used: np.ndarray, correlation: float) -> np.ndarray:
+    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L) and floor ``correlation``
+    between channels, for the channels that use
     each ring (the other entries are finite and unused); rings no channel uses are left at the
     identity."""
     rings, channels = measured.shape
@@ -144,7 +176,7 @@ def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, e
     fitted = np.arange(last)[:, None] < used[None, :]
     scale = np.where(fitted, np.abs(measured[:last]), 1.0)  # a ring a channel does not use may hold 0
     relative_white = white / (scale[:, :, None] * scale[:, None, :])
-    floor = RELATIVE_FLOOR ** 2 * (FLOOR_CORRELATION + (1.0 - FLOOR_CORRELATION) * np.eye(channels))
+    floor = RELATIVE_FLOOR ** 2 * (correlation + (1.0 - correlation) * np.eye(channels))
     data = np.zeros((last, channels, channels))
     data[:, np.arange(channels), np.arange(channels)] = (error[:last] / scale) ** 2
     covariance[:last] = np.nan_to_num(data + relative_white + floor)
@@ -165,15 +197,19 @@ def _white_covariance(forward: Forward, mua: np.ndarray, rings: int) -> np.ndarr
     return covariance
 
 
-def _whitening(covariance: np.ndarray, used: np.ndarray) -> list[np.ndarray]:
+def _whitening(covariance: np.ndarray, used: np.ndarray) -> tuple[list[np.ndarray], float]:
     """Per ring, the inverse Cholesky factor of ``S_r`` over the channels that use that ring (empty
-    for a ring none uses)."""
-    whiten = []
+    for a ring none uses); and ``sum log det`` of those blocks."""
+    whiten, log_det = [], 0.0
     for row, matrix in enumerate(covariance):
         active = np.flatnonzero(row < used)
-        whiten.append(np.linalg.inv(np.linalg.cholesky(matrix[np.ix_(active, active)])) if len(active)
-                      else np.zeros((0, 0)))
-    return whiten
+        if not len(active):
+            whiten.append(np.zeros((0, 0)))
+            continue
+        factor = np.linalg.cholesky(matrix[np.ix_(active, active)])
+        whiten.append(np.linalg.inv(factor))
+        log_det += 2.0 * float(np.sum(np.log(np.diagonal(factor))))
+    return whiten, log_det
 
 
 def _objective(profiles, whiten: list[np.ndarray], target: np.ndarray, used: np.ndarray, channels: int,

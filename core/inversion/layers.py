@@ -108,9 +108,11 @@ class Fitted(NamedTuple):
     joint: JointFit | None
 
     def chi2_points(self, together: bool) -> tuple[float, int]:
-        """Chi-square and residual count of the joint fit (``together``) or of the channels' own."""
+        """Minus twice the log-likelihood (up to a constant) and residual count of the joint fit
+        (``together``: its deviance, which counts its covariance too), or chi-square and count of
+        the channels' own fits."""
         if together:
-            return self.joint.chi2, self.joint.points
+            return self.joint.deviance, self.joint.points
         return sum(f.chi2 for f in self.fits), sum(f.used for f in self.fits)
 
 
@@ -216,7 +218,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
              + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
                 if rivals else "")
-             + ("; channels fitted together" if joint is not None else "; channels fitted one by one (the joint fit "
+             + (f"; channels fitted together (floor correlated {joint.floor_correlation:g} between them)"
+                if joint is not None else "; channels fitted one by one (the joint fit "
                 "needs every channel's own fit)"))
     report(1.0, "done")
     return Inversion(layers, measured, model, sigma, np.array([f.used for f in fits]), chi2, dof, warning, notes,
