@@ -113,15 +113,27 @@ class Forward:
         return profile, -(self.rings @ slopes.T) * scale
 
     def variance(self, mua: np.ndarray) -> np.ndarray:
-        """(R,) variance of :meth:`profile` from the run's own photons (independent photons:
-        the variance of each photon's contribution over the photon count)."""
-        weight = self.value * np.exp(-(self.lengths @ np.asarray(mua, np.float64)))
+        """(R,) variance of :meth:`profile` from the run's own photons (:meth:`covariance` of one
+        channel)."""
+        return self.covariance(np.asarray(mua, np.float64)[None])[:, 0, 0]
+
+    def covariance(self, mua: np.ndarray, rings: int | None = None) -> np.ndarray:
+        """(rings, C, C) covariance between the channels' :meth:`profile` at absorptions ``mua``
+        (C, L), over the first ``rings`` rings (all by default), from the run's own photons: each
+        photon's contribution to a ring per channel (independent photons), their covariance over
+        the photons, over the photon count. The channels share the photons, so they covary."""
+        mua = np.asarray(mua, np.float64)
+        weights = self.value[:, None] * np.exp(-(self.lengths @ mua.T))  # (records, C)
         photons = self.database.photons
-        variance = np.empty(len(self.radii))
-        for row in range(len(self.radii)):
-            per_photon = np.bincount(self.photon, weight * self.rings[row, self.pixel], photons)
-            variance[row] = per_photon.var() / photons
-        return variance
+        rings = len(self.radii) if rings is None else rings
+        covariance = np.empty((rings, len(mua), len(mua)))
+        for row in range(rings):
+            member = self.rings[row, self.pixel]
+            per_photon = np.stack([np.bincount(self.photon, weights[:, c] * member, photons)
+                                   for c in range(len(mua))])
+            centred = per_photon - per_photon.mean(axis=1, keepdims=True)
+            covariance[row] = centred @ centred.T / (photons * photons)
+        return covariance
 
 
 @numba.njit(cache=True, nogil=True)

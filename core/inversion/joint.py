@@ -13,7 +13,7 @@ each channel's own fit used) are whitened by the Cholesky factor of their covari
     S_r = diag(error_c^2) / E_c^2 + cov_white(r)[c, c'] / (E_c E_c') + f^2 (rho + (1 - rho) delta_cc'),
 
 the measured standard errors (independent between channels), the white run's covariance between
-channels from its photons (as :meth:`.forward.Forward.variance`, for every pair), and the relative
+channels from its photons (:meth:`.forward.Forward.covariance`), and the relative
 floor ``f`` (:data:`.fit.RELATIVE_FLOOR`) with correlation ``rho`` between channels, which is
 fitted too: each of :data:`FLOOR_CORRELATIONS` is tried and the fit of the highest likelihood
 (lowest ``chi2 + sum log det S_r``) kept. Each starts from the per-channel fits, and like them
@@ -156,8 +156,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
         pool.shutdown()
-    sigma = np.sqrt(error ** 2 + np.stack([forward.variance(mua[c]) for c in range(channels)], axis=1)
-                    + (RELATIVE_FLOOR * measured) ** 2)
+    white = np.diagonal(forward.covariance(mua), axis1=1, axis2=2)
+    sigma = np.sqrt(error ** 2 + white + (RELATIVE_FLOOR * measured) ** 2)
     at_bound = (np.abs(theta - low) < 1e-6) | (np.abs(theta - high) < 1e-6)
     return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma,
                     at_bound.reshape(channels, layers))
@@ -166,13 +166,12 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
 def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
                       used: np.ndarray, correlation: float) -> np.ndarray:
     """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L) and floor ``correlation``
-    between channels, for the channels that use
-    each ring (the other entries are finite and unused); rings no channel uses are left at the
-    identity."""
+    between channels, for the channels that use each ring (the other entries are finite and
+    unused); rings no channel uses are left at the identity."""
     rings, channels = measured.shape
     covariance = np.tile(np.eye(channels), (rings, 1, 1))
     last = int(used.max())
-    white = _white_covariance(forward, mua, last)
+    white = forward.covariance(mua, last)
     fitted = np.arange(last)[:, None] < used[None, :]
     scale = np.where(fitted, np.abs(measured[:last]), 1.0)  # a ring a channel does not use may hold 0
     relative_white = white / (scale[:, :, None] * scale[:, None, :])
@@ -180,20 +179,6 @@ def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, e
     data = np.zeros((last, channels, channels))
     data[:, np.arange(channels), np.arange(channels)] = (error[:last] / scale) ** 2
     covariance[:last] = np.nan_to_num(data + relative_white + floor)
-    return covariance
-
-
-def _white_covariance(forward: Forward, mua: np.ndarray, rings: int) -> np.ndarray:
-    """(rings, C, C) covariance between channels of the white run's profile estimates: each photon's
-    contribution per channel, their covariance over the run's photons, over the photon count."""
-    channels = len(mua)
-    photons = forward.database.photons
-    covariance = np.empty((rings, channels, channels))
-    weights = [forward.value * np.exp(-(forward.lengths @ mua[c])) for c in range(channels)]
-    for row in range(rings):
-        member = forward.rings[row, forward.pixel]
-        per_photon = np.stack([np.bincount(forward.photon, weights[c] * member, photons) for c in range(channels)])
-        covariance[row] = np.cov(per_photon, bias=True) / photons
     return covariance
 
 

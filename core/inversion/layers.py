@@ -107,7 +107,7 @@ class Fitted(NamedTuple):
     fits: list[ChannelFit]
     joint: JointFit | None
 
-    def chi2_points(self, together: bool) -> tuple[float, int]:
+    def misfit(self, together: bool) -> tuple[float, int]:
         """Minus twice the log-likelihood (up to a constant) and residual count of the joint fit
         (``together``: its deviance, which counts its covariance too), or chi-square and count of
         the channels' own fits."""
@@ -192,7 +192,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
     # fits' chi-square when every one has one (it weighs the noise common to the channels as such).
     together = all(fit.joint is not None for fit in fitted)
-    chosen = min(fitted, key=lambda fit: _bic(*fit.chi2_points(together), fit.candidate.structure, fit.candidate.mus))
+    chosen = min(fitted, key=lambda fit: _bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
     (_, _, mus, structure, database), fits, joint = chosen
     layers = layer_colours(fits, structure, database.optics, colorspace, joint)
     for other in fitted:

@@ -76,7 +76,8 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
                 "rings_used": {"R": int(inversion.used[0]), "G": int(inversion.used[1]), "B": int(inversion.used[2])},
                 "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
         "uncertainty": ("two-sigma (95.4 %) region of the three channels together: the per-channel profile-likelihood "
-                        "region joined with the joint fit's ellipse; see ringlight.core.inversion.layer_colour"),
+                        "region, joined with the joint fit's ellipse where its chi-square is close to quadratic; "
+                        "see ringlight.core.inversion.layer_colour"),
         "profile": {"radii": finite_or_none(inversion.measured.radii),
                     "measured": [finite_or_none(row) for row in inversion.measured.mean],
                     "standard_error": [finite_or_none(row) for row in inversion.measured.standard_error],
