@@ -57,7 +57,8 @@ START_GRID = (0.005, 0.05, 0.5)
 fitted fully (the fit has local minima, e.g. a deep layer absorbing what an upper one should)."""
 COARSE_GRID = (0.01, 0.3)
 SHORT_STEPS = 4
-_LOOSE = {"ftol": LOOSE_TOLERANCE, "xtol": LOOSE_TOLERANCE, "gtol": LOOSE_TOLERANCE}
+LOOSE = {"ftol": LOOSE_TOLERANCE, "xtol": LOOSE_TOLERANCE, "gtol": LOOSE_TOLERANCE}
+"""scipy's least_squares tolerances at :data:`LOOSE_TOLERANCE` (also the joint fit's)."""
 FITTED_STARTS = 2
 
 
@@ -120,7 +121,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         mua = np.full(layers, np.nan)
         interval = np.tile(np.array(MUA_BOUNDS), (layers, 1))
         return ChannelFit(mua, interval, np.ones(layers, bool), used, math.nan, np.full(len(measured), np.nan), sigma)
-    loose = {} if intervals else _LOOSE
+    loose = {} if intervals else LOOSE
 
     def weighted(deviation):
         """The objective with each ring weighted by ``deviation`` (R,)."""
@@ -233,5 +234,5 @@ def _profile_chi2(residuals, jacobian, theta: np.ndarray, k: int, value: float, 
 
     result = least_squares(lambda free: residuals(full(free)), theta[others],
                            jac=lambda free: jacobian(full(free))[:, others], bounds=(low, high), method="trf",
-                           **_LOOSE)
+                           **LOOSE)
     return 2.0 * result.cost

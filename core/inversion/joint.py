@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_distribution
 
-from .fit import LOOSE_TOLERANCE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
+from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
 from .forward import Forward
 
 FLOOR_CORRELATIONS = (0.0, 0.5, 0.9)
@@ -48,7 +48,6 @@ MAX_EVALUATIONS = 200
 hardly absorbs) has a chi-square almost flat towards the lower bound, and the optimiser crawls
 along it: 900 evaluations (9 s) on layers3's top red, for a chi-square 0.5 lower. The fit then
 stops where it is, which fits as well as the bound would."""
-_TOLERANCES = {"ftol": LOOSE_TOLERANCE, "xtol": LOOSE_TOLERANCE, "gtol": LOOSE_TOLERANCE}
 ELLIPSE_CHI2 = float(chi2_distribution.ppf(0.954, 2))
 """Chi-square (2 degrees of freedom) of a two-sigma (95.4 %) region in xy: 6.18."""
 ELLIPSE_POINTS = 32
@@ -138,7 +137,7 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
                 residuals, jacobian, _ = weighted(theta, correlation)
                 start_cost = 0.5 * float(np.sum(residuals(theta) ** 2))
                 best = least_squares(residuals, theta, jac=jacobian, bounds=(low, high), method="trf",
-                                     max_nfev=MAX_EVALUATIONS, **_TOLERANCES)
+                                     max_nfev=MAX_EVALUATIONS, **LOOSE)
                 if best.status < 0 or best.cost > start_cost:
                     return None
                 theta = best.x
