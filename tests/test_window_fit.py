@@ -86,20 +86,21 @@ def test_the_profile_plots_are_not_clipped_at_the_first_or_the_minimum_size(qtbo
 
 
 @pytest.mark.parametrize("method", ["paper", "inverse"])
-def test_the_chromaticity_key_lies_inside_the_diagram(qtbot, window, truth_dataset, method):
+def test_the_chromaticity_key_lies_inside_the_diagram_and_off_the_plot(qtbot, window, truth_dataset, method):
     opened(qtbot, window, truth_dataset)
     window.analysis_tabs.setCurrentWidget(window.layer_panel)
     panel = window.layer_panel
     panel.method_box.setCurrentIndex(panel.method_box.findData(method))
     diagram = panel.diagram
+    key = diagram.getPlotItem().titleLabel
     for name, size in sizes_to_check(qtbot, window).items():
         resize_and_wait(qtbot, window, size)
-        # Before: the key, one line 390 px wide anchored at the right, began 20-80 px left of a 313-368 px view.
-        assert inside_view(diagram, diagram.key.sceneBoundingRect()), (name, diagram.key.sceneBoundingRect())
-        assert diagram.key.sceneBoundingRect().width() > 100  # a key that is there, not an empty one
-    # The exported PNG is the widget's own picture, at the zoom of the whole diagram, the key included.
-    diagram.reset_view()
-    assert inside_view(diagram, diagram.key.sceneBoundingRect())
+        # Before: the key, one line 390 px wide anchored at the right, began 20-80 px left of a 313-368 px view;
+        # then, inside the plot at its top right, it covered the top layer of layers3 in the Layers tab.
+        assert diagram.getPlotItem().sceneBoundingRect().width() <= diagram.viewport().width(), name
+        assert inside_view(diagram, key.item.sceneBoundingRect()), (name, key.item.sceneBoundingRect())
+        assert not key.item.sceneBoundingRect().intersects(diagram.getPlotItem().vb.sceneBoundingRect()), name
+        assert key.item.sceneBoundingRect().width() > 100  # a key that is there, not an empty one
 
 
 def test_image_and_truth_panels_are_equal_and_stay_equal_until_dragged(qtbot, window, truth_dataset):

@@ -12,12 +12,11 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QWidget
 from ringlight.core.colourspaces import colour_module
 
-PICKS_KEY = ("dots: trajectory (dark: small r)\nrings: picked radii\n"
-             "stars: recovered   squares: truth\n+: white")
-"""Short lines, so that the key at the top right stays clear of the spectral locus."""
-FIT_KEY = "stars: fitted   squares: truth\noutlines: two-sigma\n(grey dashed: not determined)"
-KEY_MARGIN = 4.0
-"""Distance of the key from the plot's top and right edges, pixels."""
+PICKS_KEY = ("dots: trajectory (dark: small r) &middot; rings: picks<br>"
+             "stars: recovered &middot; squares: truth &middot; +: white")
+"""Two short lines above the plot: inside it, a key covers whatever layer lies under it."""
+FIT_KEY = ("stars: fitted &middot; squares: truth &middot; +: white<br>"
+           "outlines: two-sigma (grey dashed: undetermined)")
 _PICK_DISTANCE = 0.02
 """Largest xy distance from a trajectory point at which a click picks it."""
 
@@ -63,27 +62,14 @@ class ChromaticityDiagram(pg.PlotWidget):
         self.truth = pg.ScatterPlotItem(size=14, symbol="s", pen=pg.mkPen("w", width=1.5))
         self.addItem(self.truth)
         self._regions: list = []
-        self.key = pg.TextItem(PICKS_KEY, color="#bbbbbb", anchor=(1, 0))
-        self.key.setParentItem(self.getPlotItem().vb)
-        self.getPlotItem().vb.sigResized.connect(lambda _vb: self._place_key())
+        self.set_key(PICKS_KEY)
         self.scene().sigMouseClicked.connect(self._on_scene_clicked)
         self._radii = np.zeros(0)
         self._xy = np.zeros((0, 2))
 
     def set_key(self, text: str) -> None:
-        """Show ``text`` as the key (legend) at the plot's top right."""
-        self.key.setText(text)
-        self._place_key()
-
-    def _place_key(self) -> None:
-        """Top right inside the plot; wrapped to the plot's width where it is narrower than the key,
-        so that no line runs out at the left (on screen or in the exported PNG)."""
-        box = self.getPlotItem().vb
-        room = max(box.width() - 2 * KEY_MARGIN, 1.0)
-        self.key.setTextWidth(-1)  # its own width, to measure
-        if self.key.textItem.boundingRect().width() > room:
-            self.key.setTextWidth(room)
-        self.key.setPos(box.width() - KEY_MARGIN, KEY_MARGIN)
+        """Show ``text`` (Qt rich text) as the key (legend), in small type above the plot."""
+        self.setTitle(text, color="#bbbbbb", size="7pt")
 
     def reset_view(self) -> None:
         """Show the whole diagram (the spectral locus), whatever the user zoomed to."""
