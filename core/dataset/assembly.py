@@ -1,14 +1,20 @@
 """Assembling a dataset's response array from its frames, on every core and in bounded memory.
 
-Each frame is decoded once per *band* of grid rows (a grid-space frame decodes only the band's
-rows; the library decodes its line chunks on every core) by a pool of reader threads, which also
-mark which offset each point of the band takes from the frame. Frames go in two batches that take
+Each frame is decoded once per *band* of grid rows by a pool of reader threads, which also mark
+which offset each point of the band takes from the frame. A band of every row decodes whole
+frames with the library's reader that releases the GIL, a frame a thread; a band of some rows
+decodes only those rows with the library's row-selecting reader, which holds the GIL, so its line
+chunks are decoded on the library's own threads instead. Frames go in two batches that take
 turns: while one is scattered, the readers fill the other. The scatter is compiled: it visits the
 points in parallel over rows, adding each one's light from every frame of the batch into its
-block of responses (one visit a batch rather than one scattered write a frame). On
+block of responses (one visit a batch rather than one scattered write a frame), with the block's
+offsets in raster order: frames lit in raster order then fill neighbouring slots, which are put
+in the array's order (by distance) once the band is complete (0.15 s for 1.3 GiB). On
 ``benchmarks/bench_scale.py``'s 256 px dataset this took the assembly from 6.5-7.7 s (one reader a
-frame ahead, its owners marked between scatters) to 4.4-4.7 s, the decode of every frame alone
-being 2.6-2.8 s. A response array that fits the memory budget is one
+frame ahead, its owners marked between scatters) to 4.4-4.7 s, and then (frames decoded side by
+side, half floats converted by a compiled table lookup, slots in raster order) from 5.0-6.1 s to
+3.7-5.1 s in alternated runs of this machine, the decode of every frame alone on both cores being
+1.5-2.3 s. A response array that fits the memory budget is one
 band, kept in memory; a larger one is built band by band into the dataset's store
 (:mod:`.response_store`), each band as many store tiles high as fit :data:`BAND_SHARE` of the
 budget, and read from there. Every band decodes its rows of every frame, so a pass costs each
@@ -71,9 +77,16 @@ class Assembler:
         # Only offsets shorter than the grid can join two grid points: a max_radius far beyond the
         # grid (1024 on a 4 x 3 grid, 3.3 million offsets) must not cost that much per frame.
         reachable = np.flatnonzero((np.abs(offsets[:, 0]) < self.height) & (np.abs(offsets[:, 1]) < self.width))
-        self.offset_index = reachable
-        self.dy = np.ascontiguousarray(offsets[self.offset_index, 0])
-        self.dx = np.ascontiguousarray(offsets[self.offset_index, 1])
+        # A band is scattered with each point's offsets in raster order ([dy, dx] row by row) and
+        # put in the array's order (by distance) at the end: frames lit in raster order (parallel
+        # and one-point captures alike) then fill a point's block in runs of neighbouring slots
+        # instead of a slot in every cache line.
+        raster = np.lexsort((offsets[:, 1], offsets[:, 0]))
+        self.slot_of = np.empty(len(offsets), np.int64)
+        self.slot_of[raster] = np.arange(len(offsets))
+        self.offset_index = self.slot_of[reachable]
+        self.dy = np.ascontiguousarray(offsets[reachable, 0])
+        self.dx = np.ascontiguousarray(offsets[reachable, 1])
 
     @property
     def observed(self) -> np.ndarray:
@@ -97,7 +110,9 @@ class Assembler:
         starts = range(0, len(frames), size)
         bad_values, bad_frames, first_bad = 0, 0, None
         done = 0
-        with _decoding_threads(), ThreadPoolExecutor(max_workers=_reader_count()) as pool:
+        whole = rows == self.height or self.reader.mapping is not None  # camera frames decode whole
+        library_threads = 0 if whole else os.cpu_count() or 1
+        with _decoding_threads(library_threads), ThreadPoolExecutor(max_workers=_reader_count()) as pool:
             def submit(index: int) -> list:
                 """Queue the reads of batch ``index`` into buffer ``index % 2``."""
                 batch = batches[index % 2]
@@ -132,6 +147,7 @@ class Assembler:
         if bad_values:
             raise DatasetError(f"{first_bad}: NaN or Inf radiance ({bad_values} values in {bad_frames} frame(s); "
                                "this is the first)")
+        _slots_to_offsets(responses, self.slot_of)
         unobserved = ~self.observed[row0:row1]
         responses[unobserved] = 0.0
         steady[unobserved] = np.nan
@@ -151,7 +167,7 @@ class Assembler:
 
 class _Batch:
     """Frames' rows waiting to be scattered: (B, rows, W, 3) float32 radiance, (B, rows, W) int32
-    owner (the offset each point takes, -1 for none) and float32 weight (1 / frames lighting the
+    owner (the slot of the offset each point takes, -1 for none) and float32 weight (1 / frames lighting the
     owner's lit point)."""
 
     POINT_BYTES = 20
@@ -218,6 +234,7 @@ def warm_up_assembly() -> None:
     """Load the assembly's compiled kernels (and the frame and spacing ones it calls) on tiny
     arrays of the types an open passes, so that a first open in a worker does not hold the GIL
     while numba loads them (see :func:`ringlight.core.rings.stacks.warm_up_kernels`)."""
+    from .exr import _HALF_TO_FLOAT, _put_half
     from .frames import _radiance
     from .spacing import close_pair
 
@@ -226,20 +243,25 @@ def warm_up_assembly() -> None:
     _owners(owner, weight, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
     _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), np.zeros((1, 1, 1, 3), np.float32),
                    owner[None], weight[None], 1)
+    _slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
+    _put_half(np.zeros((1, 1), np.uint16), _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32), 0)
     _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
               np.zeros((1, 1, 3), np.float32))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
 
 
 @contextmanager
-def _decoding_threads() -> Iterator[None]:
-    """OpenEXR decodes a file's line chunks on every core while a frame is read (its Python
-    binding has the setting from 3.5 on; older ones decode on one)."""
+def _decoding_threads(count: int) -> Iterator[None]:
+    """OpenEXR's own threads while a band is read: none for whole frames, which the reader
+    threads decode side by side without the GIL (256 px frames: 1.5 s wall for 2401 where two
+    threads inside each frame took 2.3 s), one a core for a band of rows, which the library's
+    row-selecting reader decodes holding the GIL (its Python binding has the setting from 3.5 on;
+    older ones decode on one)."""
     if not hasattr(OpenEXR, "set_global_thread_count"):
         yield
         return
     before = OpenEXR.global_thread_count()
-    OpenEXR.set_global_thread_count(os.cpu_count() or 1)
+    OpenEXR.set_global_thread_count(count)
     try:
         yield
     finally:
@@ -249,7 +271,7 @@ def _decoding_threads() -> Iterator[None]:
 @numba.njit(cache=True, nogil=True)
 def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # pragma: no cover - compiled
     """For each point p of the band (rows row0 ..) within reach of a lit point q of a frame:
-    ``owner[p - row0]`` = the offset index k of d = q - p and ``weight[p - row0]`` = 1 / (frames
+    ``owner[p - row0]`` = the slot ``offset_index[j]`` of d = q - p = (dy[j], dx[j]) and ``weight[p - row0]`` = 1 / (frames
     lighting q); other points keep ``owner`` -1. One q per p: multiplexed points are more than
     ``2 max_radius`` apart (checked with the manifest), and other frames light one point."""
     rows, width = owner.shape
@@ -271,8 +293,8 @@ def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _scatter_batch(responses, steady, radiance, owner, weight, count):  # pragma: no cover - compiled
-    """responses[p, owner[b, p]] += radiance[b, p] * weight[b, p] for the first ``count`` frames b
-    of a batch, in frame order, and the same into ``steady[p]`` (float64); parallel over rows
+    """responses[p, owner[b, p]] += radiance[b, p] * weight[b, p] (the owner a slot, see
+    :meth:`Assembler.band`) for the first ``count`` frames b of a batch, in frame order, and the same into ``steady[p]`` (float64); parallel over rows
     (each thread owns its points)."""
     rows, width = responses.shape[0], responses.shape[1]
     for y in numba.prange(rows):
@@ -285,3 +307,18 @@ def _scatter_batch(responses, steady, radiance, owner, weight, count):  # pragma
                         light = radiance[b, y, x, c] * w
                         responses[y, x, k, c] += light
                         steady[y, x, c] += light
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _slots_to_offsets(responses, slot_of):  # pragma: no cover - compiled
+    """Put every point's (K, 3) block of ``responses`` from slot order into offset order in place:
+    offset k is slot ``slot_of[k]``. Parallel over rows, one block (K x 12 bytes) copied at a time."""
+    rows, width, count = responses.shape[0], responses.shape[1], responses.shape[2]
+    for y in numba.prange(rows):
+        block = np.empty((count, 3), np.float32)
+        for x in range(width):
+            block[:] = responses[y, x]
+            for k in range(count):
+                slot = slot_of[k]
+                for c in range(3):
+                    responses[y, x, k, c] = block[slot, c]

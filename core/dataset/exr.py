@@ -9,7 +9,8 @@ Every read checks the header first (:func:`check_exr`): the part, the size again
 caller expects, the window rule, the channels, the chromaticities against the dataset's
 colourspace, and that the file's chunk table fits in the file, so that a small damaged or hostile
 file is refused before anything is decoded. Only the channels asked for are decoded from a
-single-part file; the library decodes every channel of a multi-part file.
+single-part file; the library decodes every channel of a multi-part file. Whole files of just the
+channels asked for (every frame a camera or the writer makes) decode without holding the GIL.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import os
 from pathlib import Path
 
 import Imath
+import numba
 import numpy as np
 import OpenEXR
 
@@ -30,6 +32,8 @@ from .exr_header import ExrHeader, first_line, open_regular, quiet_library, read
 MAX_DECODED_BYTES = 2**30
 """Largest total of the channels a read decodes (4 bytes a value)."""
 _FLOAT = Imath.PixelType(Imath.PixelType.FLOAT)
+_HALF_TO_FLOAT = np.arange(2**16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)
+"""The float32 value of every half-float bit pattern (numpy's conversion, exact)."""
 
 
 def check_exr(path: str | os.PathLike, names: tuple[str, ...],
@@ -147,10 +151,14 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
     height = stop - first
     image = np.empty((height, header.width, len(names)), np.float32)
+    # The library's reader of whole files releases the GIL, so frames decode in parallel threads:
+    # it takes the files whose channels are those asked for (and every multi-part file); the
+    # channel-selecting reader, which holds the GIL, decodes a band of rows or a file of other
+    # channels without converting or storing them.
+    whole = header.parts > 1 or (height == header.height and set(header.channels) == set(names))
     try:
         with quiet_library():
-            if header.parts == 1:
-                # The library's channel-selecting reader: other channels are never converted or stored.
+            if not whole:
                 exr = OpenEXR.InputFile(str(path))
                 try:
                     top = exr.header()["dataWindow"].min.y
@@ -170,12 +178,24 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                         plane = np.asarray(channels[name].pixels)
                         if plane.shape != (header.height, header.width):
                             raise DatasetError(f"{path}: channel {name} differs in size from the header's data window")
-                        image[..., index] = plane[first:stop]
+                        if plane.dtype == np.float16:  # numpy's own conversion takes 5 times as long
+                            _put_half(plane[first:stop].view(np.uint16), _HALF_TO_FLOAT, image, index)
+                        else:
+                            image[..., index] = plane[first:stop]
     except DatasetError:
         raise
     except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError for damaged data
         raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({first_line(error)})") from None
     return image
+
+
+@numba.njit(cache=True, nogil=True)
+def _put_half(bits, table, image, channel):  # pragma: no cover - compiled
+    """``image[..., channel] = table[bits]``: a (rows, W) plane of half floats, as their uint16
+    bits, into an (rows, W, C) float32 image (0.065 against numpy's 0.33 ms for 256 x 256 x 3)."""
+    for y in range(bits.shape[0]):
+        for x in range(bits.shape[1]):
+            image[y, x, channel] = table[bits[y, x]]
 
 
 def read_exr_rgb(path: str | os.PathLike, expected_shape: tuple[int, int] | None = None,

@@ -26,7 +26,6 @@ from .exr_chunks import MAX_PIXELS
 RGB = ("R", "G", "B")
 MONOCHROME = ("Y",)
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
-_QUIET_LOCK = threading.Lock()
 _LIBC = ctypes.CDLL(None) if os.name == "posix" else ctypes.cdll.msvcrt
 """The C library whose stdio buffers the OpenEXR library's C++ output passes through."""
 
@@ -61,34 +60,63 @@ class ExrHeader:
     all_channels: int = 0
 
 
+class _Silence:
+    """Descriptors 1 and 2 (and ``sys.stdout``, ``sys.stderr``) pointed at nothing while at least
+    one thread is inside :func:`quiet_library`; ``depth`` counts them."""
+
+    lock = threading.Lock()
+    depth = 0
+    saved: tuple[int, int] = (-1, -1)
+    streams: tuple = (None, None)
+
+    @classmethod
+    def enter(cls) -> None:
+        with cls.lock:
+            if cls.depth == 0:
+                for stream in (sys.stdout, sys.stderr):
+                    if stream is not None:
+                        stream.flush()
+                cls.saved = (os.dup(1), os.dup(2))
+                null = os.open(os.devnull, os.O_WRONLY)
+                try:
+                    os.dup2(null, 1)
+                    os.dup2(null, 2)
+                finally:
+                    os.close(null)
+                cls.streams = sys.stdout, sys.stderr
+                sys.stdout, sys.stderr = io.StringIO(), io.StringIO()
+            cls.depth += 1
+
+    @classmethod
+    def leave(cls) -> None:
+        with cls.lock:
+            cls.depth -= 1
+            if cls.depth == 0:
+                sys.stdout, sys.stderr = cls.streams
+                _LIBC.fflush(None)
+                os.dup2(cls.saved[0], 1)
+                os.dup2(cls.saved[1], 2)
+                for descriptor in cls.saved:
+                    os.close(descriptor)
+
+
 @contextmanager
 def quiet_library() -> Iterator[None]:
     """Silence what the OpenEXR library prints for damaged files: C++ output on file descriptors
     1 and 2 (C stdio buffers are flushed before they are restored) and its Python-level prints,
     which go to ``sys.stdout`` and ``sys.stderr``.
 
-    File descriptors 1 and 2 are process-wide, so the lock serialises the library's calls; a
-    Python thread printing meanwhile loses that output, which ringlight's workers never do.
+    File descriptors 1 and 2 are process-wide: the first thread in points them at /dev/null and
+    the last one out restores them, so several threads decode at once (one at a time, the reader
+    threads of an open decoded a frame each in turn). A Python thread printing meanwhile loses that
+    output, which ringlight's workers never do (the command-line progress writes to a duplicate of
+    descriptor 2).
     """
-    with _QUIET_LOCK:
-        for stream in (sys.stdout, sys.stderr):
-            if stream is not None:
-                stream.flush()
-        saved = [os.dup(1), os.dup(2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        streams = sys.stdout, sys.stderr
-        try:
-            os.dup2(null, 1)
-            os.dup2(null, 2)
-            sys.stdout, sys.stderr = io.StringIO(), io.StringIO()
-            yield
-        finally:
-            sys.stdout, sys.stderr = streams
-            _LIBC.fflush(None)
-            os.dup2(saved[0], 1)
-            os.dup2(saved[1], 2)
-            for descriptor in (*saved, null):
-                os.close(descriptor)
+    _Silence.enter()
+    try:
+        yield
+    finally:
+        _Silence.leave()
 
 
 def open_regular(path: Path):
