@@ -37,11 +37,11 @@ import numba
 import numpy as np
 
 from ..atomic import atomic_file
-from ..dataset.cache import user_cache_root
 from ..errors import RinglightError
 from ..simulate.camera import exit_fresnel, henyey_greenstein
 from ..simulate.phase import scatter_direction
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state, uniform
+from . import white_cache
 
 THIN_VALUE = 1e-3
 BLOCKS = 32
@@ -269,22 +269,25 @@ def run_white(optics: SlabOptics, photons: int, seed: int = 0, progress=None) ->
 
 def database_path(optics: SlabOptics, photons: int, seed: int) -> Path:
     """Where the database of these optics lives in the user cache."""
-    return user_cache_root() / "white" / f"{optics.key(photons, seed)}.npz"
+    return white_cache.cache_folder() / f"{optics.key(photons, seed)}.npz"
 
 
 def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: bool = True,
                    progress=None) -> WhiteDatabase:
-    """The database of ``optics`` from the user cache, or run (and cached atomically);
+    """The database of ``optics`` from the user cache (:mod:`.white_cache`), or run (and cached
+    atomically, the least recently used databases then dropped down to the cache's limit);
     ``progress`` as :func:`run_white` takes it."""
     path = database_path(optics, photons, seed)
     if use_cache and path.exists():
         try:
             with np.load(path, allow_pickle=False) as data:
-                return WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"], data["lengths"],
-                                     data["photon"], float(data["seconds"]))
+                database = WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"],
+                                         data["lengths"], data["photon"], float(data["seconds"]))
         except (OSError, ValueError, KeyError) as error:
             raise DatabaseError(f"{path}: unreadable white Monte Carlo database ({error}); delete it to rerun") \
                 from None
+        white_cache.mark_used(path)
+        return database
     database = run_white(optics, photons, seed, progress)
     if use_cache:
         try:
@@ -293,5 +296,6 @@ def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: b
                     np.savez(handle, photons=database.photons, pixel=database.pixel, value=database.value,
                              lengths=database.lengths, photon=database.photon, seconds=database.seconds)
         except OSError:
-            pass  # an unwritable cache only costs the next run its time
+            return database  # an unwritable cache only costs the next run its time
+        white_cache.evict(path.parent, path, white_cache.cache_limit())
     return database
