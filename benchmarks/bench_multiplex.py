@@ -20,7 +20,7 @@ import argparse
 import zlib
 
 import numpy as np
-from ringlight.core.capture.multiplex import code_blocks, coded_lit, demultiplex
+from ringlight.core.capture.multiplex import coded_lit, demultiplex
 from ringlight.core.capture.scan_plan import ScanPlan
 from ringlight.core.capture.simulated_rig import CameraSampling, SensorModel, SimulatedRig, preset_rig
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 from PySide6.QtCore import Qt
 from ringlight.core.dataset.impulse_dataset import open_dataset
 from ringlight.core.inversion.settings import InversionSettings
