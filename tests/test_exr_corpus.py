@@ -7,7 +7,7 @@ import pytest
 from exr_corpus import CorpusFile, compressions, write_corpus
 from ringlight.core import DatasetError
 from ringlight.core.colourspaces import parse_colourspace
-from ringlight.core.dataset.exr import read_exr_channels
+from ringlight.core.dataset.exr import check_exr, read_exr_channels, whole_file_reader
 
 
 @pytest.fixture(scope="module")
@@ -77,6 +77,34 @@ def test_only_the_channels_asked_for_are_decoded(corpus, monkeypatch):
     image = read_exr_channels(extra.path, ("R", "G", "B"))
     assert asked == [("R", "G", "B")]
     np.testing.assert_array_equal(image, extra.expected)
+
+
+def test_the_reader_the_assembly_plans_for_is_the_one_used(corpus, monkeypatch):
+    """``whole_file_reader`` (which sets the library's threads in an open) says which of the
+    library's readers decodes: the selecting one (InputFile) exactly where it says not the whole
+    file's, for every readable corpus file, read whole and as a band of rows."""
+    import OpenEXR
+
+    used = []
+    original = OpenEXR.InputFile
+
+    def recording(path):
+        used.append(path)
+        return original(path)
+
+    monkeypatch.setattr(OpenEXR, "InputFile", recording)
+    plans = {}
+    for file in corpus:
+        if file.refusal is not None:
+            continue
+        header = check_exr(file.path, file.channels, part=file.part)
+        for rows in (None, (0, max(1, header.height // 2))):
+            used.clear()
+            read_exr_channels(file.path, file.channels, part=file.part, rows=rows)
+            whole = whole_file_reader(header, file.channels, None if rows is None else rows[1] - rows[0])
+            assert (not used) == whole, (file.name, rows)
+            plans[whole] = plans.get(whole, 0) + 1
+    assert plans[True] >= 20 and plans[False] >= 20  # both readers exercised
 
 
 def test_a_band_of_rows_reads_exactly_those_rows_of_every_readable_file(corpus):

@@ -353,26 +353,33 @@ def test_truncated_frames_are_found_from_the_chunk_table(dataset, damage, needle
     refused(dataset, "frames/00005.exr: truncated or corrupt OpenEXR file", needle)
 
 
-def test_the_openexr_librarys_own_output_never_reaches_the_user(tmp_path):
+@pytest.mark.parametrize("channels, rows", [("RGB", None), ("RGB", (0, 32)), ("RGBA", None)])
+def test_the_openexr_librarys_own_output_never_reaches_the_user(tmp_path, channels, rows):
     """A chunk table pointing at the wrong chunk makes OpenEXR print a warning on stdout and a line
-    on stderr; the user sees ringlight's one line only."""
-    y = np.random.default_rng(2).random((64, 64, 3)).astype(np.float32)
+    on stderr; the user sees ringlight's one line only, from either of the library's readers (the
+    whole-file one for R, G, B read whole; the selecting one for a band of rows or another channel)."""
+    y = np.random.default_rng(2).random((64, 64, len(channels))).astype(np.float32)
     path = tmp_path / "frame.exr"
-    write_rgb(path, y)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {name: y[..., index].copy() for index, name in enumerate(channels)}) as exr:
+        exr.write(str(path))
 
     def point_chunk_0_at_chunk_1(offsets):  # 64 lines of ZIP: 4 chunks
         offsets[0] = offsets[1]
         return offsets
 
     rewrite_chunk_table(path, 4, point_chunk_0_at_chunk_1)
-    code = ("import sys\nfrom ringlight.core import RinglightError\nfrom ringlight.core.dataset.exr import read_exr_rgb\n"
-            f"try:\n    read_exr_rgb({str(path)!r})\nexcept RinglightError as error:\n"
+    code = ("import sys\nfrom ringlight.core import RinglightError\n"
+            "from ringlight.core.dataset.exr import read_exr_channels\n"
+            f"try:\n    read_exr_channels({str(path)!r}, ('R', 'G', 'B'), rows={rows!r})\n"
+            "except RinglightError as error:\n"
             "    print(error, file=sys.stderr)\n    sys.exit(2)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 2
     assert result.stdout == ""
     assert result.stderr.count("\n") == 1, result.stderr
-    assert result.stderr.startswith(f"{path}: truncated or corrupt OpenEXR file")
+    # The library's own reason, also where its whole-file reader just drops the part it cannot decode.
+    assert result.stderr == f"{path}: truncated or corrupt OpenEXR file (Unable to query scanline information)\n"
 
 
 def test_a_valid_file_reads_exactly(tmp_path):

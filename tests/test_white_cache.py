@@ -4,6 +4,7 @@ import os
 
 import numpy as np
 import pytest
+import ringlight.core.inversion.white_mc as white_mc
 from ringlight.core.errors import RinglightError
 from ringlight.core.inversion import white_cache
 from ringlight.core.inversion.white_mc import SlabOptics, database_path, white_database
@@ -64,3 +65,30 @@ def test_a_database_loaded_again_outlives_one_made_after_it(tmp_path, monkeypatc
     monkeypatch.setenv("RINGLIGHT_WHITE_CACHE", str(sizes[0] + sizes[1] + sizes[1] // 2))
     white_database(optics[2], 2000)
     assert paths[0].exists() and not paths[1].exists() and database_path(optics[2], 2000, 0).exists()
+
+
+def test_a_bad_limit_is_told_before_the_run(tmp_path, monkeypatch):
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("RINGLIGHT_WHITE_CACHE", "lots")
+    runs = []
+    monkeypatch.setattr(white_mc, "run_white", lambda *args: runs.append(args))
+    with pytest.raises(RinglightError, match="RINGLIGHT_WHITE_CACHE"):
+        white_database(SlabOptics((1.0,) * 3, 0.0, 1.3, 8.0, 4), 2000)
+    assert runs == []
+
+
+def test_a_database_dropped_by_another_process_while_loading_is_run_again(tmp_path, monkeypatch):
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(tmp_path))
+    optics = SlabOptics((1.0,) * 3, 0.0, 1.3, 8.0, 4)
+    first = white_database(optics, 2000)
+    path = database_path(optics, 2000, 0)
+    load = np.load
+
+    def evicted_meanwhile(file, **options):  # another process's eviction wins the race
+        path.unlink()
+        return load(file, **options)
+
+    monkeypatch.setattr(white_mc.np, "load", evicted_meanwhile)
+    again = white_database(optics, 2000)
+    np.testing.assert_array_equal(again.value, first.value)  # the same seed: the same records
+    assert path.exists()  # and cached again

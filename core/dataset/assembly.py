@@ -2,9 +2,10 @@
 
 Each frame is decoded once per *band* of grid rows by a pool of reader threads, which also mark
 which offset each point of the band takes from the frame. A band of every row decodes whole
-frames with the library's reader that releases the GIL, a frame a thread; a band of some rows
-decodes only those rows with the library's row-selecting reader, which holds the GIL, so its line
-chunks are decoded on the library's own threads instead. Frames go in two batches that take
+frames of just the channels read with the library's reader that releases the GIL, a frame a
+thread; a band of some rows, or frames with more channels (RGBA, render layers), are decoded by
+the library's selecting reader, which holds the GIL, so their line chunks are decoded on the
+library's own threads instead (:func:`.exr.whole_file_reader`). Frames go in two batches that take
 turns: while one is scattered, the readers fill the other. The scatter is compiled: it visits the
 points in parallel over rows, adding each one's light from every frame of the batch into its
 block of responses (one visit a batch rather than one scattered write a frame), with the block's
@@ -37,6 +38,7 @@ import numpy as np
 import OpenEXR
 
 from ..errors import DatasetError, ProgressCallback
+from .exr import whole_file_reader
 from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
@@ -70,7 +72,9 @@ class Assembler:
         self.reader = FrameReader(manifest, allow_outside)
         # A manifest whose frames are missing or of the wrong size fails before anything of the
         # grid's size is allocated.
-        self.reader.check(manifest.frames[0])
+        first = self.reader.check(manifest.frames[0])
+        # Whether frames read whole decode side by side (the first frame's header stands for all).
+        self.whole_file_reader = whole_file_reader(first, self.reader.channels)
         self.lit_counts = manifest.lit_counts()
         self.inverse_counts = np.zeros(self.lit_counts.shape, np.float32)
         np.divide(1, self.lit_counts, out=self.inverse_counts, where=self.lit_counts > 0)
@@ -111,7 +115,7 @@ class Assembler:
         bad_values, bad_frames, first_bad = 0, 0, None
         done = 0
         whole = rows == self.height or self.reader.mapping is not None  # camera frames decode whole
-        library_threads = 0 if whole else os.cpu_count() or 1
+        library_threads = 0 if whole and self.whole_file_reader else os.cpu_count() or 1
         with _decoding_threads(library_threads), ThreadPoolExecutor(max_workers=_reader_count()) as pool:
             def submit(index: int) -> list:
                 """Queue the reads of batch ``index`` into buffer ``index % 2``."""
@@ -179,8 +183,8 @@ class _Batch:
 
 
 def _reader_count() -> int:
-    """Threads decoding frames: one a core (OpenEXR's decoding and the owner marking release the
-    GIL)."""
+    """Threads decoding frames: one a core (the owner marking, and OpenEXR's reader of whole files,
+    release the GIL; its selecting reader decodes on the library's own threads)."""
     return max(1, os.cpu_count() or 1)
 
 
@@ -252,10 +256,10 @@ def warm_up_assembly() -> None:
 
 @contextmanager
 def _decoding_threads(count: int) -> Iterator[None]:
-    """OpenEXR's own threads while a band is read: none for whole frames, which the reader
-    threads decode side by side without the GIL (256 px frames: 1.5 s wall for 2401 where two
+    """OpenEXR's own threads while a band is read: none for frames its reader of whole files
+    decodes, which the reader threads decode side by side without the GIL (256 px frames: 1.5 s wall for 2401 where two
     threads inside each frame took 2.3 s), one a core for a band of rows, which the library's
-    row-selecting reader decodes holding the GIL (its Python binding has the setting from 3.5 on;
+    selecting reader decodes holding the GIL (its Python binding has the setting from 3.5 on;
     older ones decode on one)."""
     if not hasattr(OpenEXR, "set_global_thread_count"):
         yield

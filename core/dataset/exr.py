@@ -151,27 +151,15 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
     height = stop - first
     image = np.empty((height, header.width, len(names)), np.float32)
-    # The library's reader of whole files releases the GIL, so frames decode in parallel threads:
-    # it takes the files whose channels are those asked for (and every multi-part file); the
-    # channel-selecting reader, which holds the GIL, decodes a band of rows or a file of other
-    # channels without converting or storing them.
-    whole = header.parts > 1 or (height == header.height and set(header.channels) == set(names))
     try:
         with quiet_library():
-            if not whole:
-                exr = OpenEXR.InputFile(str(path))
-                try:
-                    top = exr.header()["dataWindow"].min.y
-                    planes = exr.channels(list(names), _FLOAT, top + first, top + stop - 1)
-                finally:
-                    exr.close()
-                for index, plane in enumerate(planes):
-                    if len(plane) != 4 * height * header.width:
-                        raise DatasetError(f"{path}: channel {names[index]} differs in size from the header's data window")
-                    image[..., index] = np.frombuffer(plane, np.float32).reshape(height, header.width)
+            if not whole_file_reader(header, names, height):
+                _read_selected(path, names, first, stop, image)
             else:
                 with OpenEXR.File(str(path), separate_channels=True) as exr:
                     if len(exr.parts) != header.parts:  # the library skips a part it cannot decode
+                        if header.parts == 1:  # the selecting reader says why
+                            _read_selected(path, names, first, stop, image)
                         raise DatasetError(f"{path}: truncated or corrupt OpenEXR file (a part cannot be decoded)")
                     channels = exr.parts[header.part].channels
                     for index, name in enumerate(names):
@@ -187,6 +175,32 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
     except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError for damaged data
         raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({first_line(error)})") from None
     return image
+
+
+def whole_file_reader(header: ExrHeader, names: tuple[str, ...], rows: int | None = None) -> bool:
+    """Whether :func:`read_exr_channels` decodes ``rows`` rows (None: all) of the named channels
+    of a file with this header with the library's reader of whole files, which releases the GIL,
+    so that frames decode side by side in threads: a multi-part file, or all rows of a file whose
+    channels are those asked for. Otherwise the channel-selecting reader, which holds the GIL,
+    decodes only the rows and channels asked for (a band, or a file with more channels: RGBA,
+    render layers)."""
+    every_row = rows is None or rows == header.height
+    return header.parts > 1 or (every_row and set(header.channels) == set(names))
+
+
+def _read_selected(path: Path, names: tuple[str, ...], first: int, stop: int, image: np.ndarray) -> None:
+    """Decode rows ``first .. stop`` of the named channels of a single-part file into ``image``
+    ((stop - first, W, len(names)) float32) with the library's channel-selecting reader."""
+    exr = OpenEXR.InputFile(str(path))
+    try:
+        top = exr.header()["dataWindow"].min.y
+        planes = exr.channels(list(names), _FLOAT, top + first, top + stop - 1)
+    finally:
+        exr.close()
+    for index, plane in enumerate(planes):
+        if len(plane) != image.shape[0] * image.shape[1] * 4:
+            raise DatasetError(f"{path}: channel {names[index]} differs in size from the header's data window")
+        image[..., index] = np.frombuffer(plane, np.float32).reshape(image.shape[:2])
 
 
 @numba.njit(cache=True, nogil=True)

@@ -77,12 +77,16 @@ class _Silence:
                     if stream is not None:
                         stream.flush()
                 cls.saved = (os.dup(1), os.dup(2))
-                null = os.open(os.devnull, os.O_WRONLY)
                 try:
-                    os.dup2(null, 1)
-                    os.dup2(null, 2)
-                finally:
-                    os.close(null)
+                    null = os.open(os.devnull, os.O_WRONLY)
+                    try:
+                        os.dup2(null, 1)
+                        os.dup2(null, 2)
+                    finally:
+                        os.close(null)
+                except OSError:
+                    cls._restore()
+                    raise
                 cls.streams = sys.stdout, sys.stderr
                 sys.stdout, sys.stderr = io.StringIO(), io.StringIO()
             cls.depth += 1
@@ -93,11 +97,16 @@ class _Silence:
             cls.depth -= 1
             if cls.depth == 0:
                 sys.stdout, sys.stderr = cls.streams
-                _LIBC.fflush(None)
-                os.dup2(cls.saved[0], 1)
-                os.dup2(cls.saved[1], 2)
-                for descriptor in cls.saved:
-                    os.close(descriptor)
+                cls._restore()
+
+    @classmethod
+    def _restore(cls) -> None:
+        """Descriptors 1 and 2 back from the saved copies, which are closed."""
+        _LIBC.fflush(None)
+        os.dup2(cls.saved[0], 1)
+        os.dup2(cls.saved[1], 2)
+        for descriptor in cls.saved:
+            os.close(descriptor)
 
 
 @contextmanager

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from .exr import check_exr, read_exr_channels
-from .exr_header import frame_channels
+from .exr_header import ExrHeader, frame_channels
 from .manifest import FrameEntry, Manifest
 
 MIN_COVERAGE = 0.01
@@ -207,9 +207,9 @@ class FrameReader:
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
 
-    def check(self, frame: FrameEntry) -> None:
-        """Check a frame's header (size, channels, part, colourspace) without decoding it."""
-        check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape, "frame",
+    def check(self, frame: FrameEntry) -> ExrHeader:
+        """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
+        return check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape, "frame",
                   self.size_of, self.manifest.part, self.manifest.colorspace)
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None) -> tuple[np.ndarray, int]:
