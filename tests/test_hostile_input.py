@@ -306,6 +306,18 @@ def test_a_camera_mapping_that_sees_no_grid_point_is_one_line(dataset, fill):
     refused(dataset, "mapping.exr: no camera pixel maps into the 6 x 5 grid (all NaN or outside)")
 
 
+def test_a_channel_name_that_is_not_utf8_is_refused_in_one_line(dataset):
+    """Found by the fuzz test (byte 28 of frame 0 set to 0x80): the first channel's name, which the
+    library decodes only when asked, raised UnicodeDecodeError from reading the first frame's
+    channels."""
+    path = dataset / "frames/00000.exr"
+    data = bytearray(path.read_bytes())
+    assert data[28:30] == b"B\0"  # the channel list's first name (sorted: B, G, R)
+    data[28] = 0x80
+    path.write_bytes(bytes(data))
+    refused(dataset, "frames/00000.exr: truncated or corrupt OpenEXR file", "utf-8")
+
+
 def test_a_subsampled_channel_is_refused_in_the_header(dataset):
     """A channel list entry is name, pixel type (4), pLinear and reserved (4), x and y sampling
     (4 + 4): set R's y sampling to 2 in a valid frame (6 rows divide by 2, so the header is valid)."""

@@ -174,8 +174,12 @@ def _parts(path: Path) -> list[tuple[str, dict, tuple, bool]]:
     """``(name, header, channels, deep)`` of every part, from the headers alone."""
     try:
         with quiet_library(), OpenEXR.File(str(path), header_only=True) as exr:
-            return [(str(part.name()), dict(part.header), tuple(part.header.get("channels", [])),
-                     "deep" in str(part.type()).lower()) for part in exr.parts]
+            parts = [(str(part.name()), dict(part.header), tuple(part.header.get("channels", [])),
+                      "deep" in str(part.type()).lower()) for part in exr.parts]
+        for _, _, channels, _ in parts:
+            for channel in channels:
+                str(channel.name)  # decoded when first asked: a name that is not UTF-8 raises here
+        return parts
     except Exception as error:  # noqa: BLE001 - OpenEXR raises RuntimeError/ValueError/KeyError for damaged data
         raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({first_line(error)})") from None
 
