@@ -218,7 +218,7 @@ def test_layer_region_joins_the_ellipse_only_where_the_chi_square_is_quadratic()
 
     def region(spread):
         joint = JointFit(mua[:, None], np.diag(np.square(spread)), 5.0, 5.0, 0.9, 21, np.ones((7, 3)),
-                         np.ones((7, 3)), np.zeros((3, 1), bool))
+                         np.ones((7, 3)))
         (layer,) = layer_colours(fits, Structure((0,)), optics, "sRGB", joint)
         np.testing.assert_allclose(layer.xy, centre, atol=1e-12)
         return layer.region

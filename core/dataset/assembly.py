@@ -171,8 +171,8 @@ class Assembler:
 
 class _Batch:
     """Frames' rows waiting to be scattered: (B, rows, W, 3) float32 radiance, (B, rows, W) int32
-    owner (the slot of the offset each point takes, -1 for none) and float32 weight (1 / frames lighting the
-    owner's lit point)."""
+    owner (the slot of the offset each point takes, -1 for none) and float32 weight (1 / frames
+    lighting the owner's lit point)."""
 
     POINT_BYTES = 20
 
@@ -257,10 +257,10 @@ def warm_up_assembly() -> None:
 @contextmanager
 def _decoding_threads(count: int) -> Iterator[None]:
     """OpenEXR's own threads while a band is read: none for frames its reader of whole files
-    decodes, which the reader threads decode side by side without the GIL (256 px frames: 1.5 s wall for 2401 where two
-    threads inside each frame took 2.3 s), one a core for a band of rows, which the library's
-    selecting reader decodes holding the GIL (its Python binding has the setting from 3.5 on;
-    older ones decode on one)."""
+    decodes, which the reader threads decode side by side without the GIL (256 px frames: 1.5 s
+    wall for 2401 where two threads inside each frame took 2.3 s), one a core otherwise, for the
+    library's selecting reader, which decodes holding the GIL (its Python binding has the setting
+    from 3.5 on; older ones decode on one)."""
     if not hasattr(OpenEXR, "set_global_thread_count"):
         yield
         return
@@ -275,9 +275,10 @@ def _decoding_threads(count: int) -> Iterator[None]:
 @numba.njit(cache=True, nogil=True)
 def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # pragma: no cover - compiled
     """For each point p of the band (rows row0 ..) within reach of a lit point q of a frame:
-    ``owner[p - row0]`` = the slot ``offset_index[j]`` of d = q - p = (dy[j], dx[j]) and ``weight[p - row0]`` = 1 / (frames
-    lighting q); other points keep ``owner`` -1. One q per p: multiplexed points are more than
-    ``2 max_radius`` apart (checked with the manifest), and other frames light one point."""
+    ``owner[p - row0]`` = the slot ``offset_index[j]`` of d = q - p = (dy[j], dx[j]) and
+    ``weight[p - row0]`` = 1 / (frames lighting q); other points keep ``owner`` -1. One q per p:
+    multiplexed points are more than ``2 max_radius`` apart (checked with the manifest), and other
+    frames light one point."""
     rows, width = owner.shape
     reach = 0
     for j in range(dy.size):
@@ -298,8 +299,8 @@ def _owners(owner, weight, lit, dy, dx, offset_index, inverse_counts, row0):  # 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _scatter_batch(responses, steady, radiance, owner, weight, count):  # pragma: no cover - compiled
     """responses[p, owner[b, p]] += radiance[b, p] * weight[b, p] (the owner a slot, see
-    :meth:`Assembler.band`) for the first ``count`` frames b of a batch, in frame order, and the same into ``steady[p]`` (float64); parallel over rows
-    (each thread owns its points)."""
+    :class:`Assembler`) for the first ``count`` frames b of a batch, in frame order, and the same
+    into ``steady[p]`` (float64); parallel over rows (each thread owns its points)."""
     rows, width = responses.shape[0], responses.shape[1]
     for y in numba.prange(rows):
         for x in range(width):

@@ -209,8 +209,8 @@ class FrameReader:
 
     def check(self, frame: FrameEntry) -> ExrHeader:
         """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
-        return check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape, "frame",
-                  self.size_of, self.manifest.part, self.manifest.colorspace)
+        return check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape,
+                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace)
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance (R = G = B for a

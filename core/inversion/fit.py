@@ -109,6 +109,12 @@ def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, inte
         return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals), range(channels)))
 
 
+def ring_sigma(error: np.ndarray, white_variance: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Each ring's standard deviation of E: its measured ``error``, the white run's
+    ``white_variance`` at the fit and the relative floor :data:`RELATIVE_FLOOR` (arrays of one shape)."""
+    return np.sqrt(error ** 2 + white_variance + (RELATIVE_FLOOR * measured) ** 2)
+
+
 def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> ChannelFit:
     """Fit one channel: ``measured`` and ``error`` (R,) are the region's E(r) and its standard
     error at ``forward.radii``. Without ``intervals`` (a structure search's quick fit) the fit
@@ -141,7 +147,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
     # The second pass weighs by the white run's noise at the first pass's best fit too, and starts
     # again from each first-pass fit that fits about as well under the new weights (within
     # JOINT_CHI2 of the lowest): another minimum may then be lower. A quick fit goes on from its best.
-    sigma = np.sqrt(error ** 2 + forward.variance(np.exp(best.x)) + (RELATIVE_FLOOR * measured) ** 2)
+    sigma = ring_sigma(error, forward.variance(np.exp(best.x)), measured)
     residuals, jacobian = weighted(sigma)
     if intervals:
         costs = np.array([np.sum(residuals(result.x) ** 2) for result in results])

@@ -18,9 +18,9 @@ floor ``f`` (:data:`.fit.RELATIVE_FLOOR`) with correlation ``rho`` between chann
 fitted too: each of :data:`FLOOR_CORRELATIONS` is tried and the fit of the highest likelihood
 (lowest ``chi2 + sum log det S_r``) kept. Each starts from the per-channel fits, and like them
 weighs by the white run's noise at the start, then again at the result; its chi-square and Fisher
-matrix are those under the weights at its result. Its Fisher matrix gives each layer's chromaticity a two-sigma ellipse (the delta
-method), which :mod:`.layer_colour` joins with the per-channel profile-likelihood region where the
-chi-square is close to quadratic.
+matrix are those under the weights at its result. Its Fisher matrix gives each layer's
+chromaticity a two-sigma ellipse (the delta method), which :mod:`.layer_colour` joins with the
+per-channel profile-likelihood region where the chi-square is close to quadratic.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_distribution
 
-from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit
+from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit, ring_sigma
 from .forward import Forward
 
 FLOOR_CORRELATIONS = (0.0, 0.5, 0.9)
@@ -76,8 +76,6 @@ class JointFit:
     model, sigma
         (R, C) the fitted profile and each ring's standard deviation at every ring, fitted or not
         (the diagonal of ``S_r`` times E where fitted).
-    at_bound
-        (C, L) bool: the absorption lies at a bound of :data:`.fit.MUA_BOUNDS`.
     """
 
     mua: np.ndarray
@@ -88,7 +86,12 @@ class JointFit:
     points: int
     model: np.ndarray
     sigma: np.ndarray
-    at_bound: np.ndarray
+
+    @property
+    def at_bound(self) -> np.ndarray:
+        """(C, L) bool: the absorption lies at a bound of :data:`.fit.MUA_BOUNDS`."""
+        theta = np.log(self.mua)
+        return np.any([np.abs(theta - math.log(bound)) < 1e-6 for bound in MUA_BOUNDS], axis=0)
 
     @property
     def dof(self) -> int:
@@ -155,11 +158,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
         pool.shutdown()
-    white = np.diagonal(forward.covariance(mua), axis1=1, axis2=2)
-    sigma = np.sqrt(error ** 2 + white + (RELATIVE_FLOOR * measured) ** 2)
-    at_bound = (np.abs(theta - low) < 1e-6) | (np.abs(theta - high) < 1e-6)
-    return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma,
-                    at_bound.reshape(channels, layers))
+    sigma = ring_sigma(error, np.diagonal(forward.covariance(mua), axis1=1, axis2=2), measured)
+    return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma)
 
 
 def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,

@@ -279,19 +279,9 @@ def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: b
     ``progress`` as :func:`run_white` takes it."""
     path = database_path(optics, photons, seed)
     limit = white_cache.cache_limit() if use_cache else 0  # a bad setting is told before the run
-    if use_cache and path.exists():
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                database = WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"],
-                                         data["lengths"], data["photon"], float(data["seconds"]))
-        except FileNotFoundError:
-            database = None  # dropped meanwhile by another process's eviction: run it again
-        except (OSError, ValueError, KeyError) as error:
-            raise DatabaseError(f"{path}: unreadable white Monte Carlo database ({error}); delete it to rerun") \
-                from None
-        if database is not None:
-            white_cache.mark_used(path)
-            return database
+    if use_cache and (database := _cached(path, optics)) is not None:
+        white_cache.mark_used(path)
+        return database
     database = run_white(optics, photons, seed, progress)
     if use_cache:
         try:
@@ -303,3 +293,16 @@ def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: b
             return database  # an unwritable cache only costs the next run its time
         white_cache.evict(path.parent, path, limit)
     return database
+
+
+def _cached(path: Path, optics: SlabOptics) -> WhiteDatabase | None:
+    """The database stored at ``path``; None when there is none (or another process's eviction
+    dropped it meanwhile). Raises DatabaseError naming the file when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"], data["lengths"],
+                                 data["photon"], float(data["seconds"]))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, KeyError) as error:
+        raise DatabaseError(f"{path}: unreadable white Monte Carlo database ({error}); delete it to rerun") from None
