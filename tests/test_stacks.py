@@ -196,6 +196,31 @@ def test_dark_frame_exposure_and_repeated_points_are_applied(tmp_path):
         assert_same_with_nan(stack.images[index], brute_ring_image(truth, 5, 6, radius), rtol=1e-4, atol=1e-5)
 
 
+def test_a_disc_of_more_offsets_than_int16_holds_assembles_like_brute_force(tmp_path):
+    """The assembly marks each point's offset slot (offsets in raster order) in int16 while the
+    disc has at most 32 767 offsets, in int32 beyond (max_radius 103 and more): rings near
+    max_radius on a grid as tall take the last slots. A point lit twice is averaged there too."""
+    import json
+    rng = np.random.default_rng(21)
+    height, width = 106, 1
+    impulses = {(y, x): rng.uniform(0.2, 1.0, (height, width, 3)).astype(np.float32)
+                for y in range(height) for x in range(width)}
+    write_dataset(tmp_path / "ds", height, width, impulses, max_radius=104)
+    manifest = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    again = rng.uniform(0, 1, (height, width, 3)).astype(np.float32)
+    write_rgb(tmp_path / "ds" / "again.exr", again)
+    manifest["frames"].append({"file": "again.exr", "lit": [[104, 0]]})
+    (tmp_path / "ds" / "dataset.json").write_text(json.dumps(manifest))
+    impulses[(104, 0)] = (impulses[(104, 0)] + again) / 2
+    dataset = open_dataset(tmp_path / "ds")
+    assert len(dataset.offsets) > np.iinfo(np.int16).max
+    radii = [0, 2, 103]
+    stack = ring_stack(dataset, radii)
+    for index, radius in enumerate(radii):
+        assert_same_with_nan(stack.images[index], brute_ring_image(impulses, height, width, radius),
+                             rtol=1e-4, atol=1e-5)
+
+
 def test_half_float_frames_read_like_float_frames(tmp_path):
     rng = np.random.default_rng(12)
     impulses = random_impulses(rng, 6, 6, support=10)

@@ -212,11 +212,13 @@ class FrameReader:
         return check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape,
                          "frame", self.size_of, self.manifest.part, self.manifest.colorspace)
 
-    def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None) -> tuple[np.ndarray, int]:
+    def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None,
+             out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance (R = G = B for a
-        monochrome camera) and how many of its pixel values were NaN or Inf (the caller decides how
-        to report them). With ``rows`` = ``(first, stop)``, only those grid rows (a grid-space
-        frame decodes only them; a camera frame is decoded whole and mapped, then cut).
+        monochrome camera), written into ``out`` when given, and how many of its pixel values were
+        NaN or Inf (the caller decides how to report them). With ``rows`` = ``(first, stop)``, only
+        those grid rows (a grid-space frame decodes only them; a camera frame is decoded whole and
+        mapped, then cut).
 
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
@@ -231,7 +233,7 @@ class FrameReader:
         else:
             grid = image
         dark = self.dark[first:stop] if self.dark is not None else np.zeros((0, 0, grid.shape[2]), np.float32)
-        radiance = np.empty((*grid.shape[:2], 3), np.float32)
+        radiance = out if out is not None else np.empty((*grid.shape[:2], 3), np.float32)
         bad, problem = _radiance(grid, np.float32(frame.exposure), dark, self.dark is not None, radiance)
         if problem == 1:
             raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
