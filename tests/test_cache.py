@@ -199,3 +199,94 @@ def test_store_tiles_are_whole_multiples_of_16_points_once_8_or_more():
     assert store_tile((512, 512), disc_offset_count(8)) == 64  # 58.3
     assert store_tile((2048, 2048), disc_offset_count(64)) == 7  # 7.4: below 8, kept
     assert store_tile((12, 10), disc_offset_count(4)) == 12  # the grid is smaller than a chunk
+
+
+KILLED_WRITER = """
+import os, sys
+from ringlight.core.atomic import atomic_folder
+with atomic_folder(sys.argv[1]) as staging:
+    (staging / "responses").mkdir()
+    (staging / "responses" / "c.0.0.0.0").write_bytes(b"x" * 4096)
+    print(staging.name, flush=True)
+    if sys.argv[2] == "kill":
+        os.kill(os.getpid(), 9)
+    sys.stdin.readline()  # holds the staging folder, still writing, until told to go on
+"""
+
+
+def _writer(location, how):
+    import subprocess
+    import sys
+    process = subprocess.Popen([sys.executable, "-c", KILLED_WRITER, str(location), how],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    return process, process.stdout.readline().strip()
+
+
+@pytest.mark.parametrize("cached", [False, True])
+def test_a_killed_open_leaves_a_temporary_that_the_next_open_removes(dataset, monkeypatch, cached):
+    """A process killed while it builds the store (SIGKILL: nothing of its own runs) leaves its
+    hidden staging folder beside the cache; the next open removes it, as its lock died with it,
+    whether it builds the store (none yet) or reads a current one."""
+    import ringlight.core.atomic as atomic
+    monkeypatch.setattr(atomic, "ABANDONED_AGE", 0.0)
+    location = dataset / CACHE_FOLDER_NAME
+    if cached:
+        open_dataset(dataset)
+    process, staging = _writer(location, "kill")
+    process.communicate()
+    assert process.returncode == -9 and (dataset / staging / "responses" / "c.0.0.0.0").exists()
+    reads = CountingReads(monkeypatch)
+    open_dataset(dataset)
+    assert not (dataset / staging).exists()
+    assert (location / "meta.json").exists() and (reads.count == 0) == cached
+
+
+def test_a_temporary_that_another_process_is_writing_is_left_alone(dataset, monkeypatch):
+    import ringlight.core.atomic as atomic
+    monkeypatch.setattr(atomic, "ABANDONED_AGE", 0.0)
+    location = dataset / CACHE_FOLDER_NAME
+    process, staging = _writer(location, "hold")
+    try:
+        assert atomic.sweep_abandoned(location) == []
+        open_dataset(dataset)
+        assert (dataset / staging / "responses" / "c.0.0.0.0").exists()
+    finally:
+        process.communicate("go on\n")
+    assert process.returncode == 0 and not (dataset / staging).exists()
+
+
+def test_only_ringlights_abandoned_cache_folders_are_swept(dataset, monkeypatch):
+    """Files, links and other names, a young temporary (made just before its writer locks it) and
+    anything when locks are missing are never removed."""
+    import ringlight.core.atomic as atomic
+    location = dataset / CACHE_FOLDER_NAME
+    old_entry = dataset / "..ringlight-cache.old-0123456789ab"
+    (old_entry / "responses").mkdir(parents=True)
+    young = dataset / "..ringlight-cache.partial-abcdefabcdef"
+    young.mkdir()
+    kept = {
+        "..ringlight-cache.partial-0123456789ab": "file",  # a file, not a folder
+        "..ringlight-cache.partial-aaaaaaaaaaaa": "link",  # a link to the user's folder
+        "..ringlight-cache.partial-0123": "folder",  # not a temporary's name
+        ".thesis.partial-0123456789ab": "folder",  # another name's temporary
+        "..ringlight-cache.partial-0123456789abX": "folder",
+    }
+    user = dataset / "mine"
+    user.mkdir()
+    (user / "notes.txt").write_text("keep")
+    for name, kind in kept.items():
+        if kind == "file":
+            (dataset / name).write_text("keep")
+        elif kind == "link":
+            (dataset / name).symlink_to(user, target_is_directory=True)
+        else:
+            (dataset / name).mkdir()
+    monkeypatch.setattr(atomic, "fcntl", None)
+    assert atomic.sweep_abandoned(location, min_age=0.0) == []
+    monkeypatch.undo()
+    assert atomic.sweep_abandoned(location, min_age=3600.0) == []  # all of them made just now
+    assert sorted(atomic.sweep_abandoned(location, min_age=0.0)) == sorted([old_entry.name, young.name])
+    assert not old_entry.exists() and not young.exists()
+    for name in kept:
+        assert os.path.lexists(dataset / name), name
+    assert (user / "notes.txt").read_text() == "keep"

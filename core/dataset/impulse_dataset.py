@@ -31,6 +31,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from ..atomic import sweep_abandoned
 from ..errors import DatasetError, ProgressCallback, RinglightError
 from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
@@ -322,6 +323,8 @@ def open_dataset(
     shape = (height, width, len(offsets), 3)
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
     dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels)
+    if use_cache:
+        sweep_abandoned(location)  # what a killed open left, gigabytes at paper scale
     store = open_store(location, key, shape, budget // 2) if use_cache else None
     if store is not None and needed <= min(budget, WHOLE_READ_BYTES):
         try:
