@@ -41,6 +41,7 @@ import stat
 import threading
 from collections import OrderedDict
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -99,7 +100,20 @@ class StoreWriter:
         """Store responses rows ``row0 .. row0 + len(band)`` ((rows, W, K, 3) float32)."""
         if row0 % self.tile:
             raise ValueError(f"band starts at row {row0}, not on a tile boundary ({self.tile})")
-        self._responses[row0:row0 + band.shape[0]] = band
+        tile = self.tile
+
+        def write(corner: tuple[int, int]) -> None:
+            y, x = corner
+            self._responses[row0 + y:row0 + y + tile, x:x + tile] = band[y:y + tile, x:x + tile]
+
+        # A chunk at a time, from a thread a core: zarr compresses the chunks of one call side by
+        # side, but a call of several chunks first copies each into a new chunk array in its event
+        # loop's thread, one after the other, where a call of exactly one chunk encodes the band's
+        # view as it is.
+        corners = [(y, x) for y in range(0, band.shape[0], tile) for x in range(0, band.shape[1], tile)]
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            for _ in pool.map(write, corners):
+                pass
 
     def write_small(self, lit_counts: np.ndarray, observed: np.ndarray, steady: np.ndarray) -> None:
         for name, array in zip(_SMALL, (lit_counts, observed, steady)):
