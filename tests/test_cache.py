@@ -86,19 +86,58 @@ def chunk_files(cache):
     return sorted((cache / "responses").glob("c.*"))
 
 
-@pytest.mark.parametrize("damage", ["truncate", "garbage-meta", "delete-chunk", "delete-array"])
+def retable(cache, relative):
+    """Record a file's present size and SHA-256 in the store's table, as an edit that knows the
+    table would."""
+    import hashlib
+    meta = json.loads((cache / "meta.json").read_text())
+    data = (cache / relative).read_bytes()
+    meta["table"][relative] = [len(data), hashlib.sha256(data).hexdigest()]
+    (cache / "meta.json").write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage-meta", "delete-chunk", "delete-array",
+                                    "lost chunk and a stray file", "swapped chunks", "chunk copied over another",
+                                    "big-endian metadata", "a group for an array", "a huge chunk"])
 def test_a_damaged_store_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
-    """Damage that a walk of the names shows (a file count, a missing array) or the metadata
-    shows rebuilds at open; no chunk is read to find it."""
+    """Damage that the folder's walk against the entry's table shows (a missing, extra or resized
+    file), or the metadata, rebuilds at open; a chunk moved to another's place fails the table's
+    check of it when it is read (here at open: a small dataset is read whole)."""
+    from ringlight.core.dataset import response_store
+    monkeypatch.setattr(response_store, "CHUNK_BYTES", 4 * 49 * 12)  # 2 x 2 points a chunk: 12 chunks
     truth = np.array(open_dataset(dataset, radius=4).responses)
     cache = dataset / CACHE_FOLDER_NAME
-    target = chunk_files(cache)[0]
+    chunks = chunk_files(cache)
+    target = chunks[0]
+    metadata = cache / "responses" / "zarr.json"
     if damage == "truncate":
-        (cache / "responses" / "zarr.json").write_text("{")
+        metadata.write_text("{")
     elif damage == "garbage-meta":
         (cache / "meta.json").write_text("{")
     elif damage == "delete-chunk":
         target.unlink()  # zarr would read a missing chunk as zeros
+    elif damage == "lost chunk and a stray file":  # as many files as written
+        target.unlink()
+        (cache / "responses" / ".DS_Store").write_bytes(b"finder")
+    elif damage in ("swapped chunks", "chunk copied over another"):
+        same_size = [chunk for chunk in chunks[1:] if chunk.stat().st_size == target.stat().st_size]
+        other = same_size[0] if same_size else chunks[1]
+        first, second = target.read_bytes(), other.read_bytes()
+        target.write_bytes(second)
+        if damage == "swapped chunks":
+            other.write_bytes(first)
+        meta = json.loads((cache / "meta.json").read_text())
+        for chunk in (target, other):  # sizes as recorded: only the position check can tell
+            meta["table"][chunk.relative_to(cache).as_posix()][0] = chunk.stat().st_size
+        (cache / "meta.json").write_text(json.dumps(meta))
+    elif damage == "big-endian metadata":
+        metadata.write_text(metadata.read_text().replace('"little"', '"big"'))
+    elif damage == "a group for an array":
+        metadata.write_text(json.dumps({"zarr_format": 3, "node_type": "group", "attributes": {}}))
+        retable(cache, "responses/zarr.json")
+    elif damage == "a huge chunk":  # 4 GiB, sparse: never read
+        with open(target, "r+b") as handle:
+            handle.truncate(2**32)
     else:
         (cache / "lit_counts" / "zarr.json").unlink()
     reads = CountingReads(monkeypatch)
@@ -290,3 +329,27 @@ def test_only_ringlights_abandoned_cache_folders_are_swept(dataset, monkeypatch)
     for name in kept:
         assert os.path.lexists(dataset / name), name
     assert (user / "notes.txt").read_text() == "keep"
+
+
+def test_a_damaged_chunk_read_out_of_core_by_the_command_line_prints_one_line(tmp_path, monkeypatch):
+    """The line naming the store, and nothing after it: zarr's event loop still held the other
+    chunks' reads when the command exited, and asyncio logged "Task was destroyed but it is
+    pending!" for each of them."""
+    import subprocess
+    import sys
+
+    from ringlight.core.dataset import response_store
+    monkeypatch.setattr(response_store, "CHUNK_BYTES", 1)  # 1 x 1 point chunks: 40 in a band read at once
+    rng = np.random.default_rng(4)
+    write_dataset(tmp_path / "ds", 40, 40, random_impulses(rng, 40, 40, support=3), max_radius=40.0)
+    budget = 64 * 2**20  # the least budget taken: under the 94 MiB of responses at radius 40
+    assert not open_dataset(tmp_path / "ds", memory_budget_bytes=budget).in_memory
+    chunk = tmp_path / "ds" / CACHE_FOLDER_NAME / "responses" / "c.0.0.0.0"  # the others read meanwhile
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    result = subprocess.run([sys.executable, "-m", "ringlight.app.main", "stack", str(tmp_path / "ds"),
+                             "--radii", "0:2:1", "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                            timeout=300, env={**os.environ, "RINGLIGHT_MEMORY_BUDGET": str(budget)})
+    assert result.returncode != 0
+    assert result.stderr.count("\n") == 1 and "damaged cache chunk" in result.stderr, result.stderr

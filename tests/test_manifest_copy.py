@@ -2,7 +2,10 @@
 made from the same bytes and passes the checks again."""
 
 import dataclasses
+import hashlib
+import io
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -79,11 +82,29 @@ def test_an_edited_manifest_is_parsed_again(dataset):
     assert load_manifest(dataset).notes == "edited after the store was written"
 
 
+def retable(entry, relative):
+    """Record the file's present size and SHA-256 in the store's table, as an edit made knowing
+    the table would: the copy's own checks must then refuse it."""
+    meta = json.loads((entry / "meta.json").read_text())
+    data = (entry / relative).read_bytes()
+    meta["table"][relative] = [len(data), hashlib.sha256(data).hexdigest()]
+    (entry / "meta.json").write_text(json.dumps(meta))
+
+
+def npy_claiming(shape):
+    """The bytes of an .npy file of int64 whose header claims ``shape`` but holds 16 bytes."""
+    header = repr({"descr": "<i8", "fortran_order": False, "shape": shape}).encode()
+    header += b" " * (-(10 + len(header) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header + bytes(16)
+
+
 @pytest.mark.parametrize("damage", ["lit outside the grid", "file outside the folder", "counts", "garbage",
-                                    "another digest", "a link"])
+                                    "another digest", "a link", "a huge header", "counts that wrap",
+                                    "exposures edited, table not"])
 def test_a_copy_that_fails_a_check_is_ignored(dataset, monkeypatch, damage):
     open_dataset(dataset)
-    path = cache_location(dataset) / COPY_NAME
+    entry = cache_location(dataset)
+    path = entry / COPY_NAME
     with np.load(path) as stored:
         arrays = dict(stored)
     if damage == "lit outside the grid":
@@ -92,15 +113,30 @@ def test_a_copy_that_fails_a_check_is_ignored(dataset, monkeypatch, damage):
         arrays["files"] = np.array(["../elsewhere.exr", *arrays["files"][1:].tolist()])
     elif damage == "counts":
         arrays["counts"][0] += 1
+    elif damage == "counts that wrap":  # each positive, their int64 sum still the points' count
+        arrays["counts"][:4] += 2**62
     elif damage == "another digest":
         arrays["digest"] = np.str_("0" * 64)
+    elif damage == "exposures edited, table not":
+        arrays["exposures"] = arrays["exposures"] * 2
     if damage == "garbage":
         path.write_bytes(b"PK\x03\x04 not a zip")
     elif damage == "a link":  # the very copy, moved out of the store and linked in: never followed
         path.rename(dataset / "moved.npz")
         path.symlink_to(dataset / "moved.npz")
+    elif damage == "a huge header":  # 10^12 lit points claimed: never allocated
+        with zipfile.ZipFile(path, "w") as archive:
+            for name, array in arrays.items():
+                if name == "lit":
+                    archive.writestr("lit.npy", npy_claiming((10**12, 2)))
+                else:
+                    buffer = io.BytesIO()
+                    np.save(buffer, array)
+                    archive.writestr(f"{name}.npy", buffer.getvalue())
     else:
         np.savez(path, **arrays)
+    if damage not in ("a link", "exposures edited, table not"):
+        retable(entry, COPY_NAME)
     calls = []
     monkeypatch.setattr(copy_module, "decode_json", lambda *args: calls.append(1) or json.loads(args[0]))
     assert_same_manifest(load_manifest(dataset), read_manifest(dataset))

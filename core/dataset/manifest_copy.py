@@ -9,18 +9,21 @@ exposures, lit points, and how many points each frame lights). :func:`load_manif
 manifest's bytes and hashes them (0.1 s at that size); when the copy was made from the same bytes
 it is used, else the manifest is parsed.
 
-The copy is checked again on load as far as it costs little: the manifest's keys go through
-:func:`.manifest.parse_manifest` again, every file name through the same rules, and every lit
-point must lie inside the grid. Only the spacing of multiplexed points is not checked again. A
-copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
+The copy is read only when its bytes are those the store's table recorded
+(:func:`.response_store.entry_file`: an edited copy, even one that keeps the digest, is not
+used), every array's declared size must fit the bytes that hold it (a header claiming 10^12
+points is not allocated), and then it is checked again as far as it costs little: the manifest's
+keys go through :func:`.manifest.parse_manifest` again, every file name through the same rules, and
+every lit point must lie inside the grid. Only the spacing of multiplexed points is not checked
+again. A copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
-import os
-import stat
+import math
 import zipfile
 from dataclasses import fields
 from pathlib import Path
@@ -31,6 +34,7 @@ from ..colourspaces import colourspace_json
 from ..errors import DatasetError
 from ..validation import Validator, decode_json, read_bounded
 from .cache import cache_location
+from .response_store import entry_file
 from .manifest import (
     FLOAT32_MAX,
     FLOAT32_TINY,
@@ -55,7 +59,7 @@ def load_manifest(folder: str | Path) -> Manifest:
     folder, path = locate_manifest(folder)
     data = read_bounded(path, DatasetError, "manifest")
     digest = hashlib.sha256(data).hexdigest()
-    copy = read_manifest_copy(cache_location(folder) / COPY_NAME, folder, digest)
+    copy = read_manifest_copy(cache_location(folder), folder, digest)
     if copy is not None:
         return copy
     return parse_manifest(decode_json(data, path, DatasetError, "manifest"), folder, source_sha256=digest)
@@ -89,24 +93,26 @@ def _keys(manifest: Manifest) -> dict:
     return {field.name: getattr(manifest, field.name) for field in fields(manifest) if field.name != "frames"}
 
 
-def read_manifest_copy(path: Path, folder: Path, digest: str) -> Manifest | None:
-    """The manifest of the copy at ``path`` when it was made from ``dataset.json`` bytes of SHA-256
-    ``digest`` and passes the checks of the module docstring; else None."""
+def read_manifest_copy(entry: Path, folder: Path, digest: str) -> Manifest | None:
+    """The manifest of the copy in the store entry ``entry`` when it was made from ``dataset.json``
+    bytes of SHA-256 ``digest`` and passes the checks of the module docstring; else None."""
+    data = entry_file(entry, COPY_NAME)
+    if data is None:
+        return None
     try:
-        if not stat.S_ISREG(os.lstat(path).st_mode):
-            return None
-        with open(path, "rb") as handle:
-            with zipfile.ZipFile(handle) as archive:
-                if sum(member.file_size for member in archive.infolist()) > MAX_COPY_BYTES:
-                    return None
-            handle.seek(0)
-            with np.load(handle, allow_pickle=False) as stored:
-                if int(stored["version"]) != COPY_VERSION or str(stored["digest"]) != digest:
-                    return None
-                header = json.loads(stored["header"].tobytes().decode("utf-8"))
-                files, exposures = stored["files"].tolist(), stored["exposures"]
-                counts, lit = stored["counts"], stored["lit"]
-    except (OSError, ValueError, KeyError, TypeError, EOFError, RecursionError, zipfile.BadZipFile):
+        handle = io.BytesIO(data)
+        with zipfile.ZipFile(handle) as archive:
+            if sum(member.file_size for member in archive.infolist()) > MAX_COPY_BYTES \
+                    or not all(_fits(archive, member) for member in archive.infolist()):
+                return None
+        handle.seek(0)
+        with np.load(handle, allow_pickle=False) as stored:
+            if int(stored["version"]) != COPY_VERSION or str(stored["digest"]) != digest:
+                return None
+            header = json.loads(stored["header"].tobytes().decode("utf-8"))
+            files, exposures = stored["files"].tolist(), stored["exposures"]
+            counts, lit = stored["counts"], stored["lit"]
+    except (OSError, ValueError, KeyError, TypeError, EOFError, RecursionError, MemoryError, zipfile.BadZipFile):
         return None
     try:
         return _rebuild(header, files, exposures, counts, lit, folder, digest)
@@ -114,12 +120,21 @@ def read_manifest_copy(path: Path, folder: Path, digest: str) -> Manifest | None
         return None
 
 
+def _fits(archive: zipfile.ZipFile, member: zipfile.ZipInfo) -> bool:
+    """Whether the array of ``member`` (an .npy file) declares no more bytes than it holds."""
+    with archive.open(member) as stream:
+        version = np.lib.format.read_magic(stream)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read_header(stream)
+    return math.prod(shape) * dtype.itemsize <= member.file_size
+
+
 def _rebuild(header: dict, files: list, exposures: np.ndarray, counts: np.ndarray, lit: np.ndarray,
              folder: Path, digest: str) -> Manifest | None:
     frames_count = len(files)
     if (exposures.shape != (frames_count,) or counts.shape != (frames_count,) or lit.ndim != 2
             or lit.shape[1] != 2 or lit.dtype != np.int64 or counts.dtype != np.int64
-            or np.any(counts < 1) or int(counts.sum()) != len(lit)):
+            or np.any(counts < 1) or np.any(counts > len(lit)) or int(counts.sum()) != len(lit)):
         return None
     height, width = header["grid"]["height"], header["grid"]["width"]
     if not (np.all((lit[:, 0] >= 0) & (lit[:, 0] < height) & (lit[:, 1] >= 0) & (lit[:, 1] < width))

@@ -21,25 +21,33 @@ ringlight's ``meta.json``:
 - ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
   reopen need not parse its JSON;
 - ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
-  and how many files the entry holds.
+  and the entry's table: every other file's path, size and check, which for a responses chunk is
+  its last 4 bytes (the CRC-32C zarr wrote over it) and for any other file (metadata, the small
+  arrays, the manifest's copy) the SHA-256 of its bytes.
 
 Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
-types, and a walk of the folder's names that refuses anything but regular files and folders (a
-symbolic link, FIFO or device planted in it is never opened) and a file count other than the one
-written (a deleted chunk would otherwise read as zeros). Each chunk's checksum is checked when it
-is read; a chunk that fails raises :class:`~ringlight.core.errors.DatasetError` naming the store,
-and the entry is marked stale so that the next open rebuilds it. Entries are written in a
-temporary folder and renamed into place (:func:`ringlight.core.atomic.atomic_folder`).
+types, and a walk of the folder that refuses anything but regular files and folders (a symbolic
+link, FIFO or device planted in it is never opened) and any file the table does not name, lacks
+or gives another size. Every file is then read only as the table says it is (:class:`_TableStore`):
+its size before it is read (a chunk swapped for a huge file is never read), a responses chunk's
+checksum against the table's, so that a chunk moved or copied to another chunk's place fails
+although its own checksum holds, and zarr's checksum of what it decodes. A missing file is an
+error, never zarr's fill value (a lost chunk would read as zeros). A file that fails raises
+:class:`~ringlight.core.errors.DatasetError` naming the store, and the entry is marked stale so
+that the next open rebuilds it. Entries are written in a temporary folder and renamed into place
+(:func:`ringlight.core.atomic.atomic_folder`).
 """
 
 from __future__ import annotations
 
+import asyncio
+import hashlib
 import json
 import math
 import os
 import stat
 import threading
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -53,12 +61,16 @@ from ..atomic import atomic_folder
 from ..errors import DatasetError, RinglightError
 from ..validation import read_json
 
-LAYOUT_VERSION = 4
-"""3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`)."""
+LAYOUT_VERSION = 5
+"""3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
+5: meta.json holds the entry's table of files."""
 CHUNK_BYTES = 8 * 2**20
 """Target size of one uncompressed responses chunk: big enough for compression and few files,
 small enough that a click (one point's chunk) decodes in a few milliseconds."""
 META = "meta.json"
+MAX_META_BYTES = 2**24
+"""Largest meta.json read: its table takes about 45 bytes a chunk (4096 chunks at 1024 px)."""
+_CHUNK_PREFIX = "responses/c."
 _SMALL = ("lit_counts", "observed", "steady")
 OFFSET_MAJOR = (2, 3, 0, 1)
 """Order of the responses' axes inside a stored chunk (module docstring)."""
@@ -110,10 +122,16 @@ class StoreWriter:
         # side, but a call of several chunks first copies each into a new chunk array in its event
         # loop's thread, one after the other, where a call of exactly one chunk encodes the band's
         # view as it is.
-        corners = [(y, x) for y in range(0, band.shape[0], tile) for x in range(0, band.shape[1], tile)]
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            for _ in pool.map(write, corners):
-                pass
+        workers = os.cpu_count() or 1
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            pending: deque = deque()
+            for y in range(0, band.shape[0], tile):
+                for x in range(0, band.shape[1], tile):
+                    if len(pending) == 2 * workers:  # a few chunks in flight, not a future per chunk
+                        pending.popleft().result()
+                    pending.append(pool.submit(write, (y, x)))
+            for future in pending:
+                future.result()
 
     def write_small(self, lit_counts: np.ndarray, observed: np.ndarray, steady: np.ndarray) -> None:
         for name, array in zip(_SMALL, (lit_counts, observed, steady)):
@@ -139,9 +157,101 @@ def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> 
     with atomic_folder(location) as staging:
         writer = StoreWriter(staging, shape, tile)
         yield writer
-        files = sum(len(names) for _, _, names in os.walk(staging)) + 1
-        meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile, "files": files}
+        meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile,
+                "table": _table_of(staging)}
         (staging / META).write_text(json.dumps(meta), encoding="utf-8")
+
+
+def _table_of(folder: Path) -> dict[str, list]:
+    """The table of an entry just written in ``folder`` (module docstring): relative POSIX path ->
+    [size, check]."""
+    table = {}
+    for path, relative in _files(folder):
+        with open(path, "rb") as handle:
+            size = os.fstat(handle.fileno()).st_size
+            if relative.startswith(_CHUNK_PREFIX):
+                handle.seek(max(size - 4, 0))
+                check = handle.read().hex()
+            else:
+                check = hashlib.sha256(handle.read()).hexdigest()
+        table[relative] = [size, check]
+    return table
+
+
+def _files(folder: Path) -> Iterator[tuple[str, str]]:
+    """(path, relative POSIX path) of every entry under ``folder`` but its folders, without
+    pathlib: a Path a chunk interns each chunk's name for good (3.7 MB of Python's table of
+    interned strings for 1920 chunks)."""
+    root = str(folder)
+    for parent, folders, names in os.walk(root):
+        prefix = os.path.relpath(parent, root).replace(os.sep, "/") + "/" if parent != root else ""
+        for name in names + [name for name in folders if os.path.islink(os.path.join(parent, name))]:
+            yield os.path.join(parent, name), prefix + name
+
+
+def file_check(relative: str, data: bytes) -> str:
+    """The table's check of a file's bytes (module docstring)."""
+    return data[-4:].hex() if relative.startswith(_CHUNK_PREFIX) else hashlib.sha256(data).hexdigest()
+
+
+class DamagedEntry(ValueError):
+    """A file of an entry that is not as its table says."""
+
+
+def read_checked(folder: Path, relative: str, table: dict) -> bytes:
+    """The bytes of the entry file ``relative`` when they are as ``table`` says (its size checked
+    before they are read); else raises DamagedEntry naming it (a file the table lacks, or absent,
+    included). Links are not followed and a FIFO is never waited on."""
+    expected = table.get(relative)
+    if expected is None:
+        raise DamagedEntry(f"{relative} is not one of the entry's files")
+    size, check = expected
+    try:
+        descriptor = os.open(os.path.join(folder, relative), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError as error:
+        raise DamagedEntry(f"{relative} cannot be read ({error.strerror or error})") from None
+    with os.fdopen(descriptor, "rb") as handle:
+        info = os.fstat(handle.fileno())
+        if not stat.S_ISREG(info.st_mode) or info.st_size != size:
+            raise DamagedEntry(f"{relative} is not the file written there")
+        data = handle.read(size + 1)
+    if len(data) != size or file_check(relative, data) != check:
+        raise DamagedEntry(f"{relative} differs from the file written there")
+    return data
+
+
+def entry_file(location: Path, relative: str) -> bytes | None:
+    """The bytes of one file of the entry at ``location`` (of this layout) as its table says they
+    are, or None (no entry, a damaged one, or a file other than written)."""
+    try:
+        if not stat.S_ISREG(os.lstat(location / META).st_mode):
+            return None
+        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
+        if not isinstance(meta, dict) or meta.get("layout") != LAYOUT_VERSION or not isinstance(meta.get("table"), dict):
+            return None
+        return read_checked(location, relative, meta["table"])
+    except (OSError, ValueError, TypeError, RinglightError):
+        return None
+
+
+class _TableStore(zarr.storage.LocalStore):
+    """An entry's folder read only, every file as the entry's table says it is (:func:`read_checked`);
+    a file the table does not name is absent."""
+
+    def __init__(self, root: Path, table: dict):
+        super().__init__(root, read_only=True)
+        self._table = table
+
+    async def get(self, key, prototype=None, byte_range=None):
+        if key not in self._table:
+            return None
+        if byte_range is not None:  # only sharded arrays ask for parts of a file
+            raise DamagedEntry(f"{key}: a part of a file was asked for; the entry's arrays are not sharded")
+        data = await asyncio.to_thread(read_checked, self.root, key, self._table)
+        return (prototype or zarr.core.buffer.default_buffer_prototype()).buffer.from_bytes(data)
+
+    async def exists(self, key: str) -> bool:
+        return key in self._table
 
 
 class ResponseStore:
@@ -183,6 +293,7 @@ class ResponseStore:
             band = self._responses[row0:min(row0 + self.tile, self.shape[0])]
         except (ValueError, OSError, RuntimeError) as error:  # a checksum or a decode that failed
             mark_stale(self.path)
+            _settle_reads()
             raise DatasetError(f"{self.path}: damaged cache chunk in rows {row0}.. ({error}); "
                                "open the dataset again to rebuild it") from None
         band.flags.writeable = False
@@ -206,8 +317,24 @@ class ResponseStore:
             return self._responses[row0:row1, col0:col1]
         except (ValueError, OSError, RuntimeError) as error:
             mark_stale(self.path)
+            _settle_reads()
             raise DatasetError(f"{self.path}: damaged cache chunk ({error}); "
                                "open the dataset again to rebuild it") from None
+
+
+def _settle_reads() -> None:
+    """Wait until zarr's event loop has finished every read it still holds. A read that fails in
+    one chunk raises while the loop still reads its others; a command that then reports the error
+    and exits left them pending, and Python printed a warning and a traceback for each (after the
+    error's one line)."""
+    async def settle() -> None:
+        others = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+        await asyncio.gather(*others, return_exceptions=True)
+
+    try:
+        zarr.core.sync.sync(settle())
+    except Exception:  # nothing to add to the error being reported
+        pass
 
 
 def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int) -> ResponseStore | None:
@@ -221,33 +348,48 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
             return None
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
-        files = 0
-        for folder, folders, names in os.walk(location):
-            for name in folders + names:
-                mode = os.lstat(os.path.join(folder, name)).st_mode
-                if not (stat.S_ISREG(mode) or (stat.S_ISDIR(mode) and name in folders)):
-                    return None
-            files += len(names)
-        if files != meta.get("files"):
+        table = entry_table(location, meta)
+        if table is None:
             return None
-        group = zarr.open_group(zarr.storage.LocalStore(location, read_only=True), mode="r")
+        group = zarr.open_group(_TableStore(location, table), mode="r", zarr_format=3)
         responses = group["responses"]
         height, width = shape[:2]
         expected = {"lit_counts": ((height, width), np.int32), "observed": ((height, width), np.bool_),
                     "steady": ((height, width, 3), np.float32)}
-        if responses.shape != tuple(shape) or responses.dtype != np.float32 \
-                or responses.chunks != (meta["tile"], meta["tile"], shape[2], shape[3]):
+        if not isinstance(responses, zarr.Array) or responses.shape != tuple(shape) \
+                or responses.dtype != np.float32 or responses.chunks != (meta["tile"], meta["tile"], shape[2], shape[3]):
             return None
         small = {}
         for name in _SMALL:
             array = group[name]
-            if (array.shape, array.dtype) != (expected[name][0], np.dtype(expected[name][1])):
+            if not isinstance(array, zarr.Array) \
+                    or (array.shape, array.dtype) != (expected[name][0], np.dtype(expected[name][1])):
                 return None
             small[name] = array[...]
     except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
         return None
     return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
                          small["steady"], keep_bytes)
+
+
+def entry_table(location: Path, meta: dict) -> dict | None:
+    """The table of the entry at ``location`` from its ``meta``, when it is well formed and the
+    folder holds exactly its files at their sizes, and nothing but regular files and folders;
+    else None. Reads no file."""
+    table = meta.get("table")
+    if not isinstance(table, dict) or not all(
+            isinstance(entry, list) and len(entry) == 2 and type(entry[0]) is int and isinstance(entry[1], str)
+            for entry in table.values()):
+        return None
+    found = 0
+    for path, relative in _files(location):
+        if relative == META:
+            continue
+        info = os.lstat(path)
+        if not stat.S_ISREG(info.st_mode) or table.get(relative, [None])[0] != info.st_size:
+            return None
+        found += 1
+    return table if found == len(table) else None
 
 
 def stored_entry_bytes(location: Path, key: str) -> int | None:
@@ -264,7 +406,7 @@ def _current_meta(location: Path, key: str) -> dict | None:
     None (raises OSError or RinglightError for a file that cannot be read)."""
     if not stat.S_ISREG(os.lstat(location / META).st_mode):
         return None
-    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=2**16)
+    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
     if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
         return None
     return meta
