@@ -78,6 +78,7 @@ class DatasetOpening:
         self._apply_radius_unit()
         if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
             self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
+            self._hovered = None
             self.hover_label.clear()
         self._install_stacks(loaded.stacks)
         self._remember_recent(dataset.path)

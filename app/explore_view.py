@@ -21,6 +21,7 @@ from ringlight.core.colour.regions import region_statistics
 from ringlight.core.dataset.ground_truth import normalised_cross_correlation, scaled_difference
 from ringlight.core.rings.noise import smoothed
 from ringlight.core.rings.profiles import pixel_profile, stack_profile
+from ringlight.core.uncertainty_text import with_error
 from ringlight.widgets.snr_colours import SNR_LEVELS, snr_colormap_name
 
 
@@ -63,10 +64,21 @@ class ExploreView:
         self._refresh_image()
 
     def _on_hover(self, y: int, x: int) -> None:
-        self.hover_label.setText(self.describe_pixel(y, x) if y >= 0 else "")
+        self._hovered = (y, x) if y >= 0 else None
+        self._refresh_hover()
+
+    def _refresh_hover(self) -> None:
+        """The readout of the hovered pixel, again: the image under it changes with the radius,
+        the view and the noise estimate (it kept the last image's numbers)."""
+        hovered = self._hovered
+        shape = None if self._shown_image is None else self._shown_image.shape
+        inside = hovered is not None and shape is not None and hovered[0] < shape[0] and hovered[1] < shape[1]
+        self.hover_label.setText(self.describe_pixel(*hovered) if inside else "")
 
     def describe_pixel(self, y: int, x: int) -> str:
-        """Full-precision value of the shown image at (y, x) and the ring points behind it."""
+        """The shown image's value at (y, x), with its standard error once the noise is estimated
+        (ring and transient views; the value then to the digit the error allows), and the ring
+        points behind it."""
         if self._shown_image is None or self.stacks is None:
             return ""
         index = self.radius_index()
@@ -80,13 +92,28 @@ class ExploreView:
                     f"ring points: {int(stack.counts[index, y, x])} at r, "
                     f"{int(stack.outer_counts[index, y, x])} at r+dr")
         value = self._shown_image[y, x]
-        text = f"y {y}  x {x}   RGB " + " ".join(f"{float(channel):.9g}" for channel in value)
+        errors = self._pixel_errors(view, index, y, x)
+        text = f"y {y}  x {x}   RGB " + " ".join(
+            with_error(float(channel), None if errors is None else float(error))
+            for channel, error in zip(value, errors if errors is not None else value))
+        if errors is not None:
+            text += " (±1 SE)"
+        elif view in ("ring", "transient"):
+            text += " (SE: estimating the noise)" if self.noise is None else ""
         if view in ("ring", "transient"):
             stack = self.stacks.pair.transient
             text += f"   ring points: {int(stack.counts[index, y, x])} at r"
             if view == "transient":
                 text += f", {int(stack.outer_counts[index, y, x])} at r+dr"
         return text
+
+    def _pixel_errors(self, view: str, index: int, y: int, x: int) -> np.ndarray | None:
+        """(3,) standard error of the shown ring or transient image at (y, x), or None (another
+        view, or no noise estimate of these stacks yet)."""
+        if view not in ("ring", "transient") or self.noise is None or self.noise.pair is not self.stacks.pair:
+            return None
+        noise = self.noise.noise.transient if view == "transient" else self.noise.noise.ring
+        return noise[index, y, x]
 
     def cancel_all(self) -> None:
         for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
@@ -174,6 +201,10 @@ class ExploreView:
         self._refresh_profiles()
 
     def _refresh_image(self) -> None:
+        self._draw_image()
+        self._refresh_hover()
+
+    def _draw_image(self) -> None:
         if self.view() == "snr":
             self._refresh_snr_image()
             return

@@ -73,6 +73,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self._histograms: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # kept until the stacks change
         self._impulse_cache: tuple[tuple[int, int], np.ndarray] | None = None
         self._shown_image: np.ndarray | None = None
+        self._hovered: tuple[int, int] | None = None  # the grid point under the mouse, for the readout
         self.truth_correlation = float("nan")
 
         self.pool = QThreadPool(self)

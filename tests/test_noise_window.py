@@ -3,6 +3,7 @@ display-only denoise and the Layers tab's trusted flags, against brute-force rin
 (test_noise.brute_ring_se, reference.brute_ring_image) computed here, never by the code under test."""
 
 import json
+import math
 import threading
 import time
 
@@ -258,3 +259,35 @@ def test_the_layers_table_shows_pending_then_the_snr_behind_each_flag(qtbot, win
         assert panel.table.item(row, 9).text() == ("yes" if expected >= 3 else "no")
         assert "at least 3 standard errors" in panel.table.item(row, 9).toolTip()
     assert [layer.trusted for layer in window.layer_tab.analysis.result.layers] == [True, False]
+
+
+def readout_numbers(text):
+    """[(value, error)] of the readout's RGB, ``0.1912±0.0031`` each."""
+    tokens = text.split("RGB ")[1].split(" (")[0].split()
+    return [tuple(float(part) for part in token.split("±")) for token in tokens]
+
+
+def test_the_hover_readout_gives_each_value_with_its_standard_error_and_follows_the_radius(qtbot, window, dataset,
+                                                                                          brute):
+    """The values to the digit their error allows (the error to two significant digits), against
+    brute-force transients and ring-spread errors; scrubbing with the mouse still updates it."""
+    open_with_noise(qtbot, window, dataset)
+    window.display_controls.set_view("transient")
+    y, x = 6, 4
+    window.set_radius(1.0)
+    window._on_hover(y, x)
+    for radius in (1, 2, 3):
+        window.set_radius(float(radius))  # the mouse has not moved: the readout follows the image
+        text = window.hover_label.text()
+        assert text.startswith(f"y {y}  x {x}   RGB ") and text.endswith(" at r+dr") and "(±1 SE)" in text
+        for (value, error), truth, truth_error in zip(readout_numbers(text), brute["transient"][radius, y, x],
+                                                      brute["transient_se"][radius, y, x]):
+            unit = 10.0 ** (math.floor(math.log10(truth_error)) - 1)  # the error's second digit
+            assert abs(error - truth_error) <= 0.5 * unit * 1.001 + 1e-4 * truth_error
+            assert abs(value - truth) <= 0.5 * unit * 1.001 + 1e-4 * abs(truth)
+    window.display_controls.set_view("ring")
+    for (value, error), truth, truth_error in zip(readout_numbers(window.hover_label.text()),
+                                                  brute["ring"][3, y, x], brute["ring_se"][3, y, x]):
+        unit = 10.0 ** (math.floor(math.log10(truth_error)) - 1)
+        assert abs(error - truth_error) <= 0.5 * unit * 1.001 + 1e-4 * truth_error
+        assert abs(value - truth) <= 0.5 * unit * 1.001 + 1e-4 * abs(truth)

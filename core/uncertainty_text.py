@@ -1,0 +1,29 @@
+"""Numbers as text with how sure we are of them: a value and its standard error, the value given
+to the digit its error allows (the usual rule: the error to two significant digits)."""
+
+from __future__ import annotations
+
+import math
+
+FREE_DIGITS = 4
+"""Significant digits of a value shown without an error (none estimated yet, or none defined)."""
+
+
+def with_error(value: float, error: float | None) -> str:
+    """``value`` and its standard error ``error`` as ``0.1912±0.0031``: the error to two
+    significant digits and the value to the same decimal; in a shared power of ten
+    (``(2.48±0.13)e-05``) when plain decimals would need more than six places or the value is
+    10^6 or more. Without a finite, positive error, the value to :data:`FREE_DIGITS` significant
+    digits; a value that is not finite is ``undefined``."""
+    if not math.isfinite(value):
+        return "undefined"
+    if error is None or not math.isfinite(error) or error <= 0:
+        return f"{value:.{FREE_DIGITS}g}"
+    last = math.floor(math.log10(error)) - 1  # the power of ten of the error's second digit
+    if -6 <= last and abs(value) < 1e6:
+        decimals = max(0, -last)
+        return f"{round(value, -last):.{decimals}f}±{round(error, -last):.{decimals}f}"
+    exponent = math.floor(math.log10(max(abs(value), error)))
+    scale = 10.0 ** exponent
+    decimals = max(0, exponent - last)
+    return f"({value / scale:.{decimals}f}±{error / scale:.{decimals}f})e{exponent:+03d}"
