@@ -49,12 +49,20 @@ class DatasetOpening:
         self.load_jobs.start(description, lambda progress: load_for_viewing(
             path, request, progress, sample=sample, preview=self.steady_previewed.emit))
 
+    def _on_open_cancelled(self) -> None:
+        self._open_cancelled = True
+
     def _hint_when_empty(self) -> None:
-        """With no dataset shown (first start, an open cancelled or failed), say how to get one."""
+        """With no dataset shown (first start, an open cancelled or failed), say how to get one;
+        after a cancelled open, say so (and that the dataset on screen, if any, stays)."""
+        cancelled, self._open_cancelled = self._open_cancelled, False
         if self.loaded is None:
             self.image_panel.clear_image()  # a steady-state preview of an open that did not finish
             self.image_panel.set_title(EMPTY_HINT)
-            self.statusBar().showMessage(EMPTY_HINT)
+            self.statusBar().showMessage(("Opening cancelled; nothing of it was kept. " if cancelled else "")
+                                         + EMPTY_HINT)
+        elif cancelled:
+            self.statusBar().showMessage(f"Opening cancelled; {self.loaded.dataset.path.name} stays open", 10000)
 
     def _open_captured(self, path: str) -> None:
         self.main_tabs.setCurrentIndex(0)

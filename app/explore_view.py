@@ -31,6 +31,8 @@ class ExploreView:
     def pick(self, y: int, x: int) -> None:
         """Mark grid point (y, x): ring overlay, profiles and (for the impulse view) the image."""
         if self.loaded is None:
+            if self.load_jobs.busy:  # a click on the steady state's preview
+                self.statusBar().showMessage("Still opening: points can be picked once the stacks are ready", 5000)
             return
         self.picked = (int(y), int(x))
         if self.view() == "impulse":

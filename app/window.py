@@ -20,6 +20,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 from ringlight.core import RinglightError
+from ringlight.core.colour.display import warm_up_display
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
 from ringlight.core.rings.stacks import warm_up_kernels
@@ -74,6 +75,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self._impulse_cache: tuple[tuple[int, int], np.ndarray] | None = None
         self._shown_image: np.ndarray | None = None
         self._hovered: tuple[int, int] | None = None  # the grid point under the mouse, for the readout
+        self._open_cancelled = False  # until the load slot is next idle
         self.truth_correlation = float("nan")
 
         self.pool = QThreadPool(self)
@@ -91,7 +93,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self.capture_pool.setMaxThreadCount(1)
 
         # Numba's one-time set-up holds the GIL for ~0.1 s: pay it now, in the worker, not mid-use.
-        self.pool.start(warm_up_kernels)
+        self.pool.start(_warm_up)
         self._build_widgets()
         self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs,
                                   self.fit_jobs, self)
@@ -168,6 +170,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
     def _connect(self) -> None:
         self.load_jobs.finished.connect(self._on_loaded)
         self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
+        self.load_jobs.cancelled.connect(self._on_open_cancelled)
         self.load_jobs.idle.connect(self._hint_when_empty)
         self.steady_previewed.connect(self.show_steady_preview)
         self.stack_jobs.finished.connect(self._on_stacks_ready)
@@ -283,3 +286,10 @@ def _safe_radii(request: StackRequest) -> np.ndarray:
         return request.radii()
     except RinglightError:
         return np.zeros(0)
+
+
+def _warm_up() -> None:
+    """The compiled kernels of an open, a stack and the image's drawing, loaded in a worker at
+    start-up (see :func:`~ringlight.core.rings.stacks.warm_up_kernels`)."""
+    warm_up_kernels()
+    warm_up_display()

@@ -62,8 +62,11 @@ def test_opening_out_of_core_previews_the_steady_state_band_by_band(qtbot, windo
     monkeypatch.setattr(impulse_dataset, "memory_budget", lambda: 1)
     previews = []
     window.steady_previewed.connect(lambda steady, rows, colorspace: previews.append((steady, rows)))
+    said = []  # a click on the preview, while it opens: told why nothing happens
+    window.steady_previewed.connect(lambda *_: (window.pick(1, 1), said.append(window.statusBar().currentMessage())))
     with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
         window.open_dataset(str(folder))
+    assert said[0] == "Still opening: points can be picked once the stacks are ready"
     # Five 4-row bands as the store is built, then the whole steady state before the stacks.
     assert [rows for _, rows in previews] == [4, 8, 12, 16, 20, 20]
     for steady, rows in previews:
@@ -77,3 +80,21 @@ def test_opening_out_of_core_previews_the_steady_state_band_by_band(qtbot, windo
     assert "rows 0..8 of 20" in window.image_panel.title.textItem.toPlainText()
     window._hint_when_empty()  # the open failed or was cancelled: the preview goes
     assert window.image_panel.pixels() is None
+
+
+def test_the_display_kernels_are_loaded_before_the_first_image_is_drawn(qtbot, window, folder, monkeypatch):
+    """The window's start-up warm-up covers the kernels' types of every image drawn here (steady
+    state, stacks, an impulse image read from the store), so that none compiles on the GUI thread."""
+    from ringlight.core.colour import display
+    display.warm_up_display()
+    kernels = (display._colour_pass, display._finite_and_negative)
+    warmed = [set(kernel.signatures) for kernel in kernels]
+    monkeypatch.setattr(impulse_dataset, "memory_budget", lambda: 1)
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.open_dataset(str(folder))
+    for view in ("steady", "ring", "transient", "impulse"):
+        window.display_controls.set_view(view)
+    qtbot.waitUntil(lambda: window._impulse_cache is not None, timeout=TIMEOUT_MS)
+    window.display_controls.set_view("steady")
+    window.display_controls.set_view("impulse")  # drawn from the cache now
+    assert [set(kernel.signatures) for kernel in kernels] == warmed

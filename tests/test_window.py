@@ -413,6 +413,7 @@ def test_cancelling_an_open_keeps_the_current_dataset(qtbot, window, dataset, tm
     window.pool.waitForDone()
     qtbot.wait(20)
     assert window.loaded.dataset.path == dataset and not window.load_jobs.busy
+    assert window.statusBar().currentMessage() == f"Opening cancelled; {dataset.name} stays open"
 
 
 def test_layers_tab_recovers_the_known_layers_from_picked_radii(qtbot, window, tmp_path):

@@ -120,6 +120,7 @@ def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, windo
         window.cancel_all()
     assert window.loaded is None
     assert window.image_panel.title.toPlainText() == EMPTY_HINT
+    assert window.statusBar().currentMessage() == "Opening cancelled; nothing of it was kept. " + EMPTY_HINT
 
 
 def test_shortcut_sheet_lists_every_menu_shortcut(window):
