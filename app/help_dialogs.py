@@ -13,6 +13,8 @@ from PySide6.QtCore import Qt, QUrl
 from PySide6.QtGui import QKeySequence
 from PySide6.QtWidgets import QDialog, QDialogButtonBox, QLabel, QMessageBox, QVBoxLayout
 
+from .dataset_info import describe_dataset
+
 PAPER = ('K. Nishino, A. Subpa-asa, Y. Asano, M. Shimano and I. Sato, "Variable Ring Light Imaging: '
          'Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018')
 README_SECTIONS = ("Explorer window", "Capture", "Command line", "Safety: what ringlight promises about your data")
@@ -46,7 +48,22 @@ class HelpDialogs:
         ]
 
     def _show_shortcuts(self) -> None:
-        self._information("Keyboard shortcuts", "\n".join(self.shortcut_lines()))
+        self._information("Keyboard shortcuts", "\n".join(self.shortcut_lines()), columns=True)
+
+    def dataset_information(self) -> str:
+        """What ``ringlight info`` says of the dataset on screen (its file checks aside), and how
+        it is open; empty with none."""
+        if self.loaded is None:
+            return ""
+        dataset = self.loaded.dataset
+        opened = "in memory" if dataset.in_memory else "out of core: read from its store band by band"
+        return "\n".join([*describe_dataset(dataset.manifest), f"opened       {opened}"])
+
+    def _show_dataset_information(self) -> None:
+        if self.loaded is None:
+            self.statusBar().showMessage("No dataset open", 5000)
+            return
+        self._information("Dataset information", self.dataset_information(), columns=True)
 
     def _show_about(self) -> None:
         """About ringlight: version, paper, and the README's sections as links (opened by the desktop)."""
@@ -67,7 +84,11 @@ class HelpDialogs:
         layout.addWidget(buttons)
         dialog.open()  # not exec(): the window keeps running behind it
 
-    def _information(self, title: str, text: str) -> None:
+    def _information(self, title: str, text: str, columns: bool = False) -> None:
+        """An information box; ``columns``: a fixed-width font, so that lines padded into columns
+        line up."""
+        if columns:
+            text = f"<pre>{html.escape(text)}</pre>"
         box = QMessageBox(QMessageBox.Icon.Information, title, text, QMessageBox.StandardButton.Ok, self)
         box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         box.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)

@@ -74,4 +74,6 @@ class WindowMenus:
             view_menu.addAction(dock.toggleViewAction())
         help_menu = self.menuBar().addMenu("&Help")
         self._action(help_menu, "&Keyboard shortcuts", self._show_shortcuts, "F1")
+        self._action(help_menu, "Dataset &information", self._show_dataset_information, "Ctrl+I",
+                     "The dataset on screen: grid, frames, the responses' size, its store and the memory an open takes")
         self._action(help_menu, "&About ringlight", self._show_about)

@@ -13,12 +13,15 @@ def with_error(value: float, error: float | None) -> str:
     """``value`` and its standard error ``error`` as ``0.1912±0.0031``: the error to two
     significant digits and the value to the same decimal; in a shared power of ten
     (``(2.48±0.13)e-05``) when plain decimals would need more than six places or the value is
-    10^6 or more. Without a finite, positive error, the value to :data:`FREE_DIGITS` significant
-    digits; a value that is not finite is ``undefined``."""
+    10^6 or more. Without a finite error, the value to :data:`FREE_DIGITS` significant digits; an
+    error of 0 (ring members all alike: a laterally uniform simulation) is shown as ``±0``; a
+    value that is not finite is ``undefined``."""
     if not math.isfinite(value):
         return "undefined"
-    if error is None or not math.isfinite(error) or error <= 0:
+    if error is None or not math.isfinite(error) or error < 0:
         return f"{value:.{FREE_DIGITS}g}"
+    if error == 0:
+        return f"{value:.{FREE_DIGITS}g}±0"
     last = math.floor(math.log10(error)) - 1  # the power of ten of the error's second digit
     if -6 <= last and abs(value) < 1e6:
         decimals = max(0, -last)

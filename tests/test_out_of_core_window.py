@@ -98,3 +98,19 @@ def test_the_display_kernels_are_loaded_before_the_first_image_is_drawn(qtbot, w
     window.display_controls.set_view("steady")
     window.display_controls.set_view("impulse")  # drawn from the cache now
     assert [set(kernel.signatures) for kernel in kernels] == warmed
+
+
+def test_dataset_information_says_how_big_it_is_where_its_store_is_and_how_it_is_open(qtbot, window, folder,
+                                                                                       monkeypatch):
+    from ringlight.core.dataset.memory import format_bytes
+
+    monkeypatch.setattr(impulse_dataset, "memory_budget", lambda: 1)
+    with qtbot.waitSignal(window.stacks_ready, timeout=TIMEOUT_MS):
+        window.open_dataset(str(folder))
+    lines = {line[:12].strip(): line[13:] for line in window.dataset_information().splitlines()}
+    responses = 20 * 17 * disc_offset_count(4.0) * 3 * 4  # grid points x offsets x channels x float32
+    assert lines["grid"] == "20 x 17"
+    assert lines["responses"].startswith(f"{format_bytes(responses)} at radius 4 ")
+    stored = sum(path.stat().st_size for path in (folder / ".ringlight-cache").rglob("*") if path.is_file())
+    assert lines["store"] == f"{format_bytes(stored)} on disk in {(folder / '.ringlight-cache').resolve()}"
+    assert lines["opened"] == "out of core: read from its store band by band"

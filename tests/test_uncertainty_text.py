@@ -18,7 +18,8 @@ from ringlight.core.uncertainty_text import with_error
     (1234567.0, 5000.0, "(1.2346±0.0050)e+06"),
     (0.191223145, None, "0.1912"),  # no error yet: 4 significant digits
     (0.191223145, math.nan, "0.1912"),
-    (3.0, 0.0, "3"),
+    (3.0, 0.0, "3±0"),  # members all alike: the spread says 0
+    (3.0, -1.0, "3"),
     (math.nan, 0.1, "undefined"),
 ])
 def test_a_value_is_given_to_the_digit_its_error_allows(value, error, text):
