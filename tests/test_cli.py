@@ -75,9 +75,26 @@ def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impul
     assert f"open memory  about {88 * 21 * 13 / 2**10:.1f} KiB (in memory; memory budget" in out
     open_dataset(tmp_path / "ds")
     assert main(["info", str(tmp_path / "ds")]) == 0
-    assert re.search(r"store        \d+(\.\d)? KiB on disk in .*\.ringlight-cache", capsys.readouterr().out)
+    again = capsys.readouterr().out
+    assert re.search(r"store        \d+(\.\d)? KiB on disk in .*\.ringlight-cache", again)
+    assert "(in memory; memory budget" in again  # a small store is read whole at a reopen
     assert "ground truth 1 path-length images over [0, 2)" in out
     assert "top: depth 0-1, rgb (0.500, 0.250, 0.125)" in out
+
+
+def test_info_says_a_reopen_of_a_large_store_reads_it_band_by_band(tmp_path, impulses, capsys, monkeypatch):
+    """A store over WHOLE_READ_BYTES that fits the budget is built in memory but read back lazily."""
+    from ringlight.core.dataset import impulse_dataset, open_plan
+    write_dataset(tmp_path / "ds", 11, 8, impulses, max_radius=2.5, multiplex=True)
+    responses = 88 * 21 * 12
+    for module in (impulse_dataset, open_plan):
+        monkeypatch.setattr(module, "WHOLE_READ_BYTES", responses - 1)
+    first = open_dataset(tmp_path / "ds")
+    assert first.in_memory
+    assert not open_dataset(tmp_path / "ds").in_memory  # the reopen reads the store lazily
+    assert main(["info", str(tmp_path / "ds")]) == 0
+    assert (f"(read from its store band by band, as it is over {(responses - 1) / 2**10:.1f} KiB; built in memory "
+            "at the first open; memory budget") in capsys.readouterr().out
 
 
 def test_demo_command_writes_the_demo_dataset_once_and_describes_it(capsys, monkeypatch, private_cache):

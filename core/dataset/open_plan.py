@@ -35,16 +35,28 @@ class OpenPlan:
         return not fits_in_memory(self.response_bytes, self.budget)
 
     @property
+    def read_band_by_band(self) -> bool:
+        """Whether the open reads the responses from the store as they are used: out of core, or a
+        reopen of a store larger than :data:`.impulse_dataset.WHOLE_READ_BYTES`."""
+        return self.out_of_core or (self.stored is not None and self.response_bytes > WHOLE_READ_BYTES)
+
+    @property
     def memory(self) -> int:
         """About what the open holds: the array and a band's validity flags (at most 1/12 of it) in memory, or
-        (out of core, or a reopen of a large store) bands up to the budget."""
-        if self.out_of_core or (self.stored is not None and self.response_bytes > WHOLE_READ_BYTES):
+        (read band by band) bands up to the budget."""
+        if self.read_band_by_band:
             return min(self.budget, self.response_bytes)
         return self.response_bytes * 13 // 12
 
     def lines(self) -> list[str]:
         """``ringlight info``'s lines about it."""
-        where = "out of core: built band by band into its store, read from it" if self.out_of_core else "in memory"
+        if self.out_of_core:
+            where = "out of core: built band by band into its store, read from it"
+        elif self.read_band_by_band:
+            where = (f"read from its store band by band, as it is over {format_bytes(WHOLE_READ_BYTES)}; "
+                     "built in memory at the first open")
+        else:
+            where = "in memory"
         store = (f"{format_bytes(self.stored)} on disk in {self.location}" if self.stored is not None
                  else f"not built yet (built at the first open, in {self.location})")
         return [f"responses    {format_bytes(self.response_bytes)} at radius {self.radius:.4g} "
