@@ -25,8 +25,9 @@ def _describe_channels(manifest, allow_outside: bool) -> str:
     return text + (f" of part {manifest.part!r}" if manifest.part is not None else "")
 
 
-def describe_dataset(manifest: Manifest, allow_outside: bool = False) -> list[str]:
-    """The description's lines ("key          value"; reads no frame's pixels)."""
+def describe_dataset(manifest: Manifest, allow_outside: bool = False, radius: float | None = None) -> list[str]:
+    """The description's lines ("key          value"; reads no frame's pixels); ``radius``: the
+    max radius it is (or would be) opened at (None: as an open without one)."""
     counts = manifest.lit_counts()
     lit = int(np.count_nonzero(counts))
     missing = counts.size - lit
@@ -45,15 +46,15 @@ def describe_dataset(manifest: Manifest, allow_outside: bool = False) -> list[st
         f"missing      {missing} point(s) lit in no frame",
         f"dark frame   {manifest.dark or 'none'}",
     ]
-    radius = effective_max_radius(manifest)
+    diagonal = effective_max_radius(manifest)
     if manifest.max_radius is not None:
         lines.append(f"max radius   {manifest.max_radius:g} grid steps")
     else:
         lines.append(
-            f"max radius   not set (one point per frame): up to the grid diagonal {radius:.1f}, "
+            f"max radius   not set (one point per frame): up to the grid diagonal {diagonal:.1f}, "
             "or the largest radius a stack asks for"
         )
-    lines += plan_open(manifest).lines()
+    lines += plan_open(manifest, radius).lines()
     truth = manifest.ground_truth
     if truth is None:
         lines.append("ground truth none")

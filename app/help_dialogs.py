@@ -57,7 +57,7 @@ class HelpDialogs:
             return ""
         dataset = self.loaded.dataset
         opened = "in memory" if dataset.in_memory else "out of core: read from its store band by band"
-        return "\n".join([*describe_dataset(dataset.manifest), f"opened       {opened}"])
+        return "\n".join([*describe_dataset(dataset.manifest, radius=dataset.max_radius), f"opened       {opened}"])
 
     def _show_dataset_information(self) -> None:
         if self.loaded is None:

@@ -171,6 +171,8 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self.load_jobs.finished.connect(self._on_loaded)
         self.load_jobs.failed.connect(lambda message: self.show_error("Could not open the dataset", message))
         self.load_jobs.cancelled.connect(self._on_open_cancelled)
+        # An open superseded by another is cancelled too: what was said of it goes as the next starts.
+        self.load_jobs.started.connect(lambda _: self.statusBar().clearMessage())
         self.load_jobs.idle.connect(self._hint_when_empty)
         self.steady_previewed.connect(self.show_steady_preview)
         self.stack_jobs.finished.connect(self._on_stacks_ready)

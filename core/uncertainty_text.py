@@ -7,6 +7,8 @@ import math
 
 FREE_DIGITS = 4
 """Significant digits of a value shown without an error (none estimated yet, or none defined)."""
+SIGNIFICANT_LIMIT = 7
+"""Most significant digits a value is given to (float32 holds about 7)."""
 
 
 def with_error(value: float, error: float | None) -> str:
@@ -23,10 +25,14 @@ def with_error(value: float, error: float | None) -> str:
     if error == 0:
         return f"{value:.{FREE_DIGITS}g}±0"
     last = math.floor(math.log10(error)) - 1  # the power of ten of the error's second digit
+    if round(error, -last) >= 10.0 ** (last + 2):  # 0.0996 rounds to 0.100: two digits are 0.10
+        last += 1
+    exponent = math.floor(math.log10(max(abs(value), error)))
+    if exponent - last > SIGNIFICANT_LIMIT:  # an error below the value's float32 precision
+        return f"{value:.{SIGNIFICANT_LIMIT}g}±{error:.2g}"
     if -6 <= last and abs(value) < 1e6:
         decimals = max(0, -last)
-        return f"{round(value, -last):.{decimals}f}±{round(error, -last):.{decimals}f}"
-    exponent = math.floor(math.log10(max(abs(value), error)))
+        return f"{round(value, -last) + 0.0:.{decimals}f}±{round(error, -last):.{decimals}f}"
     scale = 10.0 ** exponent
     decimals = max(0, exponent - last)
-    return f"({value / scale:.{decimals}f}±{error / scale:.{decimals}f})e{exponent:+03d}"
+    return f"({value / scale + 0.0:.{decimals}f}±{error / scale:.{decimals}f})e{exponent:+03d}"

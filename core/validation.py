@@ -132,6 +132,8 @@ def _decode_in_pieces(text: str, decoder: json.JSONDecoder) -> object:
     each decoded by one call of the decoder: a single call holds the GIL for the whole document
     (an 800 px manifest's 20 MB of JSON: 1-2 s in which a window's event loop stood still); between
     pieces other threads run. The same values, duplicate keys (the last wins) and errors."""
+    if text.startswith("\ufeff"):
+        raise json.JSONDecodeError("Unexpected UTF-8 BOM (decode using utf-8-sig)", text, 0)
     index = _SPACE.match(text).end()
     if not text.startswith("{", index):
         return decoder.decode(text)

@@ -98,7 +98,8 @@ def retable(cache, relative):
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage-meta", "delete-chunk", "delete-array",
                                     "lost chunk and a stray file", "swapped chunks", "chunk copied over another",
-                                    "big-endian metadata", "a group for an array", "a huge chunk"])
+                                    "big-endian metadata", "a group for an array", "a huge chunk",
+                                    "lost chunk and its row of the table"])
 def test_a_damaged_store_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
     """Damage that the folder's walk against the entry's table shows (a missing, extra or resized
     file), or the metadata, rebuilds at open; a chunk moved to another's place fails the table's
@@ -135,6 +136,11 @@ def test_a_damaged_store_is_rebuilt_not_trusted(dataset, monkeypatch, damage):
     elif damage == "a group for an array":
         metadata.write_text(json.dumps({"zarr_format": 3, "node_type": "group", "attributes": {}}))
         retable(cache, "responses/zarr.json")
+    elif damage == "lost chunk and its row of the table":  # zarr would read it as its fill value
+        target.unlink()
+        meta = json.loads((cache / "meta.json").read_text())
+        del meta["table"][target.relative_to(cache).as_posix()]
+        (cache / "meta.json").write_text(json.dumps(meta))
     elif damage == "a huge chunk":  # 4 GiB, sparse: never read
         with open(target, "r+b") as handle:
             handle.truncate(2**32)
@@ -353,3 +359,18 @@ def test_a_damaged_chunk_read_out_of_core_by_the_command_line_prints_one_line(tm
                             timeout=300, env={**os.environ, "RINGLIGHT_MEMORY_BUDGET": str(budget)})
     assert result.returncode != 0
     assert result.stderr.count("\n") == 1 and "damaged cache chunk" in result.stderr, result.stderr
+
+
+def test_a_store_replaced_by_another_open_fails_its_old_reader_and_stays_valid(dataset, monkeypatch):
+    """An open at another radius replaces the entry (one folder a dataset): a dataset opened
+    before it can no longer read its responses (one line), and its failure does not mark the new
+    entry stale."""
+    from ringlight.core.errors import DatasetError
+
+    old = open_dataset(dataset, radius=4, memory_budget_bytes=1)
+    open_dataset(dataset, radius=3, memory_budget_bytes=1)  # writes the entry anew
+    with pytest.raises(DatasetError, match="damaged cache chunk"):
+        ring_stack(old, [0])
+    reads = CountingReads(monkeypatch)
+    again = open_dataset(dataset, radius=3, memory_budget_bytes=1)
+    assert reads.count == 0 and again.store is not None

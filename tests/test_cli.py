@@ -120,3 +120,15 @@ def test_info_names_a_truncated_frame_and_exits_2(tmp_path, impulses, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[0] == "ringlight: error: 1 file problem(s):"
     assert len(err) == 2 and str(frame) in err[1]
+
+
+def test_a_dataset_is_described_at_the_radius_it_was_opened_at(tmp_path, impulses):
+    """Help > Dataset information describes the dataset on screen: a manifest without max_radius
+    opened at radius 3 (its store written at that radius), not at the grid's diagonal."""
+    from ringlight.app.dataset_info import describe_dataset
+    write_dataset(tmp_path / "ds", 11, 8, impulses)  # no max_radius
+    dataset = open_dataset(tmp_path / "ds", radius=3.0)
+    lines = {line[:12].strip(): line[13:] for line in describe_dataset(dataset.manifest, radius=dataset.max_radius)}
+    offsets = sum(1 for dy in range(-3, 4) for dx in range(-3, 4) if dy * dy + dx * dx <= 9)
+    assert lines["responses"].startswith(f"{88 * offsets * 12 / 2**10:.1f} KiB at radius 3 ({offsets} offsets")
+    assert lines["store"].endswith(f"on disk in {(tmp_path / 'ds' / '.ringlight-cache').resolve()}")

@@ -95,3 +95,13 @@ def test_other_threads_run_while_a_large_manifest_is_decoded():
         counter.join()
     assert decoded["frames"][-1] == frames[-1]
     assert during >= 10, during
+
+
+@pytest.mark.parametrize("text", ["\ufeff{}", "\ufeff[1]", " ", "", "{\"a\": [1, {\"b\": []}]} \n", "\"\\ud800\""])
+def test_edges_decode_as_one_call_does(text):
+    ours = outcome(lambda: decode_json(text.encode("utf-8", "surrogatepass"), "doc.json", DatasetError))
+    try:
+        theirs = ("ok", json.loads(text))
+    except json.JSONDecodeError as error:
+        theirs = ("error", f"doc.json: invalid JSON at line {error.lineno}: {error.msg}")
+    assert ours == theirs

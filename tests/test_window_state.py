@@ -123,6 +123,16 @@ def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, windo
     assert window.statusBar().currentMessage() == "Opening cancelled; nothing of it was kept. " + EMPTY_HINT
 
 
+def test_an_open_superseded_by_another_is_not_reported_cancelled(qtbot, window, tmp_path):
+    first, second = make_dataset(tmp_path / "a", 9, 3, seed=6), make_dataset(tmp_path / "b", 9, 3, seed=7)
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(first)
+        window.open_dataset(second)  # cancels the first
+        assert "cancelled" not in window.statusBar().currentMessage()
+    assert window.loaded.dataset.path == second
+    assert "cancelled" not in window.statusBar().currentMessage()
+
+
 def test_shortcut_sheet_lists_every_menu_shortcut(window):
     from PySide6.QtGui import QKeySequence
 

@@ -122,7 +122,7 @@ class StoreWriter:
         # side, but a call of several chunks first copies each into a new chunk array in its event
         # loop's thread, one after the other, where a call of exactly one chunk encodes the band's
         # view as it is.
-        workers = os.cpu_count() or 1
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
         with ThreadPoolExecutor(max_workers=workers) as pool:
             pending: deque = deque()
             for y in range(0, band.shape[0], tile):
@@ -245,10 +245,19 @@ class _TableStore(zarr.storage.LocalStore):
     async def get(self, key, prototype=None, byte_range=None):
         if key not in self._table:
             return None
+        return await asyncio.to_thread(self.get_sync, key, prototype=prototype, byte_range=byte_range)
+
+    def get_sync(self, key, *, prototype=None, byte_range=None):
+        """The one way a file is read, whichever path zarr takes (its synchronous one too)."""
+        if key not in self._table:
+            return None
         if byte_range is not None:  # only sharded arrays ask for parts of a file
             raise DamagedEntry(f"{key}: a part of a file was asked for; the entry's arrays are not sharded")
-        data = await asyncio.to_thread(read_checked, self.root, key, self._table)
+        data = read_checked(self.root, key, self._table)
         return (prototype or zarr.core.buffer.default_buffer_prototype()).buffer.from_bytes(data)
+
+    async def get_partial_values(self, prototype, key_ranges):
+        raise DamagedEntry("parts of files were asked for; the entry's arrays are not sharded")
 
     async def exists(self, key: str) -> bool:
         return key in self._table
@@ -269,8 +278,9 @@ class ResponseStore:
     """
 
     def __init__(self, path: Path, responses: zarr.Array, tile: int, lit_counts: np.ndarray,
-                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int):
+                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int, meta_identity: tuple):
         self.path, self.tile = path, tile
+        self._meta_identity = meta_identity  # of the meta.json it was opened by: see mark_stale
         self._responses = responses
         self.lit_counts, self.observed, self.steady = lit_counts, observed, steady
         self._keep_bytes = keep_bytes
@@ -292,7 +302,7 @@ class ResponseStore:
         try:
             band = self._responses[row0:min(row0 + self.tile, self.shape[0])]
         except (ValueError, OSError, RuntimeError) as error:  # a checksum or a decode that failed
-            mark_stale(self.path)
+            mark_stale(self.path, self._meta_identity)
             _settle_reads()
             raise DatasetError(f"{self.path}: damaged cache chunk in rows {row0}.. ({error}); "
                                "open the dataset again to rebuild it") from None
@@ -316,7 +326,7 @@ class ResponseStore:
         try:
             return self._responses[row0:row1, col0:col1]
         except (ValueError, OSError, RuntimeError) as error:
-            mark_stale(self.path)
+            mark_stale(self.path, self._meta_identity)
             _settle_reads()
             raise DatasetError(f"{self.path}: damaged cache chunk ({error}); "
                                "open the dataset again to rebuild it") from None
@@ -346,10 +356,11 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
         meta = _current_meta(location, key)
         if meta is None:
             return None
+        identity = _identity(location / META)
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
         table = entry_table(location, meta)
-        if table is None:
+        if table is None or not _chunks_listed(table, shape, meta["tile"]):
             return None
         group = zarr.open_group(_TableStore(location, table), mode="r", zarr_format=3)
         responses = group["responses"]
@@ -369,7 +380,17 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
     except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
         return None
     return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
-                         small["steady"], keep_bytes)
+                         small["steady"], keep_bytes, identity)
+
+
+def _chunks_listed(table: dict, shape: tuple[int, ...], tile: int) -> bool:
+    """Whether the table lists every chunk of the arrays of ``shape`` in tiles of ``tile``: a
+    chunk it lacks would read as zarr's fill value."""
+    rows, columns = -(-shape[0] // tile), -(-shape[1] // tile)
+    chunks = sum(1 for name in table if name.startswith(_CHUNK_PREFIX))
+    return (chunks == rows * columns and all(f"{_CHUNK_PREFIX}{row}.{column}.0.0" in table
+                                             for row in range(rows) for column in range(columns))
+            and all(name in table for name in ("lit_counts/c.0.0", "observed/c.0.0", "steady/c.0.0.0")))
 
 
 def entry_table(location: Path, meta: dict) -> dict | None:
@@ -424,12 +445,22 @@ def entry_bytes(location: Path) -> int:
     return total
 
 
-def mark_stale(location: Path) -> None:
-    """Make the entry fail its next open (its meta.json removed), so that it is rebuilt."""
+def mark_stale(location: Path, identity: tuple) -> None:
+    """Make the entry fail its next open (its meta.json removed), so that it is rebuilt; only
+    while its meta.json is still the one of ``identity`` (:func:`_identity`): another open may
+    have replaced the entry since this one was opened (the old one's reads then fail), and the
+    new entry is not damaged."""
     try:
-        os.unlink(location / META)
+        if _identity(location / META) == identity:
+            os.unlink(location / META)
     except OSError:
         pass
+
+
+def _identity(path: Path) -> tuple:
+    """Which file ``path`` is: device, inode, size and modification time."""
+    info = os.lstat(path)
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
 
 
 class _StoreInvalid(RinglightError):
