@@ -61,6 +61,8 @@ except ImportError:  # not POSIX: no locks, so abandoned temporaries are never s
 
 _TEMPORARY = re.compile(r"\..+\.(partial|old)-[0-9a-f]{12}(\.[^/]*)?")
 """Names of this module's hidden temporaries (``.NAME.partial-HEX[.EXT]``, ``.NAME.old-HEX``)."""
+_NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL}
+"""What ``flock`` says on a file system that has no locks."""
 ABANDONED_AGE = 60.0
 """Seconds since a temporary folder was made or renamed before :func:`sweep_abandoned` may remove
 it: a staging folder is locked just after it is made, so a younger one may be about to be."""
@@ -229,8 +231,11 @@ def output_folder(path: str | os.PathLike, owner: OwnerOf, kind: str, replace: b
         raise _named(error, target.shown) from error
     try:
         lock = _lock(staging)
-    except OSError:  # a file system without locks: its temporaries are never swept
-        lock = None
+    except OSError as error:
+        if error.errno not in _NO_LOCKS:  # out of descriptors, say: unlocked, it could be swept as abandoned
+            shutil.rmtree(staging, ignore_errors=True)
+            raise _named(error, target.shown) from error
+        lock = None  # a file system without locks, where no sweep can lock it either
     try:
         try:
             yield staging

@@ -374,3 +374,31 @@ def test_a_store_replaced_by_another_open_fails_its_old_reader_and_stays_valid(d
     reads = CountingReads(monkeypatch)
     again = open_dataset(dataset, radius=3, memory_budget_bytes=1)
     assert reads.count == 0 and again.store is not None
+
+
+@pytest.mark.parametrize("errno_name, written", [("ENOLCK", True), ("EMFILE", False)])
+def test_a_store_is_written_unlocked_only_where_the_file_system_has_no_locks(dataset, monkeypatch, errno_name,
+                                                                            written):
+    """A staging folder that could not be locked would look abandoned to another process's sweep
+    a minute on: it is written unlocked only on a file system without locks (where no sweep can
+    lock it either); any other failure to lock fails the write, leaving nothing."""
+    import errno
+
+    import ringlight.core.atomic as atomic
+    from ringlight.core.atomic import OutputError, atomic_folder
+
+    def refuse(descriptor, operation):
+        raise OSError(getattr(errno, errno_name), os.strerror(getattr(errno, errno_name)))
+
+    monkeypatch.setattr(atomic.fcntl, "flock", refuse)
+    location = dataset / "entry"
+    if written:
+        with atomic_folder(location) as staging:
+            (staging / "a").write_text("1")
+        assert (location / "a").read_text() == "1"
+    else:
+        with pytest.raises(OutputError, match="entry: cannot write here"):
+            with atomic_folder(location) as staging:
+                (staging / "a").write_text("1")
+        assert not location.exists()
+    assert not [name for name in os.listdir(dataset) if ".partial-" in name]
