@@ -337,30 +337,6 @@ def test_only_ringlights_abandoned_cache_folders_are_swept(dataset, monkeypatch)
     assert (user / "notes.txt").read_text() == "keep"
 
 
-def test_a_damaged_chunk_read_out_of_core_by_the_command_line_prints_one_line(tmp_path, monkeypatch):
-    """The line naming the store, and nothing after it: zarr's event loop still held the other
-    chunks' reads when the command exited, and asyncio logged "Task was destroyed but it is
-    pending!" for each of them."""
-    import subprocess
-    import sys
-
-    from ringlight.core.dataset import response_store
-    monkeypatch.setattr(response_store, "CHUNK_BYTES", 1)  # 1 x 1 point chunks: 40 in a band read at once
-    rng = np.random.default_rng(4)
-    write_dataset(tmp_path / "ds", 40, 40, random_impulses(rng, 40, 40, support=3), max_radius=40.0)
-    budget = 64 * 2**20  # the least budget taken: under the 94 MiB of responses at radius 40
-    assert not open_dataset(tmp_path / "ds", memory_budget_bytes=budget).in_memory
-    chunk = tmp_path / "ds" / CACHE_FOLDER_NAME / "responses" / "c.0.0.0.0"  # the others read meanwhile
-    data = bytearray(chunk.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    chunk.write_bytes(bytes(data))
-    result = subprocess.run([sys.executable, "-m", "ringlight.app.main", "stack", str(tmp_path / "ds"),
-                             "--radii", "0:2:1", "--out", str(tmp_path / "out")], capture_output=True, text=True,
-                            timeout=300, env={**os.environ, "RINGLIGHT_MEMORY_BUDGET": str(budget)})
-    assert result.returncode != 0
-    assert result.stderr.count("\n") == 1 and "damaged cache chunk" in result.stderr, result.stderr
-
-
 def test_a_store_replaced_by_another_open_fails_its_old_reader_and_stays_valid(dataset, monkeypatch):
     """An open at another radius replaces the entry (one folder a dataset): a dataset opened
     before it can no longer read its responses (one line), and its failure does not mark the new
