@@ -44,6 +44,7 @@ class DatasetOpening:
     def _start_open(self, description: str, path: str | Path | None, sample: str | None) -> None:
         """Open ``path``, or the bundled ``sample``, with the stack last shown for it."""
         request = self.saved_request(sample_folder(sample) if path is None else path)
+        self._pending_request = None
         self.stack_jobs.cancel()
         self.fit_jobs.cancel()
         self.load_jobs.start(description, lambda progress: load_for_viewing(
@@ -89,6 +90,10 @@ class DatasetOpening:
             self._hovered = None
             self.hover_label.clear()
         self._install_stacks(loaded.stacks)
+        pending, self._pending_request = self._pending_request, None
+        if pending is not None and pending != loaded.stacks.pair.request:  # edited while it opened
+            self.stack_controls.set_request(pending, dataset.max_radius)
+            self.request_stacks(self.stack_controls.request())
         self._remember_recent(dataset.path)
         self.settings.setValue("last_folder", str(dataset.path.parent))
         self._update_title()

@@ -76,6 +76,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self._shown_image: np.ndarray | None = None
         self._hovered: tuple[int, int] | None = None  # the grid point under the mouse, for the readout
         self._open_cancelled = False  # until the load slot is next idle
+        self._pending_request: StackRequest | None = None  # asked for while a dataset opened
         self.truth_correlation = float("nan")
 
         self.pool = QThreadPool(self)
@@ -215,7 +216,12 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
 
     # ----------------------------------------------------------------- stacks
     def request_stacks(self, request: StackRequest) -> None:
-        """Recompute the stacks for ``request`` in a worker; the old ones stay shown meanwhile."""
+        """Recompute the stacks for ``request`` in a worker; the old ones stay shown meanwhile.
+        While a dataset opens, the request waits for it (an edit of the stack controls then was
+        overwritten by the open's own request)."""
+        if self.load_jobs.busy:
+            self._pending_request = request
+            return
         if self.loaded is None:
             return
         loaded = self.loaded

@@ -276,3 +276,19 @@ def test_a_shut_down_window_starts_no_more_work(qtbot, window, tmp_path):
     window.capture_tab.open_devices("simulated", "simulated", "size=4x4 photons=10")
     assert not any(slot.busy for slot in (window.noise_jobs, window.stack_jobs, window.capture_tab.jobs))
     assert window.pool.activeThreadCount() == 0 and window.capture_pool.activeThreadCount() == 0
+
+
+def test_a_stack_asked_for_while_a_dataset_opens_is_computed_once_it_is_open(qtbot, window, tmp_path):
+    """The stack controls edited during an open: the open's own stacks come first, then the edit
+    is computed (it was overwritten by the open's request)."""
+    from ringlight.core.rings.stack_request import StackRequest
+
+    edited = StackRequest(start=0.0, stop=1.5, step=0.5)  # its reach, 3, within max_radius 3
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(make_dataset(tmp_path / "d", 9, 3, seed=8))
+        assert window.load_jobs.busy
+        window.stack_controls.set_request(edited)
+        window.stack_controls.request_changed.emit(window.stack_controls.request())  # the edit settles
+    qtbot.waitUntil(lambda: window.stacks.pair.request == edited, timeout=30_000)
+    assert window.stack_controls.request() == edited
+    assert window.stacks.pair.radii.tolist() == [0.0, 0.5, 1.0, 1.5]
