@@ -34,7 +34,7 @@ Every error names the user's path, never a hidden temporary. A process killed ou
 most a hidden ``.NAME.partial-HEX`` (an unfinished new output) and, if killed between the two
 renames of a replacement, the previous output complete in a hidden ``.NAME.old-HEX``. A writer
 holds a lock on its staging folder (``flock``, which the system releases when a process dies), so
-that :func:`sweep_abandoned` can tell a private folder's abandoned temporaries (a dataset cache's:
+that :func:`.staging_locks.sweep_abandoned` can tell a private folder's abandoned temporaries (a dataset cache's:
 gigabytes a killed first open left beside the dataset) from one another process is writing now.
 """
 
@@ -46,26 +46,16 @@ import os
 import re
 import secrets
 import shutil
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import RinglightError
-
-try:
-    import fcntl
-except ImportError:  # not POSIX: no locks, so abandoned temporaries are never swept
-    fcntl = None
+from .staging_locks import lock_staging
 
 _TEMPORARY = re.compile(r"\..+\.(partial|old)-[0-9a-f]{12}(\.[^/]*)?")
 """Names of this module's hidden temporaries (``.NAME.partial-HEX[.EXT]``, ``.NAME.old-HEX``)."""
-_NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EINVAL}
-"""What ``flock`` says on a file system that has no locks."""
-ABANDONED_AGE = 60.0
-"""Seconds since a temporary folder was made or renamed before :func:`sweep_abandoned` may remove
-it: a staging folder is locked just after it is made, so a younger one may be about to be."""
 
 
 class OutputError(RinglightError):
@@ -230,12 +220,10 @@ def output_folder(path: str | os.PathLike, owner: OwnerOf, kind: str, replace: b
     except OSError as error:
         raise _named(error, target.shown) from error
     try:
-        lock = _lock(staging)
+        lock = lock_staging(staging)
     except OSError as error:
-        if error.errno not in _NO_LOCKS:  # out of descriptors, say: unlocked, it could be swept as abandoned
-            shutil.rmtree(staging, ignore_errors=True)
-            raise _named(error, target.shown) from error
-        lock = None  # a file system without locks, where no sweep can lock it either
+        shutil.rmtree(staging, ignore_errors=True)
+        raise _named(error, target.shown) from error
     try:
         try:
             yield staging
@@ -261,61 +249,8 @@ def atomic_folder(final: str | os.PathLike) -> Iterator[Path]:
             link.unlink()
         except OSError as error:
             raise _named(error, Path(final)) from error
-    sweep_abandoned(final)
     with output_folder(final, lambda folder: EVERYTHING, "cache") as staging:
         yield staging
-
-
-def _lock(folder: Path) -> int | None:
-    """A descriptor of ``folder`` holding its exclusive lock (None without ``fcntl``)."""
-    if fcntl is None:
-        return None
-    descriptor = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
-    try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BaseException:
-        os.close(descriptor)
-        raise
-    return descriptor
-
-
-def sweep_abandoned(final: str | os.PathLike, min_age: float | None = None) -> list[str]:
-    """Remove the hidden temporaries that writers of the private folder ``final`` abandoned: the
-    real folders (never links or files) beside it named ``.NAME.partial-HEX`` or ``.NAME.old-HEX``
-    for its NAME, made or renamed at least ``min_age`` seconds ago (default
-    :data:`ABANDONED_AGE`), whose lock no process holds. Only for folders all of whose content is
-    ringlight's (:func:`atomic_folder`): an output's ``.old-HEX`` is the user's previous output.
-    Returns the names removed; problems (a folder that vanished, one not ours to remove) are
-    skipped."""
-    if fcntl is None:
-        return []
-    final = Path(os.path.abspath(final))
-    min_age = ABANDONED_AGE if min_age is None else min_age
-    pattern = re.compile(re.escape(f".{final.name}.") + r"(partial|old)-[0-9a-f]{12}")
-    removed = []
-    try:
-        with os.scandir(final.parent) as entries:
-            names = [entry.name for entry in entries if pattern.fullmatch(entry.name)
-                     and entry.is_dir(follow_symlinks=False)]
-    except OSError:
-        return []
-    for name in names:
-        folder = final.parent / name
-        try:
-            info = os.lstat(folder)
-            if time.time() - max(info.st_mtime, info.st_ctime) < min_age:
-                continue
-            descriptor = _lock(folder)
-        except OSError:  # gone, not a folder any more, or locked by its writer
-            continue
-        try:
-            shutil.rmtree(folder)
-            removed.append(name)
-        except OSError:
-            pass
-        finally:
-            os.close(descriptor)
-    return removed
 
 
 def _publish(staging: Path, target: _Target, owner: OwnerOf, kind: str, replace: bool) -> None:

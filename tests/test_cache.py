@@ -272,8 +272,8 @@ def test_a_killed_open_leaves_a_temporary_that_the_next_open_removes(dataset, mo
     """A process killed while it builds the store (SIGKILL: nothing of its own runs) leaves its
     hidden staging folder beside the cache; the next open removes it, as its lock died with it,
     whether it builds the store (none yet) or reads a current one."""
-    import ringlight.core.atomic as atomic
-    monkeypatch.setattr(atomic, "ABANDONED_AGE", 0.0)
+    import ringlight.core.staging_locks as staging_locks
+    monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
     location = dataset / CACHE_FOLDER_NAME
     if cached:
         open_dataset(dataset)
@@ -287,12 +287,12 @@ def test_a_killed_open_leaves_a_temporary_that_the_next_open_removes(dataset, mo
 
 
 def test_a_temporary_that_another_process_is_writing_is_left_alone(dataset, monkeypatch):
-    import ringlight.core.atomic as atomic
-    monkeypatch.setattr(atomic, "ABANDONED_AGE", 0.0)
+    import ringlight.core.staging_locks as staging_locks
+    monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
     location = dataset / CACHE_FOLDER_NAME
     process, staging = _writer(location, "hold")
     try:
-        assert atomic.sweep_abandoned(location) == []
+        assert staging_locks.sweep_abandoned(location) == []
         open_dataset(dataset)
         assert (dataset / staging / "responses" / "c.0.0.0.0").exists()
     finally:
@@ -303,7 +303,7 @@ def test_a_temporary_that_another_process_is_writing_is_left_alone(dataset, monk
 def test_only_ringlights_abandoned_cache_folders_are_swept(dataset, monkeypatch):
     """Files, links and other names, a young temporary (made just before its writer locks it) and
     anything when locks are missing are never removed."""
-    import ringlight.core.atomic as atomic
+    import ringlight.core.staging_locks as staging_locks
     location = dataset / CACHE_FOLDER_NAME
     old_entry = dataset / "..ringlight-cache.old-0123456789ab"
     (old_entry / "responses").mkdir(parents=True)
@@ -326,11 +326,11 @@ def test_only_ringlights_abandoned_cache_folders_are_swept(dataset, monkeypatch)
             (dataset / name).symlink_to(user, target_is_directory=True)
         else:
             (dataset / name).mkdir()
-    monkeypatch.setattr(atomic, "fcntl", None)
-    assert atomic.sweep_abandoned(location, min_age=0.0) == []
+    monkeypatch.setattr(staging_locks, "fcntl", None)
+    assert staging_locks.sweep_abandoned(location, min_age=0.0) == []
     monkeypatch.undo()
-    assert atomic.sweep_abandoned(location, min_age=3600.0) == []  # all of them made just now
-    assert sorted(atomic.sweep_abandoned(location, min_age=0.0)) == sorted([old_entry.name, young.name])
+    assert staging_locks.sweep_abandoned(location, min_age=3600.0) == []  # all of them made just now
+    assert sorted(staging_locks.sweep_abandoned(location, min_age=0.0)) == sorted([old_entry.name, young.name])
     assert not old_entry.exists() and not young.exists()
     for name in kept:
         assert os.path.lexists(dataset / name), name
@@ -360,13 +360,13 @@ def test_a_store_is_written_unlocked_only_where_the_file_system_has_no_locks(dat
     lock it either); any other failure to lock fails the write, leaving nothing."""
     import errno
 
-    import ringlight.core.atomic as atomic
+    import ringlight.core.staging_locks as staging_locks
     from ringlight.core.atomic import OutputError, atomic_folder
 
     def refuse(descriptor, operation):
         raise OSError(getattr(errno, errno_name), os.strerror(getattr(errno, errno_name)))
 
-    monkeypatch.setattr(atomic.fcntl, "flock", refuse)
+    monkeypatch.setattr(staging_locks.fcntl, "flock", refuse)
     location = dataset / "entry"
     if written:
         with atomic_folder(location) as staging:

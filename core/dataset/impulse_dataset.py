@@ -31,7 +31,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..atomic import sweep_abandoned
+from ..staging_locks import sweep_abandoned
 from ..errors import DatasetError, ProgressCallback, RinglightError
 from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled

@@ -21,18 +21,12 @@ ringlight's ``meta.json``:
 - ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
   reopen need not parse its JSON;
 - ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
-  and the entry's table: every other file's path, size and check, which for a responses chunk is
-  its last 4 bytes (the CRC-32C zarr wrote over it) and for any other file (metadata, the small
-  arrays, the manifest's copy) the SHA-256 of its bytes.
+  and the entry's table of files (:mod:`.store_table`).
 
 Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
-types, and a walk of the folder that refuses anything but regular files and folders (a symbolic
-link, FIFO or device planted in it is never opened) and any file the table does not name, lacks
-or gives another size. Every file is then read only as the table says it is (:class:`_TableStore`):
-its size before it is read (a chunk swapped for a huge file is never read), a responses chunk's
-checksum against the table's, so that a chunk moved or copied to another chunk's place fails
-although its own checksum holds, and zarr's checksum of what it decodes. A missing file is an
-error, never zarr's fill value (a lost chunk would read as zeros). A file that fails raises
+types, and the folder against the table (exactly its files, at their sizes; a symbolic link, FIFO
+or device planted in it is never opened). Every file is then read only as the table says it is,
+and zarr checks the checksum of what it decodes. A file that fails raises
 :class:`~ringlight.core.errors.DatasetError` naming the store, and the entry is marked stale so
 that the next open rebuilds it. Entries are written in a temporary folder and renamed into place
 (:func:`ringlight.core.atomic.atomic_folder`).
@@ -41,7 +35,6 @@ that the next open rebuilds it. Entries are written in a temporary folder and re
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import json
 import math
 import os
@@ -60,6 +53,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec, TransposeCodec
 from ..atomic import atomic_folder
 from ..errors import DatasetError, RinglightError
 from ..validation import read_json
+from .store_table import META, TableStore, chunks_listed, entry_table, read_checked, table_of
 
 LAYOUT_VERSION = 5
 """3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
@@ -67,10 +61,8 @@ LAYOUT_VERSION = 5
 CHUNK_BYTES = 8 * 2**20
 """Target size of one uncompressed responses chunk: big enough for compression and few files,
 small enough that a click (one point's chunk) decodes in a few milliseconds."""
-META = "meta.json"
 MAX_META_BYTES = 2**24
 """Largest meta.json read: its table takes about 45 bytes a chunk (4096 chunks at 1024 px)."""
-_CHUNK_PREFIX = "responses/c."
 _SMALL = ("lit_counts", "observed", "steady")
 OFFSET_MAJOR = (2, 3, 0, 1)
 """Order of the responses' axes inside a stored chunk (module docstring)."""
@@ -158,66 +150,8 @@ def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> 
         writer = StoreWriter(staging, shape, tile)
         yield writer
         meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile,
-                "table": _table_of(staging)}
+                "table": table_of(staging)}
         (staging / META).write_text(json.dumps(meta), encoding="utf-8")
-
-
-def _table_of(folder: Path) -> dict[str, list]:
-    """The table of an entry just written in ``folder`` (module docstring): relative POSIX path ->
-    [size, check]."""
-    table = {}
-    for path, relative in _files(folder):
-        with open(path, "rb") as handle:
-            size = os.fstat(handle.fileno()).st_size
-            if relative.startswith(_CHUNK_PREFIX):
-                handle.seek(max(size - 4, 0))
-                check = handle.read().hex()
-            else:
-                check = hashlib.sha256(handle.read()).hexdigest()
-        table[relative] = [size, check]
-    return table
-
-
-def _files(folder: Path) -> Iterator[tuple[str, str]]:
-    """(path, relative POSIX path) of every entry under ``folder`` but its folders, without
-    pathlib: a Path a chunk interns each chunk's name for good (3.7 MB of Python's table of
-    interned strings for 1920 chunks)."""
-    root = str(folder)
-    for parent, folders, names in os.walk(root):
-        prefix = os.path.relpath(parent, root).replace(os.sep, "/") + "/" if parent != root else ""
-        for name in names + [name for name in folders if os.path.islink(os.path.join(parent, name))]:
-            yield os.path.join(parent, name), prefix + name
-
-
-def file_check(relative: str, data: bytes) -> str:
-    """The table's check of a file's bytes (module docstring)."""
-    return data[-4:].hex() if relative.startswith(_CHUNK_PREFIX) else hashlib.sha256(data).hexdigest()
-
-
-class DamagedEntry(ValueError):
-    """A file of an entry that is not as its table says."""
-
-
-def read_checked(folder: Path, relative: str, table: dict) -> bytes:
-    """The bytes of the entry file ``relative`` when they are as ``table`` says (its size checked
-    before they are read); else raises DamagedEntry naming it (a file the table lacks, or absent,
-    included). Links are not followed and a FIFO is never waited on."""
-    expected = table.get(relative)
-    if expected is None:
-        raise DamagedEntry(f"{relative} is not one of the entry's files")
-    size, check = expected
-    try:
-        descriptor = os.open(os.path.join(folder, relative), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    except OSError as error:
-        raise DamagedEntry(f"{relative} cannot be read ({error.strerror or error})") from None
-    with os.fdopen(descriptor, "rb") as handle:
-        info = os.fstat(handle.fileno())
-        if not stat.S_ISREG(info.st_mode) or info.st_size != size:
-            raise DamagedEntry(f"{relative} is not the file written there")
-        data = handle.read(size + 1)
-    if len(data) != size or file_check(relative, data) != check:
-        raise DamagedEntry(f"{relative} differs from the file written there")
-    return data
 
 
 def entry_file(location: Path, relative: str) -> bytes | None:
@@ -232,35 +166,6 @@ def entry_file(location: Path, relative: str) -> bytes | None:
         return read_checked(location, relative, meta["table"])
     except (OSError, ValueError, TypeError, RinglightError):
         return None
-
-
-class _TableStore(zarr.storage.LocalStore):
-    """An entry's folder read only, every file as the entry's table says it is (:func:`read_checked`);
-    a file the table does not name is absent."""
-
-    def __init__(self, root: Path, table: dict):
-        super().__init__(root, read_only=True)
-        self._table = table
-
-    async def get(self, key, prototype=None, byte_range=None):
-        if key not in self._table:
-            return None
-        return await asyncio.to_thread(self.get_sync, key, prototype=prototype, byte_range=byte_range)
-
-    def get_sync(self, key, *, prototype=None, byte_range=None):
-        """The one way a file is read, whichever path zarr takes (its synchronous one too)."""
-        if key not in self._table:
-            return None
-        if byte_range is not None:  # only sharded arrays ask for parts of a file
-            raise DamagedEntry(f"{key}: a part of a file was asked for; the entry's arrays are not sharded")
-        data = read_checked(self.root, key, self._table)
-        return (prototype or zarr.core.buffer.default_buffer_prototype()).buffer.from_bytes(data)
-
-    async def get_partial_values(self, prototype, key_ranges):
-        raise DamagedEntry("parts of files were asked for; the entry's arrays are not sharded")
-
-    async def exists(self, key: str) -> bool:
-        return key in self._table
 
 
 class ResponseStore:
@@ -302,10 +207,7 @@ class ResponseStore:
         try:
             band = self._responses[row0:min(row0 + self.tile, self.shape[0])]
         except (ValueError, OSError, RuntimeError) as error:  # a checksum or a decode that failed
-            mark_stale(self.path, self._meta_identity)
-            _settle_reads()
-            raise DatasetError(f"{self.path}: damaged cache chunk in rows {row0}.. ({error}); "
-                               "open the dataset again to rebuild it") from None
+            raise self._damaged(f"in rows {row0}.. ", error) from None
         band.flags.writeable = False
         with self._lock:
             self._bands[index] = band
@@ -326,10 +228,14 @@ class ResponseStore:
         try:
             return self._responses[row0:row1, col0:col1]
         except (ValueError, OSError, RuntimeError) as error:
-            mark_stale(self.path, self._meta_identity)
-            _settle_reads()
-            raise DatasetError(f"{self.path}: damaged cache chunk ({error}); "
-                               "open the dataset again to rebuild it") from None
+            raise self._damaged("", error) from None
+
+    def _damaged(self, where: str, error: Exception) -> DatasetError:
+        """The one-line error of a read that failed, once the entry is marked stale and zarr's
+        other reads have ended (:func:`_settle_reads`)."""
+        mark_stale(self.path, self._meta_identity)
+        _settle_reads()
+        return DatasetError(f"{self.path}: damaged cache chunk {where}({error}); open the dataset again to rebuild it")
 
 
 def _settle_reads() -> None:
@@ -360,9 +266,9 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
         table = entry_table(location, meta)
-        if table is None or not _chunks_listed(table, shape, meta["tile"]):
+        if table is None or not chunks_listed(table, shape, meta["tile"]):
             return None
-        group = zarr.open_group(_TableStore(location, table), mode="r", zarr_format=3)
+        group = zarr.open_group(TableStore(location, table), mode="r", zarr_format=3)
         responses = group["responses"]
         height, width = shape[:2]
         expected = {"lit_counts": ((height, width), np.int32), "observed": ((height, width), np.bool_),
@@ -381,36 +287,6 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
         return None
     return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
                          small["steady"], keep_bytes, identity)
-
-
-def _chunks_listed(table: dict, shape: tuple[int, ...], tile: int) -> bool:
-    """Whether the table lists every chunk of the arrays of ``shape`` in tiles of ``tile``: a
-    chunk it lacks would read as zarr's fill value."""
-    rows, columns = -(-shape[0] // tile), -(-shape[1] // tile)
-    chunks = sum(1 for name in table if name.startswith(_CHUNK_PREFIX))
-    return (chunks == rows * columns and all(f"{_CHUNK_PREFIX}{row}.{column}.0.0" in table
-                                             for row in range(rows) for column in range(columns))
-            and all(name in table for name in ("lit_counts/c.0.0", "observed/c.0.0", "steady/c.0.0.0")))
-
-
-def entry_table(location: Path, meta: dict) -> dict | None:
-    """The table of the entry at ``location`` from its ``meta``, when it is well formed and the
-    folder holds exactly its files at their sizes, and nothing but regular files and folders;
-    else None. Reads no file."""
-    table = meta.get("table")
-    if not isinstance(table, dict) or not all(
-            isinstance(entry, list) and len(entry) == 2 and type(entry[0]) is int and isinstance(entry[1], str)
-            for entry in table.values()):
-        return None
-    found = 0
-    for path, relative in _files(location):
-        if relative == META:
-            continue
-        info = os.lstat(path)
-        if not stat.S_ISREG(info.st_mode) or table.get(relative, [None])[0] != info.st_size:
-            return None
-        found += 1
-    return table if found == len(table) else None
 
 
 def stored_entry_bytes(location: Path, key: str) -> int | None:
