@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from ringlight.core import ImpulseDataset
-from ringlight.core.rings.noise import StackNoise, median_snr, stack_noise, transient_snr
+from ringlight.core.rings.noise import StackNoise, median_snr, transient_snr
+from ringlight.core.rings.stack_cache import cached_noise
 from ringlight.core.rings.stack_request import StackPair
 from ringlight.widgets.snr_colours import SNR_LEVELS, set_snr_colormap, snr_colormap, snr_rgb
 
@@ -39,9 +40,9 @@ class ViewNoise:
 
 
 def compute_view_noise(dataset: ImpulseDataset, pair: StackPair, progress) -> ViewNoise:
-    """Standard errors and SNR of ``pair``'s stacks (a worker job)."""
-    request = pair.request
-    noise = stack_noise(dataset, pair.radii, request.dr, request.thickness, request.antialias, progress)
+    """Standard errors and SNR of ``pair``'s stacks (a worker job; the errors from the cache when a
+    previous open saved them)."""
+    noise = cached_noise(dataset, pair.request, progress)
     snr = transient_snr(pair.transient.images, noise)
     return ViewNoise(pair, noise, snr, median_snr(snr))
 

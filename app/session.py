@@ -20,12 +20,13 @@ from ringlight.core.dataset.ground_truth import (
     read_path_length_images,
     stack_correlations,
 )
+from ringlight.core.phases import phase
 from ringlight.core.rings.coverage import coverage_warning, ring_coverage
 from ringlight.core.rings.profiles import ProfileRings, profile_rings
+from ringlight.core.rings.stack_cache import cached_stacks
 from ringlight.core.rings.stack_request import (
     StackPair,
     StackRequest,
-    compute_stacks,
     default_request,
 )
 from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_dataset
@@ -122,6 +123,8 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     if preview is not None:
         preview(steady_state, manifest.height, manifest.colorspace)
     progress(0.55)
+    if manifest.ground_truth is not None:
+        phase("reading the ground truth")
     truth = read_path_length_images(manifest, progress=scaled(progress, 0.55, 0.65))
     refusal = None if request is None else _refusal(dataset, request)
     notice = None if refusal is None else (f"The stack last shown for {dataset.path.name} cannot be made now "
@@ -144,12 +147,14 @@ def _band_preview(manifest, preview: Preview):
 
 def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None, request: StackRequest,
                         progress: Progress) -> ViewStacks:
-    """Stacks of ``request`` with profile rings and ground-truth correlations."""
-    pair = compute_stacks(dataset, request, scaled(progress, 0.0, 0.9))
+    """Stacks of ``request`` (from the cache when a previous open saved them) with profile rings
+    and ground-truth correlations."""
+    pair = cached_stacks(dataset, request, scaled(progress, 0.0, 0.9))
     rings = profile_rings(dataset, pair.radii, request.dr, request.thickness, request.antialias)
     correlations = None
     if truth is not None:
         correlations = stack_correlations(pair.radii, request.dr, pair.transient.images, truth)
+    phase("measuring the rings' coverage")
     coverage = ring_coverage(dataset, pair.radii, request.thickness)
     progress(1.0)
     return ViewStacks(pair, rings, correlations, coverage.poor(), coverage_warning(coverage))

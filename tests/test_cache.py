@@ -378,3 +378,17 @@ def test_a_store_is_written_unlocked_only_where_the_file_system_has_no_locks(dat
                 (staging / "a").write_text("1")
         assert not location.exists()
     assert not [name for name in os.listdir(dataset) if ".partial-" in name]
+
+
+def test_a_cache_entry_linked_elsewhere_is_neither_measured_nor_followed(tmp_path):
+    """The free-space check adds the space of the entry it replaces: a user-cache entry planted as a
+    link to ``/`` made it walk the whole disk (found by a fuzz campaign). The link counts nothing
+    (:func:`ringlight.core.atomic.atomic_folder` removes such a link, never follows it)."""
+    from ringlight.core.dataset.response_store import entry_bytes
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "big").write_bytes(b"x" * 4096)
+    link = tmp_path / "entry"
+    link.symlink_to(elsewhere, target_is_directory=True)
+    assert entry_bytes(elsewhere) == 4096 and entry_bytes(link) == 0

@@ -53,7 +53,7 @@ def test_coverage_counts_members_points_and_distances_by_brute_force():
     coverage = ring_coverage(dataset, [2.0, 4.0])
     lit = dataset.lit_counts > 0
     for i, radius in enumerate([2.0, 4.0]):
-        for y, x in [(0, 0), (5, 7), (17, 18), (35, 2)]:
+        for y, x in np.ndindex(SIZE, SIZE):
             # By the definition: offsets with r - 1/2 <= |d| < r + 1/2, inside the grid, lit.
             ring = [(dy, dx) for dy in range(-5, 6) for dx in range(-5, 6)
                     if radius - 0.5 <= np.hypot(dy, dx) < radius + 0.5 and 0 <= y + dy < SIZE and 0 <= x + dx < SIZE]

@@ -1,4 +1,4 @@
-"""A status-bar indicator for one :class:`JobSlot`: what runs, how far, and a Cancel button."""
+"""A status-bar indicator for one :class:`JobSlot`: what runs, in which phase, how far, and a Cancel button."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ class JobIndicator(QWidget):
         super().__init__(parent)
         self.slot = slot
         self.label = QLabel()
+        self.description = ""
         self.bar = QProgressBar()
         self.bar.setRange(0, 1000)
         self.bar.setMaximumWidth(160)
@@ -27,13 +28,18 @@ class JobIndicator(QWidget):
             layout.addWidget(widget)
         slot.started.connect(self._on_started)
         slot.progress.connect(self._on_progress)
+        slot.phase.connect(self._on_phase)
         slot.idle.connect(self.hide)
         self.hide()
 
     def _on_started(self, description: str) -> None:
+        self.description = description
         self.label.setText(description)
         self.bar.setRange(0, 0)  # busy until the job reports how far it is
         self.show()
+
+    def _on_phase(self, name: str) -> None:
+        self.label.setText(f"{self.description}: {name}")
 
     def _on_progress(self, fraction: float) -> None:
         self.bar.setRange(0, 1000)

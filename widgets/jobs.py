@@ -6,6 +6,8 @@ request, napari style). ``progress(fraction)`` reports to the GUI and raises
 progress report and leave nothing half-written. Results and errors come back through queued
 signals, so they are handled in the GUI thread.
 
+The phase a job names (:func:`ringlight.core.phases.phase`) comes back as a signal too.
+
 Each :class:`JobSlot` runs one kind of job (loading, stacks, exports): starting a new job in a
 slot cancels the one running there, and a superseded job's result is dropped.
 """
@@ -19,12 +21,14 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, Signal
 from ringlight.core import Cancelled, RinglightError
+from ringlight.core.phases import reporting_phases
 
 Work = Callable[[Callable[[float], None]], Any]
 
 
 class _JobSignals(QObject):
     progress = Signal(int, float)
+    phase = Signal(int, str)
     finished = Signal(int, object)
     failed = Signal(int, str)
     cancelled = Signal(int)
@@ -57,7 +61,8 @@ class _Job(QRunnable):
         try:
             if self.cancel_event.is_set():
                 raise Cancelled("cancelled")
-            result = work(self.report)
+            with reporting_phases(lambda name: self.signals.phase.emit(self.number, name)):
+                result = work(self.report)
         except Cancelled:
             self.signals.cancelled.emit(self.number)
         except RinglightError as error:
@@ -74,12 +79,13 @@ class JobSlot(QObject):
     """One kind of background job at a time.
 
     Signals carry only the current job's events: ``started(str)`` with its description,
-    ``progress(float)``, ``finished(object)`` with its result, ``failed(str)`` with a one-line
+    ``progress(float)``, ``phase(str)`` with the phase it names, ``finished(object)`` with its result, ``failed(str)`` with a one-line
     message, ``cancelled()``, and ``idle()`` after any of the last three.
     """
 
     started = Signal(str)
     progress = Signal(float)
+    phase = Signal(str)
     finished = Signal(object)
     failed = Signal(str)
     cancelled = Signal()
@@ -90,6 +96,7 @@ class JobSlot(QObject):
         self._pool = pool
         self._signals = _JobSignals(self)
         self._signals.progress.connect(self._on_progress)
+        self._signals.phase.connect(self._on_phase)
         self._signals.finished.connect(self._on_finished)
         self._signals.failed.connect(self._on_failed)
         self._signals.cancelled.connect(self._on_cancelled)
@@ -133,6 +140,10 @@ class JobSlot(QObject):
     def _on_progress(self, number: int, fraction: float) -> None:
         if self._is_current(number):
             self.progress.emit(fraction)
+
+    def _on_phase(self, number: int, name: str) -> None:
+        if self._is_current(number):
+            self.phase.emit(name)
 
     def _on_finished(self, number: int, result: object) -> None:
         if self._is_current(number):

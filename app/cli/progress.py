@@ -14,6 +14,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TextIO
 
+from ringlight.core.phases import reporting_phases
+
 LOG_STEP = 0.1
 """Fraction of the work between two logged progress lines."""
 logger = logging.getLogger("ringlight")
@@ -50,16 +52,24 @@ def stderr_copy() -> TextIO:
 @contextmanager
 def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
     """A progress callback taking fractions in [0, 1]: a tqdm bar on stderr when it is a terminal,
-    else log lines (module docstring)."""
+    else log lines (module docstring). The phase the work names (:mod:`ringlight.core.phases`)
+    follows the description: in the bar's, or a log line each."""
     if not sys.stderr.isatty():
         logged = [-1]
+        named = [description]
 
         def log(fraction: float) -> None:
             step = int(fraction / LOG_STEP + 1e-9)
             if step > logged[0]:
                 logged[0] = step
-                logger.info("%s: %3.0f%%", description, 100 * fraction)
-        yield log
+                logger.info("%s: %3.0f%%", named[0], 100 * fraction)
+
+        def name_phase(name: str) -> None:
+            if f"{description}: {name}" != named[0]:
+                named[0] = f"{description}: {name}"
+                logger.info("%s", named[0])
+        with reporting_phases(name_phase):
+            yield log
         return
     from tqdm import tqdm
 
@@ -71,7 +81,8 @@ def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
                   bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]") as bar:
             def update(fraction: float) -> None:
                 bar.update(int(round(fraction * 1000)) - bar.n)
-            yield update
+            with reporting_phases(lambda name: bar.set_description_str(f"{description}: {name}")):
+                yield update
     finally:
         if stream is not sys.stderr:
             stream.close()

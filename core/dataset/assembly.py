@@ -38,6 +38,7 @@ import numpy as np
 import OpenEXR
 
 from ..errors import DatasetError, ProgressCallback
+from ..phases import phase
 from .exr import whole_file_reader
 from .frames import FrameReader
 from .manifest import Manifest
@@ -206,6 +207,7 @@ def assemble_in_memory(assembler: Assembler, budget: int, progress: ProgressCall
     """The whole response array at once (its batches within an eighth of ``budget``);
     ``progress`` goes from 0 to ``share``."""
     report = None if progress is None else (lambda fraction: progress(share * fraction))
+    phase("reading the frames")
     responses, steady = assembler.band(0, assembler.height, report, min(BATCH_BYTES, budget // 8))
     return Assembled(responses, assembler.lit_counts, assembler.observed, steady)
 
@@ -214,6 +216,7 @@ def write_assembled(writer: StoreWriter, assembled: Assembled, progress: Progres
                     start: float = 0.0) -> None:
     """Write an in-memory assembly into a store, tile row by tile row; progress from ``start`` to 1."""
     height = assembled.responses.shape[0]
+    phase("writing the store")
     for row in range(0, height, writer.tile):
         writer.write_rows(row, assembled.responses[row:row + writer.tile])
         if progress is not None:
@@ -235,11 +238,14 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
     rows = max(writer.tile, (int(budget * BAND_SHARE) // max(row_bytes, 1)) // writer.tile * writer.tile)
     height = assembler.height
     steady = np.empty((height, assembler.width, 3), np.float32)
+    bands = -(-height // rows)
     for row0 in range(0, height, rows):
         row1 = min(row0 + rows, height)
         report = None if progress is None else (
             lambda fraction, row0=row0, row1=row1: progress((row0 + fraction * (row1 - row0)) / height))
+        phase(f"band {row0 // rows + 1} of {bands}: reading the frames")
         band, steady[row0:row1] = assembler.band(row0, row1, report, min(BATCH_BYTES, budget // 8))
+        phase(f"band {row0 // rows + 1} of {bands}: writing the store")
         writer.write_rows(row0, band)
         del band
         if preview is not None:

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..staging_locks import sweep_abandoned
 from ..errors import DatasetError, ProgressCallback, RinglightError
+from ..phases import phase
 from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
 from .frames import dataset_channels
@@ -78,6 +79,10 @@ class ImpulseDataset:
         The store the responses are read from when ``responses`` is None.
     steady
         (H, W, 3) float32 steady state when known at open (a store holds it), else None.
+    cache_key
+        The key of the dataset's store (:func:`.cache.cache_key`: its manifest, the identity of
+        every frame file and the radius), which what is derived from the responses is cached
+        under (:mod:`ringlight.core.rings.stack_cache`); empty when opened without the cache.
     """
 
     manifest: Manifest
@@ -89,6 +94,7 @@ class ImpulseDataset:
     channels: tuple[str, ...] = ("R", "G", "B")
     store: ResponseStore | None = None
     steady: np.ndarray | None = None
+    cache_key: str = ""
 
     @property
     def in_memory(self) -> bool:
@@ -322,11 +328,13 @@ def open_dataset(
     channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
     shape = (height, width, len(offsets), 3)
     key = cache.cache_key(manifest, max_radius) if use_cache else ""
-    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels)
+    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels,
+                      cache_key=key)
     if use_cache:
         sweep_abandoned(location)  # what a killed open left, gigabytes at paper scale
     store = open_store(location, key, shape, budget // 2) if use_cache else None
     if store is not None and needed <= min(budget, WHOLE_READ_BYTES):
+        phase("reading the store")
         try:
             responses = store.window(0, height, 0, width)
         except DatasetError:  # a chunk failed its checksum: the entry is marked stale, rebuilt below

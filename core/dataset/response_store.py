@@ -34,7 +34,6 @@ that the next open rebuilds it. Entries are written in a temporary folder and re
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 import os
@@ -53,7 +52,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec, TransposeCodec
 from ..atomic import atomic_folder
 from ..errors import DatasetError, RinglightError
 from ..validation import read_json
-from .store_table import META, TableStore, chunks_listed, entry_table, read_checked, table_of
+from .store_table import META, TableStore, chunks_listed, entry_table, read_checked, settle_reads, table_of
 
 LAYOUT_VERSION = 5
 """3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
@@ -232,25 +231,10 @@ class ResponseStore:
 
     def _damaged(self, where: str, error: Exception) -> DatasetError:
         """The one-line error of a read that failed, once the entry is marked stale and zarr's
-        other reads have ended (:func:`_settle_reads`)."""
+        other reads have ended (:func:`.store_table.settle_reads`)."""
         mark_stale(self.path, self._meta_identity)
-        _settle_reads()
+        settle_reads()
         return DatasetError(f"{self.path}: damaged cache chunk {where}({error}); open the dataset again to rebuild it")
-
-
-def _settle_reads() -> None:
-    """Wait until zarr's event loop has finished every read it still holds. A read that fails in
-    one chunk raises while the loop still reads its others; a command that then reports the error
-    and exits left them pending, and Python printed a warning and a traceback for each (after the
-    error's one line)."""
-    async def settle() -> None:
-        others = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
-        await asyncio.gather(*others, return_exceptions=True)
-
-    try:
-        zarr.core.sync.sync(settle())
-    except Exception:  # nothing to add to the error being reported
-        pass
 
 
 def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int) -> ResponseStore | None:
@@ -310,7 +294,10 @@ def _current_meta(location: Path, key: str) -> dict | None:
 
 
 def entry_bytes(location: Path) -> int:
-    """Bytes the files under ``location`` take (0 when it does not exist)."""
+    """Bytes the files under ``location`` take (0 when it does not exist, or is a link: an entry
+    is never one, and a cache folder linked to ``/`` must not cost a walk of the whole disk)."""
+    if os.path.islink(location):
+        return 0
     total = 0
     for folder, _, names in os.walk(location):
         for name in names:

@@ -142,3 +142,18 @@ def entry_table(location: Path, meta: dict) -> dict | None:
             return None
         found += 1
     return table if found == len(table) else None
+
+
+def settle_reads() -> None:
+    """Wait until zarr's event loop has finished every read it still holds. A read that fails in
+    one chunk raises while the loop still reads its others; a command that then reports the error
+    and exits left them pending, and Python printed a warning and a traceback for each (after the
+    error's one line)."""
+    async def settle() -> None:
+        others = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+        await asyncio.gather(*others, return_exceptions=True)
+
+    try:
+        zarr.core.sync.sync(settle())
+    except Exception:  # nothing to add to the error being reported
+        pass

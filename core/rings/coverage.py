@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
@@ -91,8 +92,9 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
     """Coverage of the default rings of ``radii`` (grid steps) in ``dataset``.
 
     Rings reaching beyond the dataset's ``max_radius`` count only the offsets it holds, as the
-    stacks do. Memory: four (n, H, W) arrays and, per band of rows, its validity flags and a (rows, W, M)
-    temporary per ring of M offsets.
+    stacks do. Memory: four (n, H, W) arrays and one band's validity flags. One compiled pass over
+    each band's flags (at 800 x 800, R 24 and 23 radii: 7.7 s in numpy, every ring's flags
+    gathered and reduced in turn).
     """
     radii = np.asarray(radii, np.float64).reshape(-1)
     height, width = dataset.grid_shape
@@ -101,27 +103,57 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
     mean_distance = np.full(shape, np.nan, np.float32)
     nearest = np.full(shape, np.nan, np.float32)
     index_of = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(dataset.offsets.tolist())}
-    yy, xx = np.mgrid[:height, :width]
-    rings = []
+    indices, ks, distances, starts = [], [], [], [0]
     for i, radius in enumerate(radii):
         offsets = [(int(dy), int(dx)) for dy, dx in ring_geometry(float(radius), thickness).offsets.tolist()
                    if (int(dy), int(dx)) in index_of]
         if offsets:
-            rings.append((i, np.array([index_of[offset] for offset in offsets]),
-                          np.hypot(*np.array(offsets, np.float64).T).astype(np.float32)))
-            points[i] = sum(((yy + dy >= 0) & (yy + dy < height) & (xx + dx >= 0) & (xx + dx < width)).astype(np.int32)
-                            for dy, dx in offsets)
+            indices.append(i)
+            ks.extend(index_of[offset] for offset in offsets)
+            distances.extend(np.hypot(*np.array(offsets, np.float64).T).astype(np.float32))
+            starts.append(len(ks))
+            points[i] = _points_inside(offsets, height, width)
+    rings = (np.array(indices, np.int64), np.array(ks, np.int64), np.array(distances, np.float32),
+             np.array(starts, np.int64), radii.astype(np.float32))
     for row0, row1 in dataset.bands():
-        validity = dataset.validity_rows(row0, row1)
-        for i, ks, distance in rings:
-            valid = validity[:, :, ks].astype(bool)
-            count = valid.sum(-1)
-            members[i, row0:row1] = count
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean_distance[i, row0:row1] = np.where(count > 0, (valid * distance).sum(-1) / count, np.nan)
-            deviation = np.where(valid, np.abs(distance - np.float32(radii[i])), np.inf).min(-1)
-            nearest[i, row0:row1] = np.where(np.isfinite(deviation), deviation, np.nan)
+        _band_coverage(dataset.validity_rows(row0, row1), *rings, members, mean_distance, nearest, row0)
     return RingCoverage(radii, float(thickness), members, points, mean_distance, nearest)
+
+
+def _points_inside(offsets: list[tuple[int, int]], height: int, width: int) -> np.ndarray:
+    """(H, W) int32: how many of ``offsets`` land inside the grid from each pixel. Each offset's
+    pixels form a rectangle, added to a table of corner differences that two cumulative sums
+    turn into the counts."""
+    corners = np.zeros((height + 1, width + 1), np.int64)
+    for dy, dx in offsets:
+        y0, y1, x0, x1 = max(0, -dy), min(height, height - dy), max(0, -dx), min(width, width - dx)
+        if y0 < y1 and x0 < x1:
+            corners[y0, x0] += 1
+            corners[y0, x1] -= 1
+            corners[y1, x0] -= 1
+            corners[y1, x1] += 1
+    return corners.cumsum(0).cumsum(1)[:height, :width].astype(np.int32)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _band_coverage(validity, indices, ks, distances, starts, radii, members, mean_distance, nearest, row0):
+    """Members, mean member distance and nearest member's distance from r of every ring
+    (``ks[starts[j]:starts[j + 1]]`` the offsets of ring ``j``, radius index ``indices[j]``) at
+    each point of a band of rows (``validity`` (rows, W, K) uint8, from grid row ``row0``)."""
+    for y in numba.prange(validity.shape[0]):
+        for x in range(validity.shape[1]):
+            for ring in range(len(indices)):
+                i = indices[ring]
+                count, total, best = 0, 0.0, np.float32(np.inf)
+                for j in range(starts[ring], starts[ring + 1]):
+                    if validity[y, x, ks[j]]:
+                        count += 1
+                        total += distances[j]
+                        best = min(best, abs(distances[j] - radii[i]))
+                members[i, row0 + y, x] = count
+                if count:
+                    mean_distance[i, row0 + y, x] = total / count
+                    nearest[i, row0 + y, x] = best
 
 
 def coverage_warning(coverage: RingCoverage) -> str | None:

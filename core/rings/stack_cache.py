@@ -1,0 +1,250 @@
+"""The explorer's stacks and their noise estimate, kept on disk so that a reopen shows them at once.
+
+A request's stacks (:func:`.stack_request.compute_stacks`) and their standard errors
+(:func:`.noise.stack_noise`) take most of a paper-scale open: at 800 x 800, R 24 about a minute
+each, on every open, where the store itself reopens in a fraction of a second. Both are saved, a
+folder each, under ``stacks/`` of the user cache folder (:func:`..dataset.cache.user_cache_root`),
+named by a hash of what they depend on: the dataset's store key (its manifest, the identity of
+every frame file and the radius: :func:`..dataset.cache.cache_key`), the request, the kind and
+:data:`VERSION`, which changes whenever the stacks' or the noise's arithmetic does. A dataset
+opened without the cache (no key) is never cached.
+
+An entry is a zarr v3 group (an image a chunk, Blosc-LZ4 with bit shuffling, a CRC-32C a chunk)
+and ``meta.json`` with the key and the table of its files, each checked by its SHA-256 when read
+(:mod:`..dataset.store_table`): an entry that is damaged, edited, partly lost or not of the shapes
+the request gives is recomputed and replaced, never shown. Entries beyond :func:`cache_limit` are
+removed, least recently used first; nothing but the entries this module names (and the
+temporaries of its killed saves) is ever removed. Saving is best effort: a disk that would be left
+with less than :data:`SPARE_BYTES` free, or a read-only cache, leaves the result uncached.
+
+Measured on ``benchmarks/bench_scale.py``'s 800 px, R 24 dataset, the explorer's default request
+(23 radii), a fresh process each (``/tmp/x20/bench800.py`` in the closing note): computed and saved
+22.8 s (stacks) and 21.4 s (noise); read back 0.36 s and 0.47 s; 120 MB on disk for both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import re
+import shutil
+import stat
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec, Crc32cCodec
+
+from ..atomic import atomic_folder
+from ..dataset.cache import user_cache_root
+from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
+from ..dataset.memory import parse_size
+from ..dataset.response_store import entry_bytes
+from ..dataset.store_table import META, TableStore, entry_table, settle_reads, table_of
+from ..errors import RinglightError
+from ..phases import phase
+from ..staging_locks import sweep_abandoned
+from ..validation import read_json
+from .noise import StackNoise, luminance_weights, stack_noise
+from .stack_request import StackPair, StackRequest, compute_stacks
+from .stacks import Stack
+
+VERSION = 1
+"""Changes whenever the stacks' or the noise's arithmetic changes, so that no entry of the old
+arithmetic is shown."""
+CACHE_BYTES = 4 * 2**30
+"""Default bound of the entries' total size (``$RINGLIGHT_STACK_CACHE`` overrides: ``2G``); an
+800 x 800 view's stacks and noise take up to 0.9 GiB raw, less compressed."""
+SPARE_BYTES = 2**30
+"""Free disk an entry must leave beside its raw size, or it is not saved."""
+SAVE_SHARE = 0.05
+"""Share of a computation's progress given to saving its result."""
+_ENTRY = re.compile(r"[0-9a-f]{32}")
+_ABANDONED = re.compile(r"\.([0-9a-f]{32})\.(?:partial|old)-[0-9a-f]{12}")
+_MAX_META_BYTES = 2**20
+_STACK_ARRAYS = ("ring_radii", "ring_images", "ring_counts", "transient_radii", "transient_images",
+                 "transient_counts", "transient_outer_counts")
+_NOISE_ARRAYS = ("radii", "ring", "transient", "ring_luminance", "transient_luminance")
+
+
+def cached_stacks(dataset: ImpulseDataset, request: StackRequest,
+                  progress: ProgressCallback | None = None) -> StackPair:
+    """:func:`.stack_request.compute_stacks`, read from the cache when an entry of the same key
+    is there and intact, else computed and saved. ``progress`` may raise ``Cancelled``."""
+    request.check(dataset)
+    key = _key(dataset, request, "stacks")
+    arrays = _load(key, _stack_shapes(dataset, request), "reading the saved stacks") if key else None
+    if arrays is not None:
+        return _pair(dataset, request, arrays)
+    phase("computing the stacks")
+    pair = compute_stacks(dataset, request, _scaled(progress, 1.0 - SAVE_SHARE) if key else progress)
+    if key:
+        ring, transient = pair.ring, pair.transient
+        _save(key, {"ring_radii": ring.radii, "ring_images": ring.images, "ring_counts": ring.counts,
+                    "transient_radii": transient.radii, "transient_images": transient.images,
+                    "transient_counts": transient.counts, "transient_outer_counts": transient.outer_counts})
+    return pair
+
+
+def cached_noise(dataset: ImpulseDataset, request: StackRequest,
+                 progress: ProgressCallback | None = None) -> StackNoise:
+    """:func:`.noise.stack_noise` of ``request``'s radii, read from the cache when an entry of the
+    same key is there and intact, else computed and saved. ``progress`` may raise ``Cancelled``."""
+    key = _key(dataset, request, "noise")
+    arrays = _load(key, _noise_shapes(dataset, request), "reading the saved noise estimate") if key else None
+    if arrays is not None:
+        return StackNoise(arrays["radii"], float(request.dr), arrays["ring"], arrays["transient"],
+                          arrays["ring_luminance"], arrays["transient_luminance"],
+                          luminance_weights(dataset.colorspace))
+    phase("estimating the noise")
+    noise = stack_noise(dataset, request.radii(), request.dr, request.thickness, request.antialias,
+                        _scaled(progress, 1.0 - SAVE_SHARE) if key else progress)
+    if key:
+        _save(key, {"radii": noise.radii, "ring": noise.ring, "transient": noise.transient,
+                    "ring_luminance": noise.ring_luminance, "transient_luminance": noise.transient_luminance})
+    return noise
+
+
+def cache_folder() -> Path:
+    """Where the entries live (not created)."""
+    return user_cache_root() / "stacks"
+
+
+def cache_limit() -> int:
+    """Bytes the entries may take together: ``$RINGLIGHT_STACK_CACHE`` or :data:`CACHE_BYTES`.
+    Raises RinglightError naming the variable when it is not a size."""
+    text = os.environ.get("RINGLIGHT_STACK_CACHE")
+    return parse_size(text, "$RINGLIGHT_STACK_CACHE") if text else CACHE_BYTES
+
+
+def _key(dataset: ImpulseDataset, request: StackRequest, kind: str) -> str:
+    """The full key of ``kind``'s entry for ``request`` on ``dataset``; empty without a store key."""
+    if not dataset.cache_key:
+        return ""
+    text = json.dumps({"version": VERSION, "kind": kind, "dataset": dataset.cache_key,
+                       "request": dataclasses.asdict(request)}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _stack_shapes(dataset: ImpulseDataset, request: StackRequest) -> dict[str, tuple[tuple[int, ...], str]]:
+    n, (height, width) = len(request.radii()), dataset.grid_shape
+    images, counts = ((n, height, width, 3), "float32"), ((n, height, width), "int32")
+    return {"ring_radii": ((n,), "float64"), "ring_images": images, "ring_counts": counts,
+            "transient_radii": ((n,), "float64"), "transient_images": images, "transient_counts": counts,
+            "transient_outer_counts": counts}
+
+
+def _noise_shapes(dataset: ImpulseDataset, request: StackRequest) -> dict[str, tuple[tuple[int, ...], str]]:
+    n, (height, width) = len(request.radii()), dataset.grid_shape
+    images, luminance = ((n, height, width, 3), "float32"), ((n, height, width), "float32")
+    return {"radii": ((n,), "float64"), "ring": images, "transient": images, "ring_luminance": luminance,
+            "transient_luminance": luminance}
+
+
+def _pair(dataset: ImpulseDataset, request: StackRequest, arrays: dict[str, np.ndarray]) -> StackPair:
+    common = {"thickness": request.thickness, "antialias": request.antialias, "colorspace": dataset.colorspace}
+    ring = Stack("ring", arrays["ring_radii"], images=arrays["ring_images"], counts=arrays["ring_counts"], **common)
+    transient = Stack("transient", arrays["transient_radii"], images=arrays["transient_images"],
+                      counts=arrays["transient_counts"], outer_counts=arrays["transient_outer_counts"],
+                      step=float(request.dr), **common)
+    return StackPair(request, ring, transient)
+
+
+def _scaled(progress: ProgressCallback | None, share: float) -> ProgressCallback | None:
+    return None if progress is None else (lambda fraction: progress(share * fraction))
+
+
+def _load(key: str, shapes: dict[str, tuple[tuple[int, ...], str]], what: str) -> dict[str, np.ndarray] | None:
+    """The arrays of the entry for ``key`` when it is there, intact and of ``shapes`` (name ->
+    (shape, dtype)), its reading named phase ``what``; else None."""
+    folder = cache_folder() / key[:32]
+    try:
+        if not stat.S_ISDIR(os.lstat(folder).st_mode) or not stat.S_ISREG(os.lstat(folder / META).st_mode):
+            return None
+        meta = read_json(folder / META, _EntryInvalid, "cache meta.json", max_bytes=_MAX_META_BYTES)
+        if not isinstance(meta, dict) or meta.get("key") != key:
+            return None
+        table = entry_table(folder, meta)
+        if table is None:
+            return None
+        phase(what)
+        group = zarr.open_group(TableStore(folder, table), mode="r", zarr_format=3)
+        arrays = {}
+        for name, (shape, dtype) in shapes.items():
+            array = group[name]
+            if not isinstance(array, zarr.Array) or array.shape != shape or array.dtype != np.dtype(dtype):
+                return None
+            arrays[name] = array[...]
+    except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
+        settle_reads()
+        return None
+    try:
+        os.utime(folder)  # the least recently used entries are removed first
+    except OSError:
+        pass
+    return arrays
+
+
+def _save(key: str, arrays: dict[str, np.ndarray]) -> None:
+    """Save ``arrays`` (name -> array, an image or a radius's values a chunk) as the entry for
+    ``key``, then trim the cache to :func:`cache_limit`; gives up quietly when it cannot (but
+    raises RinglightError for a limit that is not a size)."""
+    limit = cache_limit()
+    root = cache_folder()
+    folder = root / key[:32]
+    raw = sum(array.nbytes for array in arrays.values())
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        if shutil.disk_usage(root).free < raw + SPARE_BYTES:
+            return
+        sweep_abandoned(folder)
+        phase("saving the result for the next open")
+        with atomic_folder(folder) as staging:
+            group = zarr.open_group(zarr.storage.LocalStore(staging), mode="w")
+            for name, array in arrays.items():
+                chunks = (1, *array.shape[1:]) if array.ndim > 1 else array.shape
+                stored = group.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype,
+                                            compressors=[BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"),
+                                                         Crc32cCodec()],
+                                            config={"write_empty_chunks": True})
+                stored[...] = array
+            meta = {"key": key, "table": table_of(staging)}
+            (staging / META).write_text(json.dumps(meta), encoding="utf-8")
+    except (OSError, RinglightError):
+        return
+    _trim(root, folder.name, limit)
+
+
+def _trim(root: Path, keep: str, limit: int) -> None:
+    """Remove the least recently used entries under ``root`` (folders of 32 hex digits holding a
+    meta.json; ``keep`` never) until the rest take at most ``limit`` bytes, and the temporaries
+    that killed saves abandoned."""
+    entries = []
+    try:
+        with os.scandir(root) as found:
+            names = [entry.name for entry in found if entry.is_dir(follow_symlinks=False)]
+    except OSError:
+        return
+    for name in names:
+        abandoned = _ABANDONED.fullmatch(name)
+        if abandoned:
+            sweep_abandoned(root / abandoned.group(1))
+        elif _ENTRY.fullmatch(name) and name != keep:
+            try:
+                if stat.S_ISREG(os.lstat(root / name / META).st_mode):
+                    entries.append((os.lstat(root / name).st_mtime, name))  # touched by each load
+            except OSError:
+                continue
+    total = entry_bytes(root / keep) + sum(entry_bytes(root / name) for _, name in entries)
+    for _, name in sorted(entries):
+        if total <= limit:
+            break
+        size = entry_bytes(root / name)
+        shutil.rmtree(root / name, ignore_errors=True)
+        total -= size
+
+
+class _EntryInvalid(RinglightError):
+    """An entry's meta.json that cannot be read; the entry is recomputed, so users never see this."""

@@ -1,0 +1,253 @@
+"""The explorer's stacks and noise saved in the user cache: read back bit for bit, keyed by all
+they depend on, never shown when damaged, and trimmed to their bound least recently used first."""
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+from reference import brute_ring_image, random_impulses, write_dataset
+import ringlight.core.staging_locks as staging_locks
+from ringlight.core import RinglightError, open_dataset
+from ringlight.core.rings import stack_cache
+from ringlight.core.rings.noise import stack_noise
+from ringlight.core.rings.stack_request import StackRequest, compute_stacks
+
+HEIGHT, WIDTH = 9, 8
+REQUEST = StackRequest(start=0.0, stop=3.0, step=1.0, dr=1.0)
+
+
+@pytest.fixture
+def impulses():
+    return random_impulses(np.random.default_rng(3), HEIGHT, WIDTH, support=10)
+
+
+@pytest.fixture
+def folder(tmp_path, impulses):
+    write_dataset(tmp_path / "ds", HEIGHT, WIDTH, impulses)
+    return tmp_path / "ds"
+
+
+class Computations:
+    """Counts the stacks and noise computed (rather than read from the cache)."""
+
+    def __init__(self, monkeypatch):
+        self.stacks = self.noise = 0
+
+        def stacks(*args, **kwargs):
+            self.stacks += 1
+            return compute_stacks(*args, **kwargs)
+
+        def noise(*args, **kwargs):
+            self.noise += 1
+            return stack_noise(*args, **kwargs)
+
+        monkeypatch.setattr(stack_cache, "compute_stacks", stacks)
+        monkeypatch.setattr(stack_cache, "stack_noise", noise)
+
+
+def assert_same_pair(pair, expected):
+    for kind in ("ring", "transient"):
+        got, want = getattr(pair, kind), getattr(expected, kind)
+        for name in ("radii", "images", "counts", "outer_counts"):
+            if getattr(want, name) is None:
+                assert getattr(got, name) is None
+            else:
+                assert_array_equal(getattr(got, name), getattr(want, name))
+        assert (got.kind, got.step, got.thickness, got.antialias, got.colorspace) == \
+            (want.kind, want.step, want.thickness, want.antialias, want.colorspace)
+
+
+def assert_same_noise(noise, expected):
+    for name in ("radii", "ring", "transient", "ring_luminance", "transient_luminance", "luminance_weights"):
+        assert_array_equal(getattr(noise, name), getattr(expected, name))
+    assert noise.step == expected.step
+
+
+def entry_folders():
+    root = stack_cache.cache_folder()
+    return sorted(name for name in os.listdir(root) if not name.startswith(".")) if root.exists() else []
+
+
+def test_a_reopen_reads_the_saved_stacks_and_noise_bit_for_bit(folder, impulses, monkeypatch):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    first, first_noise = stack_cache.cached_stacks(dataset, REQUEST), stack_cache.cached_noise(dataset, REQUEST)
+    assert (computed.stacks, computed.noise) == (1, 1)
+    assert len(entry_folders()) == 2
+
+    reopened = open_dataset(folder, radius=6)
+    pair = stack_cache.cached_stacks(reopened, REQUEST)
+    noise = stack_cache.cached_noise(reopened, REQUEST)
+    assert (computed.stacks, computed.noise) == (1, 1)
+    assert_same_pair(pair, first)
+    assert_same_noise(noise, first_noise)
+    uncached = open_dataset(folder, radius=6, use_cache=False)
+    assert_same_pair(pair, compute_stacks(uncached, REQUEST))
+    assert_same_noise(noise, stack_noise(uncached, REQUEST.radii(), REQUEST.dr))
+    # and the numbers are the definition's: T_2 = E_2 - E_3 by brute force
+    brute = brute_ring_image(impulses, HEIGHT, WIDTH, 2.0) - brute_ring_image(impulses, HEIGHT, WIDTH, 3.0)
+    np.testing.assert_allclose(pair.transient.images[2], brute, rtol=1e-5, atol=1e-6)
+
+
+def test_anything_the_stacks_depend_on_gives_another_entry(folder, monkeypatch):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    stack_cache.cached_stacks(dataset, REQUEST)
+    changes = [{"dr": 2.0}, {"thickness": 2.0}, {"antialias": True}, {"stop": 2.0}, {"start": 1.0}]
+    for count, change in enumerate(changes, 2):
+        request = REQUEST.with_changes(**change)
+        assert_same_pair(stack_cache.cached_stacks(dataset, request), compute_stacks(dataset, request))
+        assert computed.stacks == count
+    assert computed.stacks == 6 and len(entry_folders()) == 6
+    # another radius, and a frame touched since, make another store key
+    stack_cache.cached_stacks(open_dataset(folder, radius=5.5), REQUEST)
+    assert computed.stacks == 7
+    later = time.time() + 10
+    os.utime(folder / "frames/00004.exr", (later, later))
+    stack_cache.cached_stacks(open_dataset(folder, radius=6), REQUEST)
+    assert computed.stacks == 8
+    # a dataset opened without the cache has no key: nothing is saved
+    before = entry_folders()
+    stack_cache.cached_stacks(open_dataset(folder, radius=6, use_cache=False), REQUEST)
+    assert computed.stacks == 9 and entry_folders() == before
+
+
+def _chunk(entry, array, index):
+    """The chunk file of radius ``index`` of ``array`` (zarr's c/INDEX/0/0[/0])."""
+    (path,) = (path for path in (entry / array / "c" / str(index)).rglob("*") if path.is_file())
+    return path
+
+
+DAMAGES = {
+    "a byte flipped in an image": lambda entry: _flip(_chunk(entry, "transient_images", 1)),
+    "two radii's images swapped": lambda entry: _swap(_chunk(entry, "ring_images", 0), _chunk(entry, "ring_images", 1)),
+    "a radius's counts lost": lambda entry: _chunk(entry, "ring_counts", 2).unlink(),
+    "an image's byte order edited, its size kept": lambda entry: _same_size_edit(entry / "ring_images" / "zarr.json",
+                                                                                 b'"little"', b'"big"   '),
+    "a stray file": lambda entry: (entry / "notes.txt").write_text("x"),
+    "another key": lambda entry: _edit_meta(entry, lambda meta: meta.update(key="0" * 64)),
+    "an array's shape edited and re-tabled": lambda entry: _edit_array(entry, "ring_images",
+                                                                      lambda spec: spec["shape"].__setitem__(0, 3)),
+    "meta.json not JSON": lambda entry: (entry / "meta.json").write_text("{"),
+}
+
+
+def _flip(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    path.write_bytes(bytes(data))
+
+
+def _same_size_edit(path, old, new):
+    """An edit that keeps the file's size (only the table's SHA-256 can tell)."""
+    data = path.read_bytes()
+    assert data.count(old) == 1 and len(old) == len(new)
+    path.write_bytes(data.replace(old, new))
+
+
+def _swap(one, other):
+    a, b = one.read_bytes(), other.read_bytes()
+    one.write_bytes(b)
+    other.write_bytes(a)
+
+
+def _edit_meta(entry, change):
+    meta = json.loads((entry / "meta.json").read_text())
+    change(meta)
+    (entry / "meta.json").write_text(json.dumps(meta))
+
+
+def _edit_array(entry, name, change):
+    """Edit an array's zarr.json and record the edit in the table, as a hand that knows the table
+    would: the shape check must still refuse it."""
+    import hashlib
+
+    path = entry / name / "zarr.json"
+    spec = json.loads(path.read_text())
+    change(spec)
+    path.write_text(json.dumps(spec))
+    data = path.read_bytes()
+    _edit_meta(entry, lambda meta: meta["table"].__setitem__(f"{name}/zarr.json",
+                                                             [len(data), hashlib.sha256(data).hexdigest()]))
+
+
+@pytest.mark.parametrize("damage", DAMAGES, ids=list(DAMAGES))
+def test_a_damaged_entry_is_recomputed_and_replaced_never_shown(folder, monkeypatch, damage):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    expected = stack_cache.cached_stacks(dataset, REQUEST)
+    (name,) = entry_folders()
+    entry = stack_cache.cache_folder() / name
+    DAMAGES[damage](entry)
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), expected)
+    assert computed.stacks == 2
+    # the entry was written again, intact: the next request reads it
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), expected)
+    assert computed.stacks == 2
+
+
+def test_the_cache_keeps_the_most_recently_used_entries_within_its_bound(folder, monkeypatch):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    requests = [REQUEST.with_changes(stop=stop) for stop in (1.0, 2.0, 3.0)]
+    stack_cache.cached_stacks(dataset, requests[0])
+    size = sum(os.path.getsize(os.path.join(parent, name))
+               for parent, _, names in os.walk(stack_cache.cache_folder()) for name in names)
+    monkeypatch.setenv("RINGLIGHT_STACK_CACHE", str(int(2.5 * size)))  # two entries of about this size
+    root = stack_cache.cache_folder()
+    (root / "mine.txt").write_text("a user's file")
+    (root / "not-an-entry").mkdir()
+    abandoned = root / f".{'a' * 32}.partial-{'b' * 12}"  # what a killed save left (no lock held)
+    abandoned.mkdir()
+    monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
+
+    stack_cache.cached_stacks(dataset, requests[1])
+    time.sleep(0.02)
+    stack_cache.cached_stacks(dataset, requests[0])  # read: now the most recently used
+    assert computed.stacks == 2
+    time.sleep(0.02)
+    stack_cache.cached_stacks(dataset, requests[2])  # saving it removes requests[1]'s entry
+    assert computed.stacks == 3
+    stack_cache.cached_stacks(dataset, requests[0])
+    stack_cache.cached_stacks(dataset, requests[2])
+    assert computed.stacks == 3
+    stack_cache.cached_stacks(dataset, requests[1])
+    assert computed.stacks == 4
+    assert (root / "mine.txt").read_text() == "a user's file" and (root / "not-an-entry").is_dir()
+    assert not abandoned.exists()
+
+
+def test_a_full_disk_leaves_the_stacks_uncached(folder, monkeypatch):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+
+    class Full:
+        free = stack_cache.SPARE_BYTES
+
+    monkeypatch.setattr(stack_cache.shutil, "disk_usage", lambda path: Full)
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), compute_stacks(dataset, REQUEST))
+    assert computed.stacks == 1 and entry_folders() == []
+
+
+def test_the_explorer_reopens_a_dataset_with_its_saved_stacks_and_noise(folder, monkeypatch):
+    from ringlight.app.noise_view import compute_view_noise
+    from ringlight.app.session import load_for_viewing
+
+    computed = Computations(monkeypatch)
+    first = load_for_viewing(folder, REQUEST, lambda fraction: None)
+    first_noise = compute_view_noise(first.dataset, first.stacks.pair, lambda fraction: None)
+    again = load_for_viewing(folder, REQUEST, lambda fraction: None)
+    noise = compute_view_noise(again.dataset, again.stacks.pair, lambda fraction: None)
+    assert (computed.stacks, computed.noise) == (1, 1)
+    assert_same_pair(again.stacks.pair, first.stacks.pair)
+    assert_same_noise(noise.noise, first_noise.noise)
+    assert_array_equal(noise.snr, first_noise.snr)
+
+
+def test_a_cache_bound_that_is_not_a_size_is_named(folder, monkeypatch):
+    monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "lots")
+    with pytest.raises(RinglightError, match=r"\$RINGLIGHT_STACK_CACHE: 'lots' is not a size"):
+        stack_cache.cached_stacks(open_dataset(folder, radius=6), REQUEST)
