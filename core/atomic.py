@@ -17,8 +17,10 @@ Folders (stack exports, datasets), :func:`output_folder`
     - an absent or empty target: the new folder is renamed into place (one rename);
     - a target holding an earlier output of the same kind, and nothing but the files its manifest
       names, ringlight's own subfolders (``.ringlight-cache``, ``.scan``) and ringlight's hidden
-      temporaries: the old folder is renamed aside, checked again (a file dropped in since the
-      first check sends it back, untouched), the new one renamed in, and the old one deleted;
+      temporaries of those (``.NAME.partial-HEX.EXT`` is ringlight's only when ``NAME.EXT`` is: a
+      user's ``.thesis.partial-0123456789ab.tex`` is the user's): the old folder is renamed aside,
+      checked again (a file dropped in since the first check sends it back, untouched), the new
+      one renamed in, and the old one deleted;
     - a target holding anything else (a ``thesis.tex``, an empty subfolder): refused with one line
       naming the folder and one such file; nothing is deleted, moved or merged. Refusing, rather
       than swapping only ringlight's files in, keeps every output whole (one rename publishes it)
@@ -54,7 +56,7 @@ from pathlib import Path
 from .errors import RinglightError
 from .staging_locks import lock_staging
 
-_TEMPORARY = re.compile(r"\..+\.(partial|old)-[0-9a-f]{12}(\.[^/]*)?")
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.(partial|old)-[0-9a-f]{12}(?P<extension>\.[^/]*)?")
 """Names of this module's hidden temporaries (``.NAME.partial-HEX[.EXT]``, ``.NAME.old-HEX``)."""
 
 
@@ -83,6 +85,12 @@ class Owned:
         """True when ``relative`` is a folder on the way to one of :attr:`files`."""
         return any(name.startswith(relative + "/") for name in self.files)
 
+    def holds(self, relative: str) -> bool:
+        """True when the entry ``relative`` is one of :attr:`files`, inside one of :attr:`trees`,
+        or on the way to one of the files."""
+        return (relative in self.files or self.leads_to(relative)
+                or any(fnmatch.fnmatchcase(relative, tree) for tree in self.trees))
+
 
 OwnerOf = Callable[[Path], "Owned | None"]
 """Reads an existing folder's manifest: what ringlight wrote there, or None when the folder is
@@ -97,18 +105,28 @@ def is_temporary(name: str) -> bool:
     return _TEMPORARY.fullmatch(name) is not None
 
 
+def temporary_of(name: str) -> str | None:
+    """The name a hidden temporary stands for (``.stack.partial-HEX.json`` -> ``stack.json``,
+    ``.frames.old-HEX`` -> ``frames``), or None for any other name."""
+    match = _TEMPORARY.fullmatch(name)
+    return None if match is None else match["name"] + (match["extension"] or "")
+
+
 def foreign_entry(folder: Path, owned: Owned) -> str | None:
     """The relative path of one entry of ``folder`` that ringlight did not write, or None.
 
     A folder named in ``owned.files`` or leading to one is walked: what it holds must be
-    ringlight's too. Links are never followed (a link is an entry like a file); the walk stops at
+    ringlight's too. A hidden temporary is ringlight's when what it stands for is
+    (:func:`temporary_of`). Links are never followed (a link is an entry like a file); the walk stops at
     the first foreign entry, so a huge folder costs little.
     """
     def walk(directory: Path, prefix: str) -> str | None:
         with os.scandir(directory) as entries:
             for entry in sorted(entries, key=lambda entry: entry.name):
                 relative = prefix + entry.name
-                if is_temporary(entry.name) or any(fnmatch.fnmatchcase(relative, tree) for tree in owned.trees):
+                target = temporary_of(entry.name)
+                if any(fnmatch.fnmatchcase(relative, tree) for tree in owned.trees) or (
+                        target is not None and owned.holds(prefix + target)):
                     continue
                 if entry.is_dir(follow_symlinks=False):
                     if relative in owned.files or owned.leads_to(relative):

@@ -421,8 +421,8 @@ def test_a_folder_deleted_during_a_scan_is_not_made_again_and_a_fresh_run_comple
 def test_a_fresh_run_clears_an_unpublished_preparation_but_never_a_users_file(tmp_path):
     out = tmp_path / "scan"
     (out / "frames").mkdir(parents=True)
-    (out / ".scan.partial-0123456789ab").mkdir()
-    (out / ".scan.partial-0123456789ab" / "plan.json").write_text("{}")
+    (out / "..scan.partial-0123456789ab").mkdir()
+    (out / "..scan.partial-0123456789ab" / "plan.json").write_text("{}")
     (out / "mapping.exr").write_bytes(b"half a mapping")
     (out / ".mapping.partial-abcdef012345.exr").write_bytes(b"torn")
     run_scan(out, SimulatedRig(analytic_windows()))

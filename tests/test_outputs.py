@@ -5,6 +5,7 @@ project (stack export, dataset writer, PNG, MP4, CSV/JSON text) is checked throu
 import errno
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -248,6 +249,29 @@ def test_overwriting_a_dataset_keeps_foreign_files_and_replaces_only_the_dataset
     assert sorted(tree(out)) == ["dataset.json", "frames/000000.exr", "frames/000001.exr"]
     assert read_exr_rgb(out / "frames/000001.exr")[0, 0, 0] == 3.0
     assert not leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("name", [".thesis.partial-0123456789ab.tex", ".notes.old-0123456789ab",
+                                  "frames/.figure.partial-abcdef012345.png"])
+def test_a_users_file_named_like_a_temporary_is_never_taken_for_ringlights(tmp_path, name):
+    """A hidden temporary is ringlight's only when what it stands for is (found by a fuzz campaign:
+    a user's ``.thesis.partial-HEX.tex`` in an old output was deleted when it was replaced)."""
+    out = tmp_path / "ds"
+    write_small_dataset(out, 1.0)
+    (out / name).parent.mkdir(exist_ok=True)
+    (out / name).write_text("precious")
+    before = tree(out)
+    with pytest.raises(OutputError, match=rf"ds: holds {re.escape(name)}, which ringlight did not write"):
+        write_small_dataset(out, 3.0, overwrite=True)
+    assert tree(out) == before and (out / name).read_text() == "precious"
+    # ringlight's own temporaries (of a frame, of the manifest, of the cache) are still its own
+    (out / name).unlink()
+    for temporary in ("frames/.000001.partial-0123456789ab.exr", ".dataset.partial-abcdef012345.json",
+                      "..ringlight-cache.partial-0123456789ab/meta.json"):
+        (out / temporary).parent.mkdir(exist_ok=True)
+        (out / temporary).write_text("torn")
+    write_small_dataset(out, 3.0, overwrite=True)
+    assert sorted(tree(out)) == ["dataset.json", "frames/000000.exr", "frames/000001.exr"]
 
 
 def test_a_file_dropped_into_the_target_while_a_dataset_is_written_stops_the_replacement(tmp_path):

@@ -16,7 +16,7 @@ A scan writes into its output folder as it goes::
     OUT/dataset.json          written last: the folder is a dataset only once the scan is complete
 
 Preparation is atomic: ``OUT/mapping.exr`` and ``OUT/frames/`` are made first, then ``.scan`` is
-built as a hidden ``OUT/.scan.partial-HEX`` and published with one rename. A folder without
+built as a hidden ``OUT/..scan.partial-HEX`` and published with one rename. A folder without
 ``.scan/plan.json`` therefore holds no scan; what an interrupted preparation left there
 (``mapping.exr``, an empty ``frames/``, hidden temporaries) is ringlight's, and a fresh run
 clears it and starts again. Nothing else in ``OUT`` is ever deleted.
@@ -194,7 +194,7 @@ class Scan:
         (self.out / "frames").mkdir(exist_ok=True)
         with atomic_file(self.out / "mapping.exr", overwrite=True, make_parents=False, durable=True) as temporary:
             write_exr_channels(temporary, {"y": self.mapping[..., 0], "x": self.mapping[..., 1]})
-        staging = self.out / f"{SCAN_FOLDER}.partial-{secrets.token_hex(6)}"
+        staging = self.out / f".{SCAN_FOLDER}.partial-{secrets.token_hex(6)}"
         staging.mkdir()
         with atomic_file(staging / PLAN_NAME, make_parents=False, durable=True) as temporary:
             temporary.write_text(self.plan.to_json(self.camera_notes, self.colorspace), encoding="utf-8")
