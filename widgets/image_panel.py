@@ -246,6 +246,8 @@ class ImagePanel(pg.GraphicsView):
         if levels is not None:
             self.colour_bar = pg.ColorBarItem(values=levels, colorMap=colormap, label=label,
                                               interactive=False, width=14)
+            # Room above and below for the end ticks' labels, which the panel's edge cut in half.
+            self.colour_bar.setContentsMargins(0, 10, 0, 10)
             self.layout_item.addItem(self.colour_bar, 0, 1)
 
     def show_ring(self, center: tuple[int, int], positions: np.ndarray, weights: np.ndarray,
