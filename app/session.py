@@ -21,9 +21,9 @@ from ringlight.core.dataset.ground_truth import (
     stack_correlations,
 )
 from ringlight.core.phases import phase
-from ringlight.core.rings.coverage import coverage_warning, ring_coverage
+from ringlight.core.rings.coverage import coverage_warning
 from ringlight.core.rings.profiles import ProfileRings, profile_rings
-from ringlight.core.rings.stack_cache import cached_stacks
+from ringlight.core.rings.stack_cache import cached_coverage, cached_stacks
 from ringlight.core.rings.stack_request import (
     StackPair,
     StackRequest,
@@ -154,8 +154,7 @@ def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None,
     correlations = None
     if truth is not None:
         correlations = stack_correlations(pair.radii, request.dr, pair.transient.images, truth)
-    phase("measuring the rings' coverage")
-    coverage = ring_coverage(dataset, pair.radii, request.thickness)
+    coverage = cached_coverage(dataset, request)
     progress(1.0)
     return ViewStacks(pair, rings, correlations, coverage.poor(), coverage_warning(coverage))
 

@@ -12,6 +12,7 @@ from reference import brute_ring_image, random_impulses, write_dataset
 import ringlight.core.staging_locks as staging_locks
 from ringlight.core import RinglightError, open_dataset
 from ringlight.core.rings import stack_cache
+from ringlight.core.rings.coverage import ring_coverage
 from ringlight.core.rings.noise import stack_noise
 from ringlight.core.rings.stack_request import StackRequest, compute_stacks
 
@@ -31,10 +32,10 @@ def folder(tmp_path, impulses):
 
 
 class Computations:
-    """Counts the stacks and noise computed (rather than read from the cache)."""
+    """Counts the stacks, noise and coverage computed (rather than read from the cache)."""
 
     def __init__(self, monkeypatch):
-        self.stacks = self.noise = 0
+        self.stacks = self.noise = self.coverage = 0
 
         def stacks(*args, **kwargs):
             self.stacks += 1
@@ -44,8 +45,13 @@ class Computations:
             self.noise += 1
             return stack_noise(*args, **kwargs)
 
+        def coverage(*args, **kwargs):
+            self.coverage += 1
+            return ring_coverage(*args, **kwargs)
+
         monkeypatch.setattr(stack_cache, "compute_stacks", stacks)
         monkeypatch.setattr(stack_cache, "stack_noise", noise)
+        monkeypatch.setattr(stack_cache, "ring_coverage", coverage)
 
 
 def assert_same_pair(pair, expected):
@@ -71,17 +77,25 @@ def entry_folders():
     return sorted(name for name in os.listdir(root) if not name.startswith(".")) if root.exists() else []
 
 
-def test_a_reopen_reads_the_saved_stacks_and_noise_bit_for_bit(folder, impulses, monkeypatch):
+def test_a_reopen_reads_the_saved_stacks_noise_and_coverage_bit_for_bit(folder, impulses, monkeypatch):
     computed = Computations(monkeypatch)
     dataset = open_dataset(folder, radius=6)
     first, first_noise = stack_cache.cached_stacks(dataset, REQUEST), stack_cache.cached_noise(dataset, REQUEST)
-    assert (computed.stacks, computed.noise) == (1, 1)
-    assert len(entry_folders()) == 2
+    first_coverage = stack_cache.cached_coverage(dataset, REQUEST)
+    assert (computed.stacks, computed.noise, computed.coverage) == (1, 1, 1)
+    assert len(entry_folders()) == 3
 
     reopened = open_dataset(folder, radius=6)
     pair = stack_cache.cached_stacks(reopened, REQUEST)
     noise = stack_cache.cached_noise(reopened, REQUEST)
-    assert (computed.stacks, computed.noise) == (1, 1)
+    coverage = stack_cache.cached_coverage(reopened, REQUEST)
+    assert (computed.stacks, computed.noise, computed.coverage) == (1, 1, 1)
+    expected = ring_coverage(reopened, REQUEST.radii(), REQUEST.thickness)
+    for means in (coverage, first_coverage):
+        assert_array_equal(means.radii, REQUEST.radii())
+        assert_array_equal(means.member_fraction, expected.mean_member_fraction())
+        assert_array_equal(means.nearest_offset, expected.mean_nearest_offset())
+        assert_array_equal(means.poor(), expected.poor())
     assert_same_pair(pair, first)
     assert_same_noise(noise, first_noise)
     uncached = open_dataset(folder, radius=6, use_cache=False)
@@ -241,8 +255,10 @@ def test_the_explorer_reopens_a_dataset_with_its_saved_stacks_and_noise(folder, 
     first_noise = compute_view_noise(first.dataset, first.stacks.pair, lambda fraction: None)
     again = load_for_viewing(folder, REQUEST, lambda fraction: None)
     noise = compute_view_noise(again.dataset, again.stacks.pair, lambda fraction: None)
-    assert (computed.stacks, computed.noise) == (1, 1)
+    assert (computed.stacks, computed.noise, computed.coverage) == (1, 1, 1)
     assert_same_pair(again.stacks.pair, first.stacks.pair)
+    assert_array_equal(again.stacks.poor_coverage, first.stacks.poor_coverage)
+    assert again.stacks.coverage_note == first.stacks.coverage_note
     assert_same_noise(noise.noise, first_noise.noise)
     assert_array_equal(noise.snr, first_noise.snr)
 

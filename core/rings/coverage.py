@@ -63,8 +63,11 @@ class RingCoverage:
 
     def poor(self) -> np.ndarray:
         """(n,) bool: radii whose coverage is poor (see :func:`coverage_warning`)."""
-        with np.errstate(invalid="ignore"):
-            return (~(self.mean_nearest_offset() <= NEAR_STEPS)) | (~(self.mean_member_fraction() >= MIN_FRACTION))
+        return self.means().poor()
+
+    def means(self) -> "CoverageMeans":
+        """The per-radius means that say whether coverage is poor."""
+        return CoverageMeans(self.radii, self.mean_member_fraction(), self.mean_nearest_offset())
 
     def summary(self) -> dict:
         """Per-radius figures for ``stack.json``: JSON numbers (null for NaN)."""
@@ -77,6 +80,22 @@ class RingCoverage:
                 "mean_member_fraction": listed(self.mean_member_fraction()),
                 "mean_nearest_offset": listed(self.mean_nearest_offset()),
                 "poor": [bool(v) for v in self.poor()]}
+
+
+@dataclass(frozen=True, eq=False)
+class CoverageMeans:
+    """What the explorer shows of a :class:`RingCoverage`: (n,) float64 means per radius of
+    ``radii`` (grid steps) of the member fraction (over pixels with ring points) and of the nearest
+    member's distance from r (over pixels with members, grid steps); NaN where no pixel has any."""
+
+    radii: np.ndarray
+    member_fraction: np.ndarray
+    nearest_offset: np.ndarray
+
+    def poor(self) -> np.ndarray:
+        """(n,) bool: radii whose coverage is poor (see :func:`coverage_warning`)."""
+        with np.errstate(invalid="ignore"):
+            return (~(self.nearest_offset <= NEAR_STEPS)) | (~(self.member_fraction >= MIN_FRACTION))
 
 
 def _nan_mean(values: np.ndarray) -> np.ndarray:
@@ -156,20 +175,21 @@ def _band_coverage(validity, indices, ks, distances, starts, radii, members, mea
                     nearest[i, row0 + y, x] = best
 
 
-def coverage_warning(coverage: RingCoverage) -> str | None:
+def coverage_warning(coverage: RingCoverage | CoverageMeans) -> str | None:
     """One line naming the radii whose coverage is poor, or None.
 
     Poor: on average over pixels no member lies within :data:`NEAR_STEPS` grid steps of ``r``,
     or fewer than :data:`MIN_FRACTION` of the ring's points are members (issue 19). Such ring
     means come from few points at other distances and are biased where the profile is steep.
     """
-    poor = coverage.poor()
+    means = coverage if isinstance(coverage, CoverageMeans) else coverage.means()
+    poor = means.poor()
     if not poor.any():
         return None
-    fraction, offset = coverage.mean_member_fraction(), coverage.mean_nearest_offset()
+    fraction, offset = means.member_fraction, means.nearest_offset
     shown = [f"r {r:g} ({'no member' if not np.isfinite(f) else f'{f:.0%} of ring points lit'}"
              + (f", nearest {o:.2f} from r" if np.isfinite(o) else "") + ")"
-             for r, f, o in zip(coverage.radii[poor], fraction[poor], offset[poor])]
+             for r, f, o in zip(means.radii[poor], fraction[poor], offset[poor])]
     more = f" and {len(shown) - 4} more" if len(shown) > 4 else ""
-    return (f"poor ring coverage at {len(shown)} of {len(coverage.radii)} radii: {'; '.join(shown[:4])}{more}; "
+    return (f"poor ring coverage at {len(shown)} of {len(means.radii)} radii: {'; '.join(shown[:4])}{more}; "
             "sparse lit points bias these ring means (see --interpolate)")

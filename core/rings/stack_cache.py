@@ -1,7 +1,7 @@
 """The explorer's stacks and their noise estimate, kept on disk so that a reopen shows them at once.
 
-A request's stacks (:func:`.stack_request.compute_stacks`) and their standard errors
-(:func:`.noise.stack_noise`) take most of a paper-scale open: at 800 x 800, R 24 about a minute
+A request's stacks (:func:`.stack_request.compute_stacks`), their standard errors
+(:func:`.noise.stack_noise`) and their rings' coverage (:func:`.coverage.ring_coverage`) take most of a paper-scale open: at 800 x 800, R 24 about a minute
 each, on every open, where the store itself reopens in a fraction of a second. Both are saved, a
 folder each, under ``stacks/`` of the user cache folder (:func:`..dataset.cache.user_cache_root`),
 named by a hash of what they depend on: the dataset's store key (its manifest, the identity of
@@ -19,7 +19,8 @@ with less than :data:`SPARE_BYTES` free, or a read-only cache, leaves the result
 
 Measured on ``benchmarks/bench_scale.py``'s 800 px, R 24 dataset, the explorer's default request
 (23 radii), a fresh process each (``/tmp/x20/bench800.py`` in the closing note): computed and saved
-22.8 s (stacks) and 21.4 s (noise); read back 0.36 s and 0.47 s; 120 MB on disk for both.
+22.8 s (stacks), 21.4 s (noise) and 2.0 s (coverage); read back 0.36 s, 0.47 s and 0.01 s;
+120 MB on disk for them.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from ..errors import RinglightError
 from ..phases import phase
 from ..staging_locks import sweep_abandoned
 from ..validation import read_json
+from .coverage import CoverageMeans, ring_coverage
 from .noise import StackNoise, luminance_weights, stack_noise
 from .stack_request import StackPair, StackRequest, compute_stacks
 from .stacks import Stack
@@ -105,6 +107,23 @@ def cached_noise(dataset: ImpulseDataset, request: StackRequest,
         _save(key, {"radii": noise.radii, "ring": noise.ring, "transient": noise.transient,
                     "ring_luminance": noise.ring_luminance, "transient_luminance": noise.transient_luminance})
     return noise
+
+
+def cached_coverage(dataset: ImpulseDataset, request: StackRequest) -> CoverageMeans:
+    """The means of :func:`.coverage.ring_coverage` of ``request``'s radii and thickness, read
+    from the cache when an entry of the same key is there and intact, else computed and saved."""
+    key = _key(dataset, request, "coverage")
+    n = len(request.radii())
+    shapes = {"radii": ((n,), "float64"), "member_fraction": ((n,), "float64"), "nearest_offset": ((n,), "float64")}
+    arrays = _load(key, shapes, "reading the saved ring coverage") if key else None
+    if arrays is not None:
+        return CoverageMeans(arrays["radii"], arrays["member_fraction"], arrays["nearest_offset"])
+    phase("measuring the rings' coverage")
+    means = ring_coverage(dataset, request.radii(), request.thickness).means()
+    if key:
+        _save(key, {"radii": means.radii, "member_fraction": means.member_fraction,
+                    "nearest_offset": means.nearest_offset})
+    return means
 
 
 def cache_folder() -> Path:
