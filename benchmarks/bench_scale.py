@@ -9,7 +9,10 @@ R), then prints, each measured in a fresh process so that peak RSS is the open's
 - reopen time;
 - peak RSS of the first open and of a 21-radius transient stack, against the memory budget;
 - store size against the EXR frames' size;
-- the transient stack's time, local and on a LocalCluster of two worker processes.
+- the transient stack's time, local and on a LocalCluster of two worker processes;
+- the explorer's open with its default stacks, their ring coverage and noise estimate, as its
+  workers run them, twice: first computing the stacks and noise (and saving them in a user cache
+  made for the run), then again reading them back.
 
     python benchmarks/bench_scale.py [--sizes 256,512,800] [--with-1024] [--folder DIR] [--keep]
                                      [--repeat N]
@@ -88,6 +91,12 @@ def worker(task: str, folder: str) -> None:
     elif task == "open":
         dataset = open_dataset(folder)
         figures["in_memory"] = dataset.in_memory
+    elif task == "view":
+        from ringlight.app.session import load_for_viewing
+        from ringlight.core.rings.stack_cache import cached_noise
+
+        loaded = load_for_viewing(folder, None, lambda fraction: None)
+        cached_noise(loaded.dataset, loaded.stacks.pair.request)
     elif task in ("stack", "cluster"):
         dataset = open_dataset(folder)
         start = time.perf_counter()
@@ -106,9 +115,9 @@ def worker(task: str, folder: str) -> None:
     print(json.dumps(figures))
 
 
-def measured(task: str, folder: Path) -> dict:
+def measured(task: str, folder: Path, env: dict | None = None) -> dict:
     result = subprocess.run([sys.executable, __file__, "--worker", task, str(folder)], capture_output=True,
-                            text=True, check=False)
+                            text=True, check=False, env=None if env is None else {**os.environ, **env})
     if result.returncode:
         raise SystemExit(f"{task} on {folder} failed:\n{result.stderr[-3000:]}")
     return json.loads(result.stdout.strip().splitlines()[-1])
@@ -146,6 +155,9 @@ def bench(root: Path, size: int, radius: int, repeat: int = 1) -> None:
     reopen = measured("open", folder)
     stack = measured("stack", folder)
     cluster = measured("cluster", folder)
+    with tempfile.TemporaryDirectory(prefix="ringlight-view-cache-") as user_cache:
+        view_first = measured("view", folder, {"RINGLIGHT_CACHE_DIR": user_cache})
+        view_again = measured("view", folder, {"RINGLIGHT_CACHE_DIR": user_cache})
     from ringlight.core.dataset.impulse_dataset import disc_offset_count
 
     responses = size * size * disc_offset_count(radius) * 12
@@ -159,7 +171,10 @@ def bench(root: Path, size: int, radius: int, repeat: int = 1) -> None:
           f"(budget {gib(budget)}; target 4 GiB at 800 px, 6 GiB at 1024 px)")
     print(f"  store        {gib(store)} beside {gib(exr)} of EXR frames (ratio {store / exr:.2f}, target <= 1.2)")
     print(f"  stack        {RADII} transient radii: local {stack['seconds']:.1f} s, LocalCluster of 2 processes "
-          f"{cluster['seconds']:.1f} s", flush=True)
+          f"{cluster['seconds']:.1f} s")
+    print(f"  explorer     open with its stacks, coverage and noise: {view_first['seconds']:.1f} s computed, "
+          f"{view_again['seconds']:.1f} s read back (peak RSS {gib(view_first['peak_rss'])}, "
+          f"{gib(view_again['peak_rss'])})", flush=True)
 
 
 def main() -> None:
