@@ -18,9 +18,9 @@ temporaries of its killed saves) is ever removed. Saving is best effort: a disk 
 with less than :data:`SPARE_BYTES` free, or a read-only cache, leaves the result uncached.
 
 Measured on ``benchmarks/bench_scale.py``'s 800 px, R 24 dataset, the explorer's default request
-(23 radii), a fresh process each (``/tmp/x20/bench800.py`` in the closing note): computed and saved
-22.8 s (stacks), 21.4 s (noise) and 2.0 s (coverage); read back 0.36 s, 0.47 s and 0.01 s;
-120 MB on disk for them.
+(23 radii), a fresh process each: computed and saved 22.8 s (stacks), 21.4 s (noise) and 2.0 s
+(coverage); read back 0.36 s, 0.47 s and 0.01 s; 120 MB on disk for them. The benchmark's
+``explorer`` line times the whole open, dataset to noise, both ways.
 """
 
 from __future__ import annotations
