@@ -47,6 +47,9 @@ class DatasetOpening:
         self._pending_request = None
         self.stack_jobs.cancel()
         self.fit_jobs.cancel()
+        if self.loaded is None:  # an empty view says what is coming (the status bar says how far)
+            self.image_panel.clear_image()
+            self.image_panel.set_title(f"{description} ...")
         self.load_jobs.start(description, lambda progress: load_for_viewing(
             path, request, progress, sample=sample, preview=self.steady_previewed.emit))
 

@@ -56,7 +56,7 @@ class NoiseView:
                 or self._noise_failed_for is self.stacks.pair):
             return
         dataset, pair = self.loaded.dataset, self.stacks.pair
-        self.noise_jobs.start(f"Estimating noise of {len(pair.radii)} radii",
+        self.noise_jobs.start(f"Noise of {len(pair.radii)} radii",
                               lambda progress: compute_view_noise(dataset, pair, progress))
 
     def _forget_noise(self) -> None:

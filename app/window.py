@@ -226,7 +226,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
             return
         loaded = self.loaded
         self.stack_jobs.start(
-            f"Computing {len(_safe_radii(request))} radii",
+            f"Stacks of {len(_safe_radii(request))} radii",
             lambda progress: compute_view_stacks(loaded.dataset, loaded.truth, request, progress),
         )
 

@@ -112,6 +112,16 @@ def test_opening_another_dataset_resets_pick_hover_and_diagram(qtbot, window, tm
     assert x0 <= 0.0 and x1 >= 0.8 and y0 <= 0.0 and y1 >= 0.9  # the whole CIE diagram
 
 
+def test_an_empty_window_says_what_it_is_opening_and_marks_no_radius_until_there_are_profiles(qtbot, window,
+                                                                                           tmp_path):
+    assert not any(line.isVisible() for line in window.profile_plot.radius_lines)
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(make_dataset(tmp_path / "d", 9, 3, seed=6))
+        assert window.image_panel.title.toPlainText() == "Opening d ..."
+    assert all(line.isVisible() for line in window.profile_plot.radius_lines)
+    assert window.profile_plot.radius_lines[0].value() == window.stacks.pair.radii[window.radius_index()]
+
+
 def test_cancelling_the_first_open_leaves_a_hint_not_a_blank_window(qtbot, window, tmp_path):
     from ringlight.app.dataset_opening import EMPTY_HINT
 

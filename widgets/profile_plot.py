@@ -161,6 +161,7 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
             plot.ctrl.transformGroup.setEnabled(False)
             plot.ctrl.transformGroup.setToolTip("Log y: the Display panel's \"log y\" box")
             line = pg.InfiniteLine(0, angle=90, movable=True, pen=pg.mkPen("#ffd600", width=2))
+            line.hide()  # shown with the first profiles: over empty axes it marks nothing
             line.sigDragged.connect(self._on_line_dragged)
             plot.addItem(line)
             self.radius_lines.append(line)
@@ -212,6 +213,8 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         blank = np.full(self._ring.shape, np.nan)
         self._ring_se = blank if ring_se is None else np.asarray(ring_se, np.float64)
         self._transient_se = blank if transient_se is None else np.asarray(transient_se, np.float64)
+        for line in self.radius_lines:
+            line.setVisible(len(self._radii) > 0)
         self._redraw()
 
     def set_point(self, text: str) -> None:
