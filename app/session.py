@@ -150,9 +150,11 @@ def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None,
     """Stacks of ``request`` (from the cache when a previous open saved them) with profile rings
     and ground-truth correlations."""
     pair = cached_stacks(dataset, request, scaled(progress, 0.0, 0.9))
+    phase("placing the profiles' rings")
     rings = profile_rings(dataset, pair.radii, request.dr, request.thickness, request.antialias)
     correlations = None
     if truth is not None:
+        phase("comparing with the ground truth")
         correlations = stack_correlations(pair.radii, request.dr, pair.transient.images, truth)
     coverage = cached_coverage(dataset, request)
     progress(1.0)

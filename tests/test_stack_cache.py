@@ -1,7 +1,9 @@
 """The explorer's stacks and noise saved in the user cache: read back bit for bit, keyed by all
 they depend on, never shown when damaged, and trimmed to their bound least recently used first."""
 
+import dataclasses
 import json
+import threading
 import os
 import time
 
@@ -146,7 +148,21 @@ DAMAGES = {
     "an array's shape edited and re-tabled": lambda entry: _edit_array(entry, "ring_images",
                                                                       lambda spec: spec["shape"].__setitem__(0, 3)),
     "meta.json not JSON": lambda entry: (entry / "meta.json").write_text("{"),
+    # edits recorded in the table, as a hand that knows it would make them
+    "a radius's images lost with their table line": lambda entry: _lose(entry, _chunk(entry, "transient_images", 2)),
+    "an array's chunks edited to none and re-tabled": lambda entry: _edit_array(
+        entry, "ring_images", lambda spec: spec["chunk_grid"]["configuration"].__setitem__("chunk_shape", [0, 9, 8, 3])),
+    "an image's byte order edited and re-tabled": lambda entry: _edit_array(
+        entry, "transient_images", lambda spec: spec["codecs"][0]["configuration"].__setitem__("endian", "big")),
+    "an array's chunk keys edited and re-tabled": lambda entry: _edit_array(
+        entry, "ring_counts", lambda spec: spec["chunk_key_encoding"]["configuration"].__setitem__("separator", ".")),
 }
+
+
+def _lose(entry, path):
+    relative = path.relative_to(entry).as_posix()
+    path.unlink()
+    _edit_meta(entry, lambda meta: meta["table"].pop(relative))
 
 
 def _flip(path):
@@ -203,6 +219,10 @@ def test_a_damaged_entry_is_recomputed_and_replaced_never_shown(folder, monkeypa
     assert computed.stacks == 2
 
 
+def entry_folders_by_request(dataset, requests):
+    return [stack_cache._key(dataset, "stacks", dataclasses.asdict(request))[:32] for request in requests]
+
+
 def test_the_cache_keeps_the_most_recently_used_entries_within_its_bound(folder, monkeypatch):
     computed = Computations(monkeypatch)
     dataset = open_dataset(folder, radius=6)
@@ -219,10 +239,10 @@ def test_the_cache_keeps_the_most_recently_used_entries_within_its_bound(folder,
     monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
 
     stack_cache.cached_stacks(dataset, requests[1])
-    time.sleep(0.02)
+    for age, name in zip((300, 200), entry_folders_by_request(dataset, requests[:2])):
+        os.utime(root / name, (time.time() - age, time.time() - age))
     stack_cache.cached_stacks(dataset, requests[0])  # read: now the most recently used
     assert computed.stacks == 2
-    time.sleep(0.02)
     stack_cache.cached_stacks(dataset, requests[2])  # saving it removes requests[1]'s entry
     assert computed.stacks == 3
     stack_cache.cached_stacks(dataset, requests[0])
@@ -263,7 +283,55 @@ def test_the_explorer_reopens_a_dataset_with_its_saved_stacks_and_noise(folder, 
     assert_array_equal(noise.snr, first_noise.snr)
 
 
-def test_a_cache_bound_that_is_not_a_size_is_named(folder, monkeypatch):
+def test_a_cache_bound_that_is_not_a_size_is_named_before_any_work_and_0_saves_nothing(folder, monkeypatch):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
     monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "lots")
     with pytest.raises(RinglightError, match=r"\$RINGLIGHT_STACK_CACHE: 'lots' is not a size"):
-        stack_cache.cached_stacks(open_dataset(folder, radius=6), REQUEST)
+        stack_cache.cached_stacks(dataset, REQUEST)
+    assert computed.stacks == 0
+    monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "0")
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), compute_stacks(dataset, REQUEST))
+    stack_cache.cached_noise(dataset, REQUEST)
+    assert (computed.stacks, computed.noise, entry_folders()) == (1, 1, [])
+
+
+@pytest.mark.parametrize("kind", ["noise", "coverage"])
+def test_damaged_noise_and_coverage_entries_are_recomputed_too(folder, monkeypatch, kind):
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    load = {"noise": stack_cache.cached_noise, "coverage": stack_cache.cached_coverage}[kind]
+    expected = load(dataset, REQUEST)
+    (name,) = entry_folders()
+    entry = stack_cache.cache_folder() / name
+    array = {"noise": "transient_luminance", "coverage": "nearest_offset"}[kind]
+    chunk = next(path for path in (entry / array / "c").rglob("*") if path.is_file())
+    _lose(entry, chunk)
+    again = load(dataset, REQUEST)
+    assert getattr(computed, kind) == 2
+    for field in ("radii", "transient_luminance", "ring") if kind == "noise" else ("radii", "nearest_offset"):
+        assert_array_equal(getattr(again, field), getattr(expected, field))
+    _flip(chunk)  # the entry written again: a flipped byte in it fails its check
+    load(dataset, REQUEST)
+    assert getattr(computed, kind) == 3
+
+
+def test_two_threads_settling_zarr_reads_at_once_both_return():
+    """Two workers missing or failing a read at once each waited on the other's settle for good
+    (found by a review: two cache misses hung the explorer's stacks and noise jobs)."""
+    from ringlight.core.dataset.store_table import settle_reads
+
+    for _ in range(50):
+        barrier, done = threading.Barrier(2), []
+
+        def settle():
+            barrier.wait()
+            settle_reads()
+            done.append(True)
+
+        threads = [threading.Thread(target=settle, daemon=True) for _ in range(2)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(timeout=10)
+        assert done == [True, True]

@@ -292,3 +292,21 @@ def test_ring_members_of_a_band_equal_the_sums_of_its_validity_flags(antialias):
         assert np.array_equal(counts[j], (validity * (ring > 0)).sum(-1))
         assert_allclose(totals[j], validity @ ring, rtol=1e-12)
         assert counts[j].max() > 0
+
+
+def test_a_ring_holding_no_grid_offset_is_undefined_not_an_error(tmp_path):
+    """Radius 0.5 at thickness 0.5 holds no offset (0.25 <= |d| < 0.75): its ring light image is
+    NaN with no member, as the definition's brute force gives, and the stacks of the other radii
+    are unchanged (found by a review: a traceback from an empty reduction)."""
+    impulses = random_impulses(np.random.default_rng(5), 8, 9, support=10)
+    write_dataset(tmp_path / "ds", 8, 9, impulses)
+    dataset = open_dataset(tmp_path / "ds", radius=6)
+    stack = ring_stack(dataset, [0.5, 1.5, 3.0], thickness=0.5)
+    assert (stack.counts[0] == 0).all()
+    for index, radius in enumerate([0.5, 1.5, 3.0]):
+        assert_same_with_nan(stack.images[index], brute_ring_image(impulses, 8, 9, radius, thickness=0.5))
+    assert np.isnan(stack.images[0]).all() and not np.isnan(stack.images[2]).all()
+    transient = transient_stack(dataset, [0.5, 2.0], 1.0, thickness=0.5)
+    assert np.isnan(transient.images[0]).all()
+    assert_same_with_nan(transient.images[1], brute_ring_image(impulses, 8, 9, 2.0, thickness=0.5)
+                         - brute_ring_image(impulses, 8, 9, 3.0, thickness=0.5))

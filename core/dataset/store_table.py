@@ -16,6 +16,7 @@ import asyncio
 import hashlib
 import os
 import stat
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,6 +24,8 @@ import zarr
 
 META = "meta.json"
 """The entry's own record: key, layout, shape, tile and the table (not in the table)."""
+_METADATA = {"zarr.json", ".zgroup", ".zarray", ".zattrs", ".zmetadata"}
+"""Metadata files zarr may look for (v3, and v2's when it probes)."""
 CHUNK_PREFIX = "responses/c."
 """Names of the responses' chunk files (``responses/c.ROW.COLUMN.0.0``)."""
 
@@ -95,17 +98,25 @@ class TableStore(zarr.storage.LocalStore):
 
     async def get(self, key, prototype=None, byte_range=None):
         if key not in self._table:
-            return None
+            return self._absent(key)
         return await asyncio.to_thread(self.get_sync, key, prototype=prototype, byte_range=byte_range)
 
     def get_sync(self, key, *, prototype=None, byte_range=None):
         """The one way a file is read, whichever path zarr takes (its synchronous one too)."""
         if key not in self._table:
-            return None
+            return self._absent(key)
         if byte_range is not None:  # only sharded arrays ask for parts of a file
             raise DamagedEntry(f"{key}: a part of a file was asked for; the entry's arrays are not sharded")
         data = read_checked(self.root, key, self._table)
         return (prototype or zarr.core.buffer.default_buffer_prototype()).buffer.from_bytes(data)
+
+    @staticmethod
+    def _absent(key: str) -> None:
+        """A file the table does not name: metadata zarr looks for is absent (None); a chunk is an
+        error, never zarr's fill value (metadata edited to other chunk names, its table with it)."""
+        if key.rsplit("/", 1)[-1] in _METADATA:
+            return None
+        raise DamagedEntry(f"{key} is not one of the entry's files")
 
     async def get_partial_values(self, prototype, key_ranges):
         raise DamagedEntry("parts of files were asked for; the entry's arrays are not sharded")
@@ -148,12 +159,19 @@ def settle_reads() -> None:
     """Wait until zarr's event loop has finished every read it still holds. A read that fails in
     one chunk raises while the loop still reads its others; a command that then reports the error
     and exits left them pending, and Python printed a warning and a traceback for each (after the
-    error's one line)."""
+    error's one line). One thread settles at a time, and a settle never waits on another's: two
+    that gathered each other's task waited for good (two workers missing a cache at once)."""
     async def settle() -> None:
-        others = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+        asyncio.current_task().set_name(_SETTLING)
+        others = [task for task in asyncio.all_tasks() if task.get_name() != _SETTLING]
         await asyncio.gather(*others, return_exceptions=True)
 
-    try:
-        zarr.core.sync.sync(settle())
-    except Exception:  # nothing to add to the error being reported
-        pass
+    with _SETTLE_LOCK:
+        try:
+            zarr.core.sync.sync(settle())
+        except Exception:  # nothing to add to the error being reported
+            pass
+
+
+_SETTLING = "ringlight: settling zarr's reads"
+_SETTLE_LOCK = threading.Lock()

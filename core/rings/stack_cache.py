@@ -13,7 +13,7 @@ An entry is a zarr v3 group (an image a chunk, Blosc-LZ4 with bit shuffling, a C
 and ``meta.json`` with the key and the table of its files, each checked by its SHA-256 when read
 (:mod:`..dataset.store_table`): an entry that is damaged, edited, partly lost or not of the shapes
 the request gives is recomputed and replaced, never shown. Entries beyond :func:`cache_limit` are
-removed, least recently used first; nothing but the entries this module names (and the
+removed, least recently used first (a limit of 0 saves nothing); nothing but the entries this module names (and the
 temporaries of its killed saves) is ever removed. Saving is best effort: a disk that would be left
 with less than :data:`SPARE_BYTES` free, or a read-only cache, leaves the result uncached.
 
@@ -32,7 +32,9 @@ import os
 import re
 import shutil
 import stat
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zarr
@@ -43,7 +45,7 @@ from ..dataset.cache import user_cache_root
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..dataset.memory import parse_size
 from ..dataset.response_store import entry_bytes
-from ..dataset.store_table import META, TableStore, entry_table, settle_reads, table_of
+from ..dataset.store_table import META, TableStore, entry_table, read_checked, settle_reads, table_of
 from ..errors import RinglightError
 from ..phases import phase
 from ..staging_locks import sweep_abandoned
@@ -54,21 +56,18 @@ from .stack_request import StackPair, StackRequest, compute_stacks
 from .stacks import Stack
 
 VERSION = 1
-"""Changes whenever the stacks' or the noise's arithmetic changes, so that no entry of the old
-arithmetic is shown."""
+"""Changes whenever the arithmetic of the stacks, their noise or their coverage changes, so that no
+entry of the old arithmetic is shown."""
 CACHE_BYTES = 4 * 2**30
-"""Default bound of the entries' total size (``$RINGLIGHT_STACK_CACHE`` overrides: ``2G``); an
-800 x 800 view's stacks and noise take up to 0.9 GiB raw, less compressed."""
+"""Default bound of the entries' total size (``$RINGLIGHT_STACK_CACHE`` overrides: ``2G``; ``0``
+saves nothing); an 800 x 800 view's stacks and noise take up to 0.9 GiB raw, less compressed."""
 SPARE_BYTES = 2**30
 """Free disk an entry must leave beside its raw size, or it is not saved."""
-SAVE_SHARE = 0.05
-"""Share of a computation's progress given to saving its result."""
 _ENTRY = re.compile(r"[0-9a-f]{32}")
 _ABANDONED = re.compile(r"\.([0-9a-f]{32})\.(?:partial|old)-[0-9a-f]{12}")
 _MAX_META_BYTES = 2**20
-_STACK_ARRAYS = ("ring_radii", "ring_images", "ring_counts", "transient_radii", "transient_images",
-                 "transient_counts", "transient_outer_counts")
-_NOISE_ARRAYS = ("radii", "ring", "transient", "ring_luminance", "transient_luminance")
+Shapes = dict[str, tuple[tuple[int, ...], str]]
+"""An entry's arrays: name -> (shape, dtype name)."""
 
 
 def cached_stacks(dataset: ImpulseDataset, request: StackRequest,
@@ -76,54 +75,84 @@ def cached_stacks(dataset: ImpulseDataset, request: StackRequest,
     """:func:`.stack_request.compute_stacks`, read from the cache when an entry of the same key
     is there and intact, else computed and saved. ``progress`` may raise ``Cancelled``."""
     request.check(dataset)
-    key = _key(dataset, request, "stacks")
-    arrays = _load(key, _stack_shapes(dataset, request), "reading the saved stacks") if key else None
-    if arrays is not None:
-        return _pair(dataset, request, arrays)
-    phase("computing the stacks")
-    pair = compute_stacks(dataset, request, _scaled(progress, 1.0 - SAVE_SHARE) if key else progress)
-    if key:
+    n, (height, width) = len(request.radii()), dataset.grid_shape
+    images, counts = ((n, height, width, 3), "float32"), ((n, height, width), "int32")
+    shapes = {"ring_radii": ((n,), "float64"), "ring_images": images, "ring_counts": counts,
+              "transient_radii": ((n,), "float64"), "transient_images": images, "transient_counts": counts,
+              "transient_outer_counts": counts}
+
+    def arrays_of(pair: StackPair) -> dict[str, np.ndarray]:
         ring, transient = pair.ring, pair.transient
-        _save(key, {"ring_radii": ring.radii, "ring_images": ring.images, "ring_counts": ring.counts,
-                    "transient_radii": transient.radii, "transient_images": transient.images,
-                    "transient_counts": transient.counts, "transient_outer_counts": transient.outer_counts})
-    return pair
+        return {"ring_radii": ring.radii, "ring_images": ring.images, "ring_counts": ring.counts,
+                "transient_radii": transient.radii, "transient_images": transient.images,
+                "transient_counts": transient.counts, "transient_outer_counts": transient.outer_counts}
+
+    def pair_of(arrays: dict[str, np.ndarray]) -> StackPair:
+        common = {"thickness": request.thickness, "antialias": request.antialias, "colorspace": dataset.colorspace}
+        ring = Stack("ring", arrays["ring_radii"], images=arrays["ring_images"], counts=arrays["ring_counts"],
+                     **common)
+        transient = Stack("transient", arrays["transient_radii"], images=arrays["transient_images"],
+                          counts=arrays["transient_counts"], outer_counts=arrays["transient_outer_counts"],
+                          step=float(request.dr), **common)
+        return StackPair(request, ring, transient)
+
+    return _cached(dataset, "stacks", dataclasses.asdict(request), shapes,
+                   ("reading the saved stacks", "computing the stacks"),
+                   lambda: compute_stacks(dataset, request, progress), arrays_of, pair_of)
 
 
 def cached_noise(dataset: ImpulseDataset, request: StackRequest,
                  progress: ProgressCallback | None = None) -> StackNoise:
     """:func:`.noise.stack_noise` of ``request``'s radii, read from the cache when an entry of the
     same key is there and intact, else computed and saved. ``progress`` may raise ``Cancelled``."""
-    key = _key(dataset, request, "noise")
-    arrays = _load(key, _noise_shapes(dataset, request), "reading the saved noise estimate") if key else None
-    if arrays is not None:
+    n, (height, width) = len(request.radii()), dataset.grid_shape
+    images, luminance = ((n, height, width, 3), "float32"), ((n, height, width), "float32")
+    shapes = {"radii": ((n,), "float64"), "ring": images, "transient": images, "ring_luminance": luminance,
+              "transient_luminance": luminance}
+
+    def arrays_of(noise: StackNoise) -> dict[str, np.ndarray]:
+        return {name: getattr(noise, name) for name in shapes}
+
+    def noise_of(arrays: dict[str, np.ndarray]) -> StackNoise:
         return StackNoise(arrays["radii"], float(request.dr), arrays["ring"], arrays["transient"],
                           arrays["ring_luminance"], arrays["transient_luminance"],
                           luminance_weights(dataset.colorspace))
-    phase("estimating the noise")
-    noise = stack_noise(dataset, request.radii(), request.dr, request.thickness, request.antialias,
-                        _scaled(progress, 1.0 - SAVE_SHARE) if key else progress)
-    if key:
-        _save(key, {"radii": noise.radii, "ring": noise.ring, "transient": noise.transient,
-                    "ring_luminance": noise.ring_luminance, "transient_luminance": noise.transient_luminance})
-    return noise
+
+    return _cached(dataset, "noise", dataclasses.asdict(request), shapes,
+                   ("reading the saved noise estimate", "estimating the noise"),
+                   lambda: stack_noise(dataset, request.radii(), request.dr, request.thickness, request.antialias,
+                                       progress),
+                   arrays_of, noise_of)
 
 
 def cached_coverage(dataset: ImpulseDataset, request: StackRequest) -> CoverageMeans:
     """The means of :func:`.coverage.ring_coverage` of ``request``'s radii and thickness, read
     from the cache when an entry of the same key is there and intact, else computed and saved."""
-    key = _key(dataset, request, "coverage")
-    n = len(request.radii())
-    shapes = {"radii": ((n,), "float64"), "member_fraction": ((n,), "float64"), "nearest_offset": ((n,), "float64")}
-    arrays = _load(key, shapes, "reading the saved ring coverage") if key else None
+    radii = request.radii()
+    shapes = {name: ((len(radii),), "float64") for name in ("radii", "member_fraction", "nearest_offset")}
+    return _cached(dataset, "coverage", {"radii": radii.tolist(), "thickness": request.thickness}, shapes,
+                   ("reading the saved ring coverage", "measuring the rings' coverage"),
+                   lambda: ring_coverage(dataset, radii, request.thickness).means(),
+                   lambda means: {name: getattr(means, name) for name in shapes},
+                   lambda arrays: CoverageMeans(arrays["radii"], arrays["member_fraction"], arrays["nearest_offset"]))
+
+
+def _cached(dataset: ImpulseDataset, kind: str, parameters: dict, shapes: Shapes, phases: tuple[str, str],
+            compute: Callable[[], Any], arrays_of: Callable[[Any], dict[str, np.ndarray]],
+            result_of: Callable[[dict[str, np.ndarray]], Any]) -> Any:
+    """``result_of`` the arrays of the entry of ``kind`` and ``parameters`` when it is there and
+    intact, else ``compute()``, saved as ``arrays_of`` it; ``phases`` names reading and computing.
+    A limit that is not a size is named before any work, and a limit of 0 saves nothing."""
+    limit = cache_limit()
+    key = _key(dataset, kind, parameters)
+    arrays = _load(key, shapes, phases[0]) if key else None
     if arrays is not None:
-        return CoverageMeans(arrays["radii"], arrays["member_fraction"], arrays["nearest_offset"])
-    phase("measuring the rings' coverage")
-    means = ring_coverage(dataset, request.radii(), request.thickness).means()
-    if key:
-        _save(key, {"radii": means.radii, "member_fraction": means.member_fraction,
-                    "nearest_offset": means.nearest_offset})
-    return means
+        return result_of(arrays)
+    phase(phases[1])
+    result = compute()
+    if key and limit > 0:
+        _save(key, arrays_of(result), limit)
+    return result
 
 
 def cache_folder() -> Path:
@@ -138,66 +167,50 @@ def cache_limit() -> int:
     return parse_size(text, "$RINGLIGHT_STACK_CACHE") if text else CACHE_BYTES
 
 
-def _key(dataset: ImpulseDataset, request: StackRequest, kind: str) -> str:
-    """The full key of ``kind``'s entry for ``request`` on ``dataset``; empty without a store key."""
+def _key(dataset: ImpulseDataset, kind: str, parameters: dict) -> str:
+    """The full key of the entry of ``kind`` computed with ``parameters`` (JSON values) from
+    ``dataset``; empty without a store key."""
     if not dataset.cache_key:
         return ""
-    text = json.dumps({"version": VERSION, "kind": kind, "dataset": dataset.cache_key,
-                       "request": dataclasses.asdict(request)}, sort_keys=True)
+    text = json.dumps({"version": VERSION, "kind": kind, "dataset": dataset.cache_key, "parameters": parameters},
+                      sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _stack_shapes(dataset: ImpulseDataset, request: StackRequest) -> dict[str, tuple[tuple[int, ...], str]]:
-    n, (height, width) = len(request.radii()), dataset.grid_shape
-    images, counts = ((n, height, width, 3), "float32"), ((n, height, width), "int32")
-    return {"ring_radii": ((n,), "float64"), "ring_images": images, "ring_counts": counts,
-            "transient_radii": ((n,), "float64"), "transient_images": images, "transient_counts": counts,
-            "transient_outer_counts": counts}
-
-
-def _noise_shapes(dataset: ImpulseDataset, request: StackRequest) -> dict[str, tuple[tuple[int, ...], str]]:
-    n, (height, width) = len(request.radii()), dataset.grid_shape
-    images, luminance = ((n, height, width, 3), "float32"), ((n, height, width), "float32")
-    return {"radii": ((n,), "float64"), "ring": images, "transient": images, "ring_luminance": luminance,
-            "transient_luminance": luminance}
-
-
-def _pair(dataset: ImpulseDataset, request: StackRequest, arrays: dict[str, np.ndarray]) -> StackPair:
-    common = {"thickness": request.thickness, "antialias": request.antialias, "colorspace": dataset.colorspace}
-    ring = Stack("ring", arrays["ring_radii"], images=arrays["ring_images"], counts=arrays["ring_counts"], **common)
-    transient = Stack("transient", arrays["transient_radii"], images=arrays["transient_images"],
-                      counts=arrays["transient_counts"], outer_counts=arrays["transient_outer_counts"],
-                      step=float(request.dr), **common)
-    return StackPair(request, ring, transient)
-
-
-def _scaled(progress: ProgressCallback | None, share: float) -> ProgressCallback | None:
-    return None if progress is None else (lambda fraction: progress(share * fraction))
-
-
-def _load(key: str, shapes: dict[str, tuple[tuple[int, ...], str]], what: str) -> dict[str, np.ndarray] | None:
-    """The arrays of the entry for ``key`` when it is there, intact and of ``shapes`` (name ->
-    (shape, dtype)), its reading named phase ``what``; else None."""
+def _load(key: str, shapes: Shapes, what: str) -> dict[str, np.ndarray] | None:
+    """The arrays of the entry for ``key`` when it is there, intact and exactly of ``shapes``, its
+    reading named phase ``what``; else None. The table must list exactly the files those arrays
+    are written as (a chunk it did not list would read as zarr's fill value), and any failure of
+    a read is a miss: the caller computes the arrays again."""
     folder = cache_folder() / key[:32]
     try:
         if not stat.S_ISDIR(os.lstat(folder).st_mode) or not stat.S_ISREG(os.lstat(folder / META).st_mode):
             return None
+    except OSError:  # no entry: the usual miss
+        return None
+    reading = False
+    try:
         meta = read_json(folder / META, _EntryInvalid, "cache meta.json", max_bytes=_MAX_META_BYTES)
         if not isinstance(meta, dict) or meta.get("key") != key:
             return None
         table = entry_table(folder, meta)
-        if table is None:
+        if table is None or set(table) != _files_of(shapes) or any(
+                json.loads(read_checked(folder, name, table)) != written
+                for name, written in _metadata_of(shapes).items()):
             return None
         phase(what)
+        reading = True
         group = zarr.open_group(TableStore(folder, table), mode="r", zarr_format=3)
         arrays = {}
         for name, (shape, dtype) in shapes.items():
             array = group[name]
-            if not isinstance(array, zarr.Array) or array.shape != shape or array.dtype != np.dtype(dtype):
+            if not isinstance(array, zarr.Array) or array.shape != shape or array.dtype != np.dtype(dtype) \
+                    or array.chunks != _chunks(shape):
                 return None
             arrays[name] = array[...]
-    except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
-        settle_reads()
+    except Exception:  # noqa: BLE001 - whatever a damaged or planted entry raises, it is recomputed
+        if reading:
+            settle_reads()
         return None
     try:
         os.utime(folder)  # the least recently used entries are removed first
@@ -206,11 +219,44 @@ def _load(key: str, shapes: dict[str, tuple[tuple[int, ...], str]], what: str) -
     return arrays
 
 
-def _save(key: str, arrays: dict[str, np.ndarray]) -> None:
+def _create(group: zarr.Group, name: str, shape: tuple[int, ...], dtype) -> zarr.Array:
+    """An entry's array: an image (or a radius's values) a chunk, LZ4 with bit shuffling, CRC-32C."""
+    return group.create_array(name, shape=shape, chunks=_chunks(shape), dtype=dtype,
+                              compressors=[BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"), Crc32cCodec()],
+                              config={"write_empty_chunks": True})
+
+
+def _metadata_of(shapes: Shapes) -> dict[str, dict]:
+    """The metadata files (relative path -> their JSON) that :func:`_create` writes for arrays of
+    ``shapes``: an entry's must be exactly these (an edited byte order, codec or chunk naming,
+    recorded in the table, would still read, as other numbers)."""
+    store = zarr.storage.MemoryStore()
+    group = zarr.open_group(store, mode="w")
+    for name, (shape, dtype) in shapes.items():
+        _create(group, name, shape, dtype)
+    prototype = zarr.core.buffer.default_buffer_prototype()
+    return {path: json.loads(zarr.core.sync.sync(store.get(path, prototype)).to_bytes())
+            for path in ["zarr.json", *(f"{name}/zarr.json" for name in shapes)]}
+
+
+def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
+    """An entry array's chunks: an image (or a radius's values) a chunk, a 1-d array whole."""
+    return (1, *shape[1:]) if len(shape) > 1 else shape
+
+
+def _files_of(shapes: Shapes) -> set[str]:
+    """The files zarr writes for arrays of ``shapes`` in :func:`_chunks`, but meta.json."""
+    files = {"zarr.json"}
+    for name, (shape, _) in shapes.items():
+        files.add(f"{name}/zarr.json")
+        files.update(f"{name}/c/" + "/".join(map(str, index))
+                     for index in np.ndindex(*(-(-size // chunk) for size, chunk in zip(shape, _chunks(shape)))))
+    return files
+
+
+def _save(key: str, arrays: dict[str, np.ndarray], limit: int) -> None:
     """Save ``arrays`` (name -> array, an image or a radius's values a chunk) as the entry for
-    ``key``, then trim the cache to :func:`cache_limit`; gives up quietly when it cannot (but
-    raises RinglightError for a limit that is not a size)."""
-    limit = cache_limit()
+    ``key``, then trim the cache to ``limit`` bytes; gives up quietly when it cannot."""
     root = cache_folder()
     folder = root / key[:32]
     raw = sum(array.nbytes for array in arrays.values())
@@ -223,12 +269,7 @@ def _save(key: str, arrays: dict[str, np.ndarray]) -> None:
         with atomic_folder(folder) as staging:
             group = zarr.open_group(zarr.storage.LocalStore(staging), mode="w")
             for name, array in arrays.items():
-                chunks = (1, *array.shape[1:]) if array.ndim > 1 else array.shape
-                stored = group.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype,
-                                            compressors=[BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"),
-                                                         Crc32cCodec()],
-                                            config={"write_empty_chunks": True})
-                stored[...] = array
+                _create(group, name, array.shape, array.dtype)[...] = array
             meta = {"key": key, "table": table_of(staging)}
             (staging / META).write_text(json.dumps(meta), encoding="utf-8")
     except (OSError, RinglightError):

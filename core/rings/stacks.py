@@ -217,7 +217,8 @@ def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, a
                 f"the ring of radius {radius:g} (thickness {thickness:g}) reaches {ring.outer_radius:.3f} "
                 f"grid steps, beyond the dataset's max_radius {dataset.max_radius:g}"
             )
-        low, high = int(index.min()), int(index.max()) + 1
+        # A ring of no grid offsets (radius 0.5, thickness 0.5) is an empty run: no member, NaN.
+        low, high = (int(index.min()), int(index.max()) + 1) if len(index) else (0, 0)
         run = np.zeros(high - low)
         run[index - low] = ring.weights
         first.append(low)
