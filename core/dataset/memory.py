@@ -41,6 +41,13 @@ def parse_size(text: str, what: str) -> int:
     return int(float(match.group(1)) * 1024 ** " KMGT".index(match.group(2).upper() or " "))
 
 
+def size_setting(variable: str, default: int) -> int:
+    """Bytes the environment variable ``variable`` sets (:func:`parse_size`), else ``default``.
+    Raises RinglightError naming the variable when it is not a size."""
+    text = os.environ.get(variable)
+    return parse_size(text, f"${variable}") if text else default
+
+
 def format_bytes(count: float) -> str:
     """``count`` bytes in the largest binary unit that keeps it at least 1, e.g. ``"3.2 MiB"``."""
     for unit in ("B", "KiB", "MiB"):

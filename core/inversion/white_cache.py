@@ -16,7 +16,7 @@ import stat
 from pathlib import Path
 
 from ..dataset.cache import user_cache_root
-from ..dataset.memory import parse_size
+from ..dataset.memory import size_setting
 
 CACHE_BYTES = 4 * 2**30
 """Default limit of the databases' total size (``$RINGLIGHT_WHITE_CACHE`` overrides: ``2G``)."""
@@ -31,8 +31,7 @@ def cache_folder() -> Path:
 def cache_limit() -> int:
     """Bytes the databases may take together: ``$RINGLIGHT_WHITE_CACHE`` or :data:`CACHE_BYTES`.
     Raises RinglightError naming the variable when it is not a size."""
-    text = os.environ.get("RINGLIGHT_WHITE_CACHE")
-    return parse_size(text, "$RINGLIGHT_WHITE_CACHE") if text else CACHE_BYTES
+    return size_setting("RINGLIGHT_WHITE_CACHE", CACHE_BYTES)
 
 
 def mark_used(path: Path) -> None:

@@ -43,7 +43,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 from ..atomic import atomic_folder
 from ..dataset.cache import user_cache_root
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
-from ..dataset.memory import parse_size
+from ..dataset.memory import size_setting
 from ..dataset.response_store import entry_bytes
 from ..dataset.store_table import META, TableStore, entry_table, read_checked, settle_reads, table_of
 from ..errors import RinglightError
@@ -163,8 +163,7 @@ def cache_folder() -> Path:
 def cache_limit() -> int:
     """Bytes the entries may take together: ``$RINGLIGHT_STACK_CACHE`` or :data:`CACHE_BYTES`.
     Raises RinglightError naming the variable when it is not a size."""
-    text = os.environ.get("RINGLIGHT_STACK_CACHE")
-    return parse_size(text, "$RINGLIGHT_STACK_CACHE") if text else CACHE_BYTES
+    return size_setting("RINGLIGHT_STACK_CACHE", CACHE_BYTES)
 
 
 def _key(dataset: ImpulseDataset, kind: str, parameters: dict) -> str:
