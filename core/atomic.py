@@ -290,7 +290,10 @@ def _publish(staging: Path, target: _Target, owner: OwnerOf, kind: str, replace:
         except OSError:
             os.rename(trash, real)
             raise
-        shutil.rmtree(trash, ignore_errors=True)
+        try:
+            shutil.rmtree(trash, ignore_errors=True)
+        except RecursionError:  # a chain of folders deeper than rmtree recurses: left hidden, as by a kill
+            pass
     except OSError as error:
         if error.errno in (errno.ENOTEMPTY, errno.EEXIST):
             raise OutputError(f"{shown}: files appeared in it while the {kind} was written; "

@@ -87,7 +87,7 @@ def sweep_abandoned(final: str | os.PathLike, min_age: float | None = None) -> l
         try:
             shutil.rmtree(folder)
             removed.append(name)
-        except OSError:
+        except (OSError, RecursionError):  # RecursionError: a chain of folders deeper than rmtree recurses
             pass
         finally:
             os.close(descriptor)

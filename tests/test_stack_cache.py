@@ -3,6 +3,8 @@ they depend on, never shown when damaged, and trimmed to their bound least recen
 
 import dataclasses
 import json
+import shutil
+import subprocess
 import threading
 import os
 import time
@@ -286,9 +288,10 @@ def test_the_explorer_reopens_a_dataset_with_its_saved_stacks_and_noise(folder, 
 def test_a_cache_bound_that_is_not_a_size_is_named_before_any_work_and_0_saves_nothing(folder, monkeypatch):
     computed = Computations(monkeypatch)
     dataset = open_dataset(folder, radius=6)
-    monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "lots")
-    with pytest.raises(RinglightError, match=r"\$RINGLIGHT_STACK_CACHE: 'lots' is not a size"):
-        stack_cache.cached_stacks(dataset, REQUEST)
+    for text, why in [("lots", "is not a size"), ("1" + "0" * 400, r"is not a size \(over 8 EiB\)")]:
+        monkeypatch.setenv("RINGLIGHT_STACK_CACHE", text)
+        with pytest.raises(RinglightError, match=rf"\$RINGLIGHT_STACK_CACHE: '{text[:40]}' {why}"):
+            stack_cache.cached_stacks(dataset, REQUEST)
     assert computed.stacks == 0
     monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "0")
     assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), compute_stacks(dataset, REQUEST))
@@ -335,3 +338,76 @@ def test_two_threads_settling_zarr_reads_at_once_both_return():
         for thread in threads:
             thread.join(timeout=10)
         assert done == [True, True]
+
+
+@pytest.fixture
+def deep_chains(tmp_path_factory):
+    """Removes what a test leaves under the user cache with ``rm -rf``: pytest's own clean-up
+    recurses, and chains of 1500 folders defeat it."""
+    yield
+    subprocess.run(["rm", "-rf", str(stack_cache.cache_folder().parent)], check=False)
+
+
+def test_planted_entries_are_recomputed_and_nothing_of_the_users_is_touched(folder, monkeypatch, tmp_path, deep_chains):
+    """From a fuzz campaign of the cache: another request's entry under this one's name (its
+    meta.json's key edited), a chunk whose size the table was edited to 4 GiB (never read), a
+    chain of 1500 folders in an entry (Python's os.walk and rmtree recurse); a user's folder of 32
+    hex digits in stacks/ is never trimmed, and a stacks/ that links to a user's folder is never
+    written, read or trimmed."""
+    from ringlight.core.dataset import store_table
+
+    computed = Computations(monkeypatch)
+    dataset = open_dataset(folder, radius=6)
+    other = REQUEST.with_changes(dr=2.0)
+    expected, expected_other = stack_cache.cached_stacks(dataset, REQUEST), stack_cache.cached_stacks(dataset, other)
+    root = stack_cache.cache_folder()
+    name, other_name = entry_folders_by_request(dataset, [REQUEST, other])
+    # another request's entry, its key edited
+    shutil.rmtree(root / name)
+    shutil.copytree(root / other_name, root / name)
+    _edit_meta(root / name, lambda meta: meta.update(key=stack_cache._key(dataset, "stacks",
+                                                                          dataclasses.asdict(REQUEST))))
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), expected)
+    assert computed.stacks == 3
+    # a chunk grown to a 4 GiB sparse file, its size in the table
+    chunk = _chunk(root / name, "ring_images", 1)
+    with open(chunk, "r+b") as handle:
+        handle.truncate(4 * 2**30)
+    _edit_meta(root / name, lambda meta: meta["table"][chunk.relative_to(root / name).as_posix()].__setitem__(
+        0, 4 * 2**30))
+    read = []
+    original = store_table.read_checked
+    monkeypatch.setattr(store_table, "read_checked", lambda folder, relative, table: (
+        read.append(relative), original(folder, relative, table))[1])
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), expected)
+    assert computed.stacks == 4 and chunk.relative_to(root / name).as_posix() not in read
+    monkeypatch.setattr(store_table, "read_checked", original)
+    # a chain of 1500 folders in the entry (replaced when it is written again) and in another one
+    # (measured when the cache is trimmed)
+    for entry in (root / name, root / other_name):
+        path = str(entry)
+        for _ in range(1500):  # not os.makedirs, which recurses too
+            path = os.path.join(path, "d")
+            os.mkdir(path)
+    _flip(_chunk(root / name, "ring_images", 0))
+    monkeypatch.setenv("RINGLIGHT_STACK_CACHE", "1")  # every save trims the others
+    assert_same_pair(stack_cache.cached_stacks(dataset, REQUEST), expected)
+    assert computed.stacks == 5
+    # a user's folder named like an entry, with a meta.json, is not the cache's to trim
+    mine = root / ("ab" * 16)
+    mine.mkdir()
+    (mine / "meta.json").write_text('{"key": "mine"}')
+    (mine / "data.csv").write_text("precious")
+    stack_cache.cached_stacks(dataset, REQUEST.with_changes(stop=2.0))
+    assert (mine / "data.csv").read_text() == "precious"
+    # stacks/ as a link to a user's folder
+    subprocess.run(["rm", "-rf", str(root)], check=True)  # the chains left behind defeat rmtree
+    users = tmp_path / "users"
+    (users / ("cd" * 16)).mkdir(parents=True)
+    (users / ("cd" * 16) / "meta.json").write_text('{"key": "' + "cd" * 32 + '"}')
+    (users / "thesis.tex").write_text("precious")
+    root.symlink_to(users, target_is_directory=True)
+    before = sorted(path.relative_to(users).as_posix() for path in users.rglob("*"))
+    assert_same_pair(stack_cache.cached_stacks(dataset, other), expected_other)
+    assert computed.stacks == 7
+    assert sorted(path.relative_to(users).as_posix() for path in users.rglob("*")) == before

@@ -38,7 +38,10 @@ def parse_size(text: str, what: str) -> int:
     match = _SIZE.fullmatch(text)
     if not match:
         raise RinglightError(f"{what}: {text!r} is not a size (bytes, or a number with K, M, G or T)")
-    return int(float(match.group(1)) * 1024 ** " KMGT".index(match.group(2).upper() or " "))
+    size = float(match.group(1)) * 1024 ** " KMGT".index(match.group(2).upper() or " ")
+    if not size < 2**63:  # infinity too: "1" and 400 zeros
+        raise RinglightError(f"{what}: {text[:40]!r} is not a size (over 8 EiB)")
+    return int(size)
 
 
 def size_setting(variable: str, default: int) -> int:

@@ -298,13 +298,20 @@ def entry_bytes(location: Path) -> int:
     is never one, and a cache folder linked to ``/`` must not cost a walk of the whole disk)."""
     if os.path.islink(location):
         return 0
-    total = 0
-    for folder, _, names in os.walk(location):
-        for name in names:
-            try:
-                total += os.lstat(os.path.join(folder, name)).st_size
-            except OSError:
-                pass
+    total, pending = 0, [os.fspath(location)]
+    while pending:  # not os.walk, which recurses: a planted chain of 1500 folders raised RecursionError
+        try:
+            with os.scandir(pending.pop()) as entries:
+                for entry in entries:
+                    try:
+                        if entry.is_dir(follow_symlinks=False):
+                            pending.append(entry.path)
+                        else:
+                            total += entry.stat(follow_symlinks=False).st_size
+                    except OSError:
+                        pass
+        except OSError:
+            pass
     return total
 
 

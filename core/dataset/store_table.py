@@ -126,13 +126,23 @@ class TableStore(zarr.storage.LocalStore):
 
 
 def chunks_listed(table: dict, shape: tuple[int, ...], tile: int) -> bool:
-    """Whether the table lists every chunk of the arrays of ``shape`` in tiles of ``tile``: a
-    chunk it lacks would read as zarr's fill value."""
+    """Whether the table lists every chunk of the arrays of ``shape`` (float32 responses) in tiles
+    of ``tile``, none larger than :func:`most_bytes` of its raw size: a chunk it lacks would read
+    as zarr's fill value."""
     rows, columns = -(-shape[0] // tile), -(-shape[1] // tile)
     chunks = sum(1 for name in table if name.startswith(CHUNK_PREFIX))
+    raw = tile * tile * shape[2] * shape[3] * 4
     return (chunks == rows * columns and all(f"{CHUNK_PREFIX}{row}.{column}.0.0" in table
                                              for row in range(rows) for column in range(columns))
+            and all(size <= most_bytes(raw) for name, (size, _) in table.items() if name.startswith(CHUNK_PREFIX))
             and all(name in table for name in ("lit_counts/c.0.0", "observed/c.0.0", "steady/c.0.0.0")))
+
+
+def most_bytes(raw: int) -> int:
+    """The most bytes a chunk of ``raw`` bytes takes once compressed and checksummed (Blosc's
+    headers and its blocks stored raw when they do not compress): a file the table says is
+    larger is never read (a 4 GiB sparse file whose size was edited into the table)."""
+    return raw + raw // 16 + 1024
 
 
 def entry_table(location: Path, meta: dict) -> dict | None:

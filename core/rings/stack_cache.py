@@ -14,7 +14,7 @@ and ``meta.json`` with the key and the table of its files, each checked by its S
 (:mod:`..dataset.store_table`): an entry that is damaged, edited, partly lost or not of the shapes
 the request gives is recomputed and replaced, never shown. Entries beyond :func:`cache_limit` are
 removed, least recently used first (a limit of 0 saves nothing); nothing but the entries this module names (and the
-temporaries of its killed saves) is ever removed. Saving is best effort: a disk that would be left
+temporaries of its killed saves) is ever removed, and a ``stacks`` that is a link is never used. Saving is best effort: a disk that would be left
 with less than :data:`SPARE_BYTES` free, or a read-only cache, leaves the result uncached.
 
 Measured on ``benchmarks/bench_scale.py``'s 800 px, R 24 dataset, the explorer's default request
@@ -45,7 +45,7 @@ from ..dataset.cache import user_cache_root
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..dataset.memory import size_setting
 from ..dataset.response_store import entry_bytes
-from ..dataset.store_table import META, TableStore, entry_table, read_checked, settle_reads, table_of
+from ..dataset.store_table import META, TableStore, entry_table, most_bytes, read_checked, settle_reads, table_of
 from ..errors import RinglightError
 from ..phases import phase
 from ..staging_locks import sweep_abandoned
@@ -66,6 +66,8 @@ SPARE_BYTES = 2**30
 _ENTRY = re.compile(r"[0-9a-f]{32}")
 _ABANDONED = re.compile(r"\.([0-9a-f]{32})\.(?:partial|old)-[0-9a-f]{12}")
 _MAX_META_BYTES = 2**20
+_MAX_METADATA_BYTES = 2**16
+"""Largest zarr.json an entry's arrays or group can have (about 600 bytes each)."""
 Shapes = dict[str, tuple[tuple[int, ...], str]]
 """An entry's arrays: name -> (shape, dtype name)."""
 
@@ -181,7 +183,10 @@ def _load(key: str, shapes: Shapes, what: str) -> dict[str, np.ndarray] | None:
     reading named phase ``what``; else None. The table must list exactly the files those arrays
     are written as (a chunk it did not list would read as zarr's fill value), and any failure of
     a read is a miss: the caller computes the arrays again."""
-    folder = cache_folder() / key[:32]
+    root = _root()
+    if root is None:
+        return None
+    folder = root / key[:32]
     try:
         if not stat.S_ISDIR(os.lstat(folder).st_mode) or not stat.S_ISREG(os.lstat(folder / META).st_mode):
             return None
@@ -192,10 +197,10 @@ def _load(key: str, shapes: Shapes, what: str) -> dict[str, np.ndarray] | None:
         meta = read_json(folder / META, _EntryInvalid, "cache meta.json", max_bytes=_MAX_META_BYTES)
         if not isinstance(meta, dict) or meta.get("key") != key:
             return None
-        table = entry_table(folder, meta)
-        if table is None or set(table) != _files_of(shapes) or any(
-                json.loads(read_checked(folder, name, table)) != written
-                for name, written in _metadata_of(shapes).items()):
+        table, largest = entry_table(folder, meta), _files_of(shapes)
+        if table is None or set(table) != set(largest) or any(table[name][0] > largest[name] for name in table) \
+                or any(json.loads(read_checked(folder, name, table)) != written
+                       for name, written in _metadata_of(shapes, key).items()):
             return None
         phase(what)
         reading = True
@@ -212,10 +217,22 @@ def _load(key: str, shapes: Shapes, what: str) -> dict[str, np.ndarray] | None:
             settle_reads()
         return None
     try:
-        os.utime(folder)  # the least recently used entries are removed first
-    except OSError:
+        os.utime(folder, follow_symlinks=False)  # the least recently used entries are removed first
+    except (OSError, NotImplementedError):
         pass
     return arrays
+
+
+def _root() -> Path | None:
+    """:func:`cache_folder` when it is a real folder or absent, else None: a link there (to a
+    user's folder) is never written into, read or trimmed."""
+    root = cache_folder()
+    try:
+        return root if stat.S_ISDIR(os.lstat(root).st_mode) else None
+    except FileNotFoundError:
+        return root
+    except OSError:
+        return None
 
 
 def _create(group: zarr.Group, name: str, shape: tuple[int, ...], dtype) -> zarr.Array:
@@ -225,12 +242,13 @@ def _create(group: zarr.Group, name: str, shape: tuple[int, ...], dtype) -> zarr
                               config={"write_empty_chunks": True})
 
 
-def _metadata_of(shapes: Shapes) -> dict[str, dict]:
+def _metadata_of(shapes: Shapes, key: str) -> dict[str, dict]:
     """The metadata files (relative path -> their JSON) that :func:`_create` writes for arrays of
-    ``shapes``: an entry's must be exactly these (an edited byte order, codec or chunk naming,
-    recorded in the table, would still read, as other numbers)."""
+    ``shapes`` in the entry for ``key``: an entry's must be exactly these (an edited byte order,
+    codec or chunk naming, recorded in the table, would still read, as other numbers; the key in
+    the group's attributes keeps another request's entry, its meta.json's key edited, out)."""
     store = zarr.storage.MemoryStore()
-    group = zarr.open_group(store, mode="w")
+    group = zarr.open_group(store, mode="w", attributes={"key": key})
     for name, (shape, dtype) in shapes.items():
         _create(group, name, shape, dtype)
     prototype = zarr.core.buffer.default_buffer_prototype()
@@ -243,20 +261,26 @@ def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
     return (1, *shape[1:]) if len(shape) > 1 else shape
 
 
-def _files_of(shapes: Shapes) -> set[str]:
-    """The files zarr writes for arrays of ``shapes`` in :func:`_chunks`, but meta.json."""
-    files = {"zarr.json"}
-    for name, (shape, _) in shapes.items():
-        files.add(f"{name}/zarr.json")
-        files.update(f"{name}/c/" + "/".join(map(str, index))
-                     for index in np.ndindex(*(-(-size // chunk) for size, chunk in zip(shape, _chunks(shape)))))
+def _files_of(shapes: Shapes) -> dict[str, int]:
+    """The files zarr writes for arrays of ``shapes`` in :func:`_chunks`, but meta.json, each with
+    the most bytes it can take (a chunk's raw bytes and the codecs' overhead), so that a file the
+    table says is larger is never read."""
+    files = {"zarr.json": _MAX_METADATA_BYTES}
+    for name, (shape, dtype) in shapes.items():
+        files[f"{name}/zarr.json"] = _MAX_METADATA_BYTES
+        chunks = _chunks(shape)
+        raw = int(np.prod(chunks)) * np.dtype(dtype).itemsize
+        for index in np.ndindex(*(-(-size // chunk) for size, chunk in zip(shape, chunks))):
+            files[f"{name}/c/" + "/".join(map(str, index))] = most_bytes(raw)
     return files
 
 
 def _save(key: str, arrays: dict[str, np.ndarray], limit: int) -> None:
     """Save ``arrays`` (name -> array, an image or a radius's values a chunk) as the entry for
     ``key``, then trim the cache to ``limit`` bytes; gives up quietly when it cannot."""
-    root = cache_folder()
+    root = _root()
+    if root is None:
+        return
     folder = root / key[:32]
     raw = sum(array.nbytes for array in arrays.values())
     try:
@@ -266,20 +290,20 @@ def _save(key: str, arrays: dict[str, np.ndarray], limit: int) -> None:
         sweep_abandoned(folder)
         phase("saving the result for the next open")
         with atomic_folder(folder) as staging:
-            group = zarr.open_group(zarr.storage.LocalStore(staging), mode="w")
+            group = zarr.open_group(zarr.storage.LocalStore(staging), mode="w", attributes={"key": key})
             for name, array in arrays.items():
                 _create(group, name, array.shape, array.dtype)[...] = array
             meta = {"key": key, "table": table_of(staging)}
             (staging / META).write_text(json.dumps(meta), encoding="utf-8")
-    except (OSError, RinglightError):
+        _trim(root, folder.name, limit)
+    except (OSError, RinglightError, RecursionError):  # RecursionError: a planted chain of folders
         return
-    _trim(root, folder.name, limit)
 
 
 def _trim(root: Path, keep: str, limit: int) -> None:
     """Remove the least recently used entries under ``root`` (folders of 32 hex digits holding a
-    meta.json; ``keep`` never) until the rest take at most ``limit`` bytes, and the temporaries
-    that killed saves abandoned."""
+    meta.json whose key they are named by; ``keep`` never) until the rest take at most ``limit``
+    bytes, and the temporaries that killed saves abandoned."""
     entries = []
     try:
         with os.scandir(root) as found:
@@ -290,10 +314,9 @@ def _trim(root: Path, keep: str, limit: int) -> None:
         abandoned = _ABANDONED.fullmatch(name)
         if abandoned:
             sweep_abandoned(root / abandoned.group(1))
-        elif _ENTRY.fullmatch(name) and name != keep:
+        elif _ENTRY.fullmatch(name) and name != keep and _written_here(root / name):
             try:
-                if stat.S_ISREG(os.lstat(root / name / META).st_mode):
-                    entries.append((os.lstat(root / name).st_mtime, name))  # touched by each load
+                entries.append((os.lstat(root / name).st_mtime, name))  # touched by each load
             except OSError:
                 continue
     total = entry_bytes(root / keep) + sum(entry_bytes(root / name) for _, name in entries)
@@ -303,6 +326,18 @@ def _trim(root: Path, keep: str, limit: int) -> None:
         size = entry_bytes(root / name)
         shutil.rmtree(root / name, ignore_errors=True)
         total -= size
+
+
+def _written_here(folder: Path) -> bool:
+    """Whether ``folder`` is an entry this module wrote: a meta.json whose key it is named by
+    (a user's folder of 32 hex digits is never trimmed)."""
+    try:
+        if not stat.S_ISREG(os.lstat(folder / META).st_mode):
+            return False
+        meta = read_json(folder / META, _EntryInvalid, "cache meta.json", max_bytes=_MAX_META_BYTES)
+    except (OSError, RinglightError):
+        return False
+    return isinstance(meta, dict) and isinstance(meta.get("key"), str) and meta["key"][:32] == folder.name
 
 
 class _EntryInvalid(RinglightError):
