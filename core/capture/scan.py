@@ -42,18 +42,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..atomic import (
-    OutputError,
-    Owned,
-    atomic_file,
-    foreign_entry,
-    fsync_path,
-    is_temporary,
-)
+from ..atomic import OutputError, atomic_file, fsync_path
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
 from ..dataset.memory import format_bytes
 from ..errors import Cancelled, RinglightError
+from ..ownership import Owned, foreign_entry, is_temporary
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
 from .multiplex import coded_lit, demultiplex

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import Owned, check_output_folder, output_folder
+from ..atomic import check_output_folder, output_folder
 from ..colourspaces import colourspace_json
 from ..errors import DatasetError
+from ..ownership import Owned
 from ..validation import read_json
 from .cache import CACHE_FOLDER_NAME
 from .exr import write_exr_channels, write_exr_rgb

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import Owned, check_output_folder, output_folder
+from ..atomic import check_output_folder, output_folder
 from ..colourspaces import colourspace_json
 from ..dataset.exr import read_exr_rgb, write_exr_rgb
 from ..errors import DatasetError
+from ..ownership import Owned
 from ..validation import read_json
 from .coverage import RingCoverage, coverage_warning
 from .stacks import Stack
