@@ -47,12 +47,22 @@ from pathlib import Path
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec, Crc32cCodec, TransposeCodec
+from zarr.codecs import TransposeCodec
 
 from ..atomic import atomic_folder
 from ..errors import DatasetError, RinglightError
 from ..validation import read_json
-from .store_table import META, TableStore, chunks_listed, entry_table, read_checked, settle_reads, table_of
+from .store_table import (
+    META,
+    TableStore,
+    chunks_listed,
+    entry_files,
+    entry_table,
+    read_checked,
+    settle_reads,
+    store_codecs,
+    table_of,
+)
 
 LAYOUT_VERSION = 5
 """3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
@@ -68,10 +78,6 @@ OFFSET_MAJOR = (2, 3, 0, 1)
 _FLAT_KEYS = {"name": "default", "separator": "."}
 """Chunk files named ``c.ROW.COLUMN.0.0`` in their array's folder, not nested folders: a reopen's
 walk of the names then lists a few folders, not one per chunk."""
-
-
-def _codecs():
-    return [BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"), Crc32cCodec()]
 
 
 def store_tile(grid_shape: tuple[int, int], offsets: int) -> int:
@@ -96,7 +102,7 @@ class StoreWriter:
         self._group = group
         self._responses = group.create_array(
             "responses", shape=shape, chunks=(tile, tile, shape[2], shape[3]), dtype="float32", fill_value=0.0,
-            filters=[TransposeCodec(order=OFFSET_MAJOR)], compressors=_codecs(), config={"write_empty_chunks": True},
+            filters=[TransposeCodec(order=OFFSET_MAJOR)], compressors=store_codecs(), config={"write_empty_chunks": True},
             chunk_key_encoding=_FLAT_KEYS)
 
     def write_rows(self, row0: int, band: np.ndarray) -> None:
@@ -127,7 +133,7 @@ class StoreWriter:
     def write_small(self, lit_counts: np.ndarray, observed: np.ndarray, steady: np.ndarray) -> None:
         for name, array in zip(_SMALL, (lit_counts, observed, steady)):
             stored = self._group.create_array(name, shape=array.shape, chunks=array.shape, dtype=array.dtype,
-                                              compressors=_codecs(), config={"write_empty_chunks": True},
+                                              compressors=store_codecs(), config={"write_empty_chunks": True},
                                               chunk_key_encoding=_FLAT_KEYS)
             stored[...] = array
 
@@ -298,18 +304,10 @@ def entry_bytes(location: Path) -> int:
     is never one, and a cache folder linked to ``/`` must not cost a walk of the whole disk)."""
     if os.path.islink(location):
         return 0
-    total, pending = 0, [os.fspath(location)]
-    while pending:  # not os.walk, which recurses: a planted chain of 1500 folders raised RecursionError
+    total = 0
+    for path, _ in entry_files(location):
         try:
-            with os.scandir(pending.pop()) as entries:
-                for entry in entries:
-                    try:
-                        if entry.is_dir(follow_symlinks=False):
-                            pending.append(entry.path)
-                        else:
-                            total += entry.stat(follow_symlinks=False).st_size
-                    except OSError:
-                        pass
+            total += os.lstat(path).st_size
         except OSError:
             pass
     return total

@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import zarr
+from zarr.codecs import BloscCodec, Crc32cCodec
 
 META = "meta.json"
 """The entry's own record: key, layout, shape, tile and the table (not in the table)."""
@@ -30,11 +31,17 @@ CHUNK_PREFIX = "responses/c."
 """Names of the responses' chunk files (``responses/c.ROW.COLUMN.0.0``)."""
 
 
+def store_codecs() -> list:
+    """The compressors of every store array: bit shuffling, Blosc-LZ4 at level 9, then a CRC-32C
+    of each compressed chunk (:mod:`.response_store` says why)."""
+    return [BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"), Crc32cCodec()]
+
+
 def table_of(folder: Path) -> dict[str, list]:
     """The table of an entry just written in ``folder`` (:mod:`.store_table`): relative POSIX path ->
     [size, check]."""
     table = {}
-    for path, relative in _files(folder):
+    for path, relative in entry_files(folder):
         with open(path, "rb") as handle:
             size = os.fstat(handle.fileno()).st_size
             if relative.startswith(CHUNK_PREFIX):
@@ -46,15 +53,25 @@ def table_of(folder: Path) -> dict[str, list]:
     return table
 
 
-def _files(folder: Path) -> Iterator[tuple[str, str]]:
-    """(path, relative POSIX path) of every entry under ``folder`` but its folders, without
-    pathlib: a Path a chunk interns each chunk's name for good (3.7 MB of Python's table of
-    interned strings for 1920 chunks)."""
-    root = str(folder)
-    for parent, folders, names in os.walk(root):
-        prefix = os.path.relpath(parent, root).replace(os.sep, "/") + "/" if parent != root else ""
-        for name in names + [name for name in folders if os.path.islink(os.path.join(parent, name))]:
-            yield os.path.join(parent, name), prefix + name
+def entry_files(folder: Path) -> Iterator[tuple[str, str]]:
+    """(path, relative POSIX path) of every entry under ``folder`` but its folders (links to
+    folders included, never followed); a folder that cannot be read is skipped. Without pathlib
+    (a Path a chunk interns each chunk's name for good: 3.7 MB of Python's table of interned
+    strings for 1920 chunks) and without recursion (os.walk's: a planted chain of 1500 folders
+    raised RecursionError)."""
+    pending = [(os.fspath(folder), "")]
+    while pending:
+        directory, prefix = pending.pop()
+        try:
+            with os.scandir(directory) as entries:
+                found = [(entry.path, prefix + entry.name, entry.is_dir(follow_symlinks=False)) for entry in entries]
+        except OSError:
+            continue
+        for path, relative, is_folder in found:
+            if is_folder:
+                pending.append((path, relative + "/"))
+            else:
+                yield path, relative
 
 
 def file_check(relative: str, data: bytes) -> str:
@@ -155,7 +172,7 @@ def entry_table(location: Path, meta: dict) -> dict | None:
             for entry in table.values()):
         return None
     found = 0
-    for path, relative in _files(location):
+    for path, relative in entry_files(location):
         if relative == META:
             continue
         info = os.lstat(path)

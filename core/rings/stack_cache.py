@@ -38,14 +38,22 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec, Crc32cCodec
 
 from ..atomic import atomic_folder
 from ..dataset.cache import user_cache_root
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..dataset.memory import size_setting
 from ..dataset.response_store import entry_bytes
-from ..dataset.store_table import META, TableStore, entry_table, most_bytes, read_checked, settle_reads, table_of
+from ..dataset.store_table import (
+    META,
+    TableStore,
+    entry_table,
+    most_bytes,
+    read_checked,
+    settle_reads,
+    store_codecs,
+    table_of,
+)
 from ..errors import RinglightError
 from ..phases import phase
 from ..staging_locks import sweep_abandoned
@@ -237,8 +245,7 @@ def _root() -> Path | None:
 
 def _create(group: zarr.Group, name: str, shape: tuple[int, ...], dtype) -> zarr.Array:
     """An entry's array: an image (or a radius's values) a chunk, LZ4 with bit shuffling, CRC-32C."""
-    return group.create_array(name, shape=shape, chunks=_chunks(shape), dtype=dtype,
-                              compressors=[BloscCodec(cname="lz4", clevel=9, shuffle="bitshuffle"), Crc32cCodec()],
+    return group.create_array(name, shape=shape, chunks=_chunks(shape), dtype=dtype, compressors=store_codecs(),
                               config={"write_empty_chunks": True})
 
 
@@ -316,14 +323,13 @@ def _trim(root: Path, keep: str, limit: int) -> None:
             sweep_abandoned(root / abandoned.group(1))
         elif _ENTRY.fullmatch(name) and name != keep and _written_here(root / name):
             try:
-                entries.append((os.lstat(root / name).st_mtime, name))  # touched by each load
+                entries.append((os.lstat(root / name).st_mtime, name, entry_bytes(root / name)))  # mtime: last load
             except OSError:
                 continue
-    total = entry_bytes(root / keep) + sum(entry_bytes(root / name) for _, name in entries)
-    for _, name in sorted(entries):
+    total = entry_bytes(root / keep) + sum(size for *_, size in entries)
+    for _, name, size in sorted(entries):
         if total <= limit:
             break
-        size = entry_bytes(root / name)
         shutil.rmtree(root / name, ignore_errors=True)
         total -= size
 
