@@ -4,6 +4,7 @@ direct simulator, recovery of known layers with honest uncertainty, and misfit d
 from __future__ import annotations
 
 import json
+from importlib.resources import files
 
 import numpy as np
 import pytest
@@ -346,3 +347,38 @@ def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache
         assert layer.determined and np.hypot(*(layer.xy - truth_xy)) < 0.03
     common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000))
     assert common.chi2 > 10 * common.dof and "does not fit" in common.warning
+
+
+def test_a_capture_of_large_max_radius_is_fitted_on_the_rings_a_white_database_holds(shared_cache, tmp_path,
+                                                                                        monkeypatch):
+    """A paper-scale capture has rings beyond the 13 pixels a white database keeps (max_radius 24):
+    its profile stops at r = 13 and the fit recovers the scene's layers as a small capture's would
+    (it raised a ValueError traceback before). layers3 at max_radius 18, 24 x 24, 1000 photons a
+    point, by the direct simulator; truth: FORMAT.md's thick-slab colours of the scene's layers."""
+    from ringlight.core.inversion.settings import InversionError
+    from ringlight.core.simulate.presets import load_scene
+    from ringlight.core.simulate.transport import simulate_transport, write_transport
+
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    document = json.loads((files("ringlight.resources") / "scenes" / "layers3.json").read_text())
+    document.update(max_radius=18, photons_per_point=1000)
+    (tmp_path / "scene.json").write_text(json.dumps(document))
+    scene = load_scene(str(tmp_path / "scene.json"), size=(24, 24))
+    write_transport(simulate_transport(scene, scene.photons_per_point), tmp_path / "wide")
+    dataset = open_dataset(tmp_path / "wide")
+    assert dataset.max_radius == 18
+    np.testing.assert_array_equal(profile_radii(dataset), np.arange(14.0))
+    result = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", LAYERS3)
+    inversion = result.inversion
+    assert inversion.warning is None and inversion.used.max() <= 14
+    assert all(result.inside), result.errors
+    assert result.errors[0] < 0.02, result.errors  # measured 0.005 at 32 x 32
+    # A profile measured further out than a database keeps is refused with one line, not a traceback.
+    wider = measured_profile(dataset, np.ones(dataset.grid_shape, bool), np.arange(15.0))
+    with pytest.raises(InversionError, match="beyond the 13 pixels"):
+        invert(wider, LAYERS3)
+    # So is a region of fewer than two lit points, naming the dataset.
+    single = np.zeros(dataset.grid_shape, bool)
+    single[np.argwhere(dataset.lit)[0][0], np.argwhere(dataset.lit)[0][1]] = True
+    with pytest.raises(InversionError, match=f"{dataset.path}: the region holds 1 lit point"):
+        measured_profile(dataset, single, np.arange(3.0))

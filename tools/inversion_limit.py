@@ -14,7 +14,7 @@ show) is set to ``--noise`` here, since the noise is known.
 Prints one markdown row per scene, noise and layer: the truth's and the fit's absorption per
 channel with its two-sigma range, the layer's xy error and region width.
 
-    python tools/inversion_limit.py [--noise 0.01 0.001] [--photons 20000] [--radius 11] [SCENE ...]
+    python tools/inversion_limit.py [--noise 0.01 0.001] [--photons 20000] [--radius 11] [--reach 13] [SCENE ...]
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 
 from ringlight.core.colour.chroma import chromaticity
-from ringlight.core.inversion import fit
+from ringlight.core.inversion import fit, layers
 from ringlight.core.inversion.forward import Forward, Structure
 from ringlight.core.inversion.layers import database_optics, invert
 from ringlight.core.inversion.measured import MeasuredProfile
@@ -43,7 +43,13 @@ def main() -> None:
                         help="relative standard error of each ring's E (default 0.01 0.001)")
     parser.add_argument("--photons", type=int, default=20_000, help="photons of the white database")
     parser.add_argument("--radius", type=int, default=11, help="largest ring radius (11: a 24 px sample's)")
+    parser.add_argument("--reach", type=int, default=layers.REACH,
+                        help=f"pixels around the lit point the white databases keep (default {layers.REACH}; "
+                             "at least --radius)")
     args = parser.parse_args()
+    if args.reach < args.radius:
+        parser.error(f"--reach {args.reach} must be at least --radius {args.radius}")
+    layers.REACH = args.reach
     print("| scene | noise | layer | truth mua R, G, B | fitted mua [two-sigma range] R; G; B | xy error | "
           "2-sigma width |")
     print("|---|---|---|---|---|---|---|")

@@ -125,6 +125,15 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     report = progress or (lambda fraction, what: None)
     if not np.isfinite(measured.mean).any():
         raise InversionError("the region's profile holds no values")
+    if measured.ring_weights is not None:
+        half = measured.ring_weights.shape[1] // 2
+        rows, cols = np.nonzero(measured.ring_weights.any(axis=0))
+        beyond = max(np.abs(rows - half).max(initial=0), np.abs(cols - half).max(initial=0)) > REACH
+    else:
+        beyond = measured.radii.max(initial=0.0) > REACH
+    if beyond:
+        raise InversionError(f"the profile's rings reach beyond the {REACH} pixels around the lit point that a "
+                             f"white database keeps: fit rings up to r = {REACH}")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
     searched = {}  # id of a database -> the records its quick fits use

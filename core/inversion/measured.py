@@ -25,6 +25,7 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..rings.geometry import ring_geometry
+from .settings import InversionError
 
 
 @dataclass(frozen=True)
@@ -42,19 +43,24 @@ class MeasuredProfile:
 
 def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickness: float = 1.0,
                      antialias: bool = False) -> MeasuredProfile:
-    """The profile of the lit points in ``region`` ((H, W) bool) at ``radii`` (within max_radius)."""
+    """The profile of the lit points in ``region`` ((H, W) bool) at ``radii`` (within max_radius).
+
+    Raises :class:`.settings.InversionError` naming the dataset when the region holds fewer than 2
+    lit points (no spread, so no standard error) or a ring reaches beyond max_radius."""
     width = dataset.grid_shape[1]
     index = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(dataset.offsets)}
     qy, qx = np.nonzero(region & dataset.lit)
     if len(qy) < 2:
-        raise ValueError("the region holds fewer than 2 lit points")
+        raise InversionError(f"{dataset.path}: the region holds {len(qy)} lit point(s); a profile's standard error "
+                             "needs at least 2: choose a larger region")
     rings = []
     for radius in radii:
         ring = ring_geometry(float(radius), thickness, antialias)
         # The response of q at p = q + d is stored at p under the offset q - p = -d.
         ks = [index.get((-int(dy), -int(dx))) for dy, dx in ring.offsets]
         if None in ks:
-            raise ValueError(f"ring of radius {radius} reaches beyond the dataset's max_radius")
+            raise InversionError(f"{dataset.path}: a ring of radius {radius:g} reaches beyond the dataset's "
+                                 f"max_radius {dataset.max_radius:g}")
         rings.append((ring, ks))
     reach = int(np.ceil(max(ring.outer_radius for ring, _ in rings)))
     total = np.zeros((len(radii), len(qy), 3))
