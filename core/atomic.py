@@ -68,9 +68,13 @@ class _Target:
     """Absolute, links resolved: every operation uses this."""
 
 
-def _target(path: str | os.PathLike) -> _Target:
+def _target(path: str | os.PathLike, follow: bool = True) -> _Target:
+    """``path`` with its folders' links resolved, and its own name's too when ``follow`` (a user's
+    output written through a link lands where the link points)."""
     shown = Path(path)
     absolute = Path(os.path.abspath(shown))  # "." and ".." become names that can be renamed
+    if not follow:
+        return _Target(shown, Path(os.path.realpath(absolute.parent)) / absolute.name)
     if absolute.is_symlink() and not absolute.exists():
         raise OutputError(f"{shown}: is a symbolic link to {os.readlink(absolute)}, which does not exist; "
                           "create that folder or give another path")
@@ -147,7 +151,11 @@ def output_folder(path: str | os.PathLike, owner: OwnerOf, kind: str, replace: b
     untouched; an OSError about the staging folder is raised as :class:`OutputError` naming
     ``path``.
     """
-    target = _target(path)
+    yield from _output_folder(_target(path), owner, kind, replace)
+
+
+def _output_folder(target: _Target, owner: OwnerOf, kind: str, replace: bool) -> Iterator[Path]:
+    """:func:`output_folder`'s body, for a target already resolved."""
     _check(target, owner, kind, replace)
     staging = target.real.parent / f".{target.real.name}.partial-{secrets.token_hex(6)}"
     try:
@@ -178,16 +186,17 @@ def atomic_folder(final: str | os.PathLike) -> Iterator[Path]:
     """:func:`output_folder` for ringlight's private folders (the cache): all inside is ours.
 
     A link planted under the private name is removed, never followed: the folder it points to
-    is not ringlight's.
+    is not ringlight's. The name itself is never resolved, so a link planted there while the
+    folder is written (another process, between the removal and the publication) is what a
+    rename moves aside and what is removed afterwards, never the folder it points to.
     """
-    link = Path(os.path.abspath(final))
-    if link.is_symlink():
+    target = _target(final, follow=False)
+    if target.real.is_symlink():
         try:
-            link.unlink()
+            target.real.unlink()
         except OSError as error:
-            raise _named(error, Path(final)) from error
-    with output_folder(final, lambda folder: EVERYTHING, "cache") as staging:
-        yield staging
+            raise _named(error, target.shown) from error
+    yield from _output_folder(target, lambda folder: EVERYTHING, "cache", True)
 
 
 def _publish(staging: Path, target: _Target, owner: OwnerOf, kind: str, replace: bool) -> None:
@@ -210,8 +219,11 @@ def _publish(staging: Path, target: _Target, owner: OwnerOf, kind: str, replace:
             os.rename(trash, real)
             raise
         try:
-            shutil.rmtree(trash, ignore_errors=True)
-        except RecursionError:  # a chain of folders deeper than rmtree recurses: left hidden, as by a kill
+            if trash.is_symlink():  # planted at a private folder's name: the link goes, never its folder
+                trash.unlink()
+            else:
+                shutil.rmtree(trash, ignore_errors=True)
+        except (OSError, RecursionError):  # a chain of folders deeper than rmtree recurses: left hidden
             pass
     except OSError as error:
         if error.errno in (errno.ENOTEMPTY, errno.EEXIST):

@@ -309,3 +309,31 @@ def test_a_link_planted_in_place_of_a_private_folder_is_replaced_not_followed(tm
         (staging / "meta.json").write_text("{}")
     assert not cache.is_symlink() and sorted(tree(cache)) == ["meta.json"]
     assert tree(thesis) == {"thesis.tex": b"precious"}
+
+
+def test_a_link_planted_at_a_private_folders_name_as_its_path_is_resolved_is_never_followed(tmp_path, monkeypatch):
+    """A hostile process plants a link to the user's folder at a cache entry's name at the moment
+    the writer resolves the entry's path (after the writer removed any link there): the user's
+    folder must keep its files, and the entry is written in the link's place (a fuzz campaign's
+    race: the link was resolved, and the user's folder replaced by the cache entry)."""
+    from ringlight.core.atomic import atomic_folder
+
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.tex").write_text("precious")
+    entry = tmp_path / "cache" / "entry"
+    entry.parent.mkdir()
+    resolve = os.path.realpath
+
+    def plant_then_resolve(path, *args, **kwargs):
+        if not entry.is_symlink():
+            entry.symlink_to(thesis)
+        return resolve(path, *args, **kwargs)
+
+    monkeypatch.setattr(os.path, "realpath", plant_then_resolve)
+    with atomic_folder(entry) as staging:
+        (staging / "meta.json").write_text("{}")
+    monkeypatch.undo()
+    assert tree(thesis) == {"thesis.tex": b"precious"}
+    assert not entry.is_symlink() and sorted(tree(entry)) == ["meta.json"]
+    assert sorted(path.name for path in entry.parent.iterdir()) == ["entry"]  # the link removed, not left hidden
