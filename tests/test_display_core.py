@@ -35,6 +35,7 @@ from ringlight.core.dataset.ground_truth import (
     scaled_difference,
 )
 from ringlight.core.rings.profiles import pixel_profile, profile_rings
+from ringlight.core.rings.stacks import needed_radius
 from ringlight.core.rings.stack_request import (
     StackRequest,
     compute_stacks,
@@ -200,6 +201,29 @@ def test_largest_stop_is_the_last_radius_whose_rings_fit(dataset):
     assert default_request(4.0).stop == largest_stop(4.0, StackRequest(0.0, 0.0))
     with pytest.raises(StackError, match="largest stop is"):
         compute_stacks(dataset, request.with_changes(stop=stop + 0.5))
+
+
+def test_largest_stop_equals_a_step_by_step_walk_and_refuses_steps_that_never_end():
+    """The bisection against the walk it replaced (one step at a time until the rings reach past
+    max_radius), on random grids; a step of 0 looped for good, a NaN step or thickness too."""
+    def walk(max_radius, request):
+        stop = request.start
+        while True:
+            candidate = round(stop + request.step, 9)
+            if needed_radius([candidate], request.thickness, request.dr, request.antialias) > max_radius + 1e-9:
+                return stop
+            stop = candidate
+
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        request = StackRequest(float(rng.choice([0.0, 0.5, 2.0])), 0.0, float(rng.choice([0.1, 0.25, 0.5, 1.0, 3.0])),
+                               dr=float(rng.choice([0.5, 1.0, 2.0])), thickness=float(rng.choice([0.5, 1.0, 2.5])),
+                               antialias=bool(rng.integers(2)))
+        max_radius = float(rng.uniform(0.5, 40.0))
+        assert largest_stop(max_radius, request) == walk(max_radius, request), (max_radius, request)
+    for bad in ({"step": 0.0}, {"step": float("nan")}, {"thickness": 0.0}, {"dr": float("nan")}, {"start": -1.0}):
+        with pytest.raises(StackError, match="must be"):
+            largest_stop(12.0, StackRequest(0.0, 0.0).with_changes(**bad))
 
 
 def test_nearest_bin_prefers_overlap_then_centre_distance():

@@ -382,3 +382,69 @@ def test_a_capture_of_large_max_radius_is_fitted_on_the_rings_a_white_database_h
     single[np.argwhere(dataset.lit)[0][0], np.argwhere(dataset.lit)[0][1]] = True
     with pytest.raises(InversionError, match=f"{dataset.path}: the region holds 1 lit point"):
         measured_profile(dataset, single, np.arange(3.0))
+
+
+@pytest.mark.parametrize(("changes", "message"), [
+    ({"mus": float("nan")}, "scattering coefficients must be > 0 and at most 100 per grid step, got nan"),
+    ({"mus": float("inf")}, "scattering coefficients must be > 0 and at most 100 per grid step, got inf"),
+    ({"mus": 101.0}, "at most 100 per grid step, got 101"),
+    ({"mus": [0.5, 1.0]}, "mus must be one number or a tuple"),
+    ({"boundaries": (2.5,)}, "boundaries must be whole grid steps"),
+    ({"photons": 0}, "photons must be 1000 to 1000000, got 0"),
+    ({"photons": 10**9}, "photons must be 1000 to 1000000, got 1000000000"),
+])
+def test_settings_that_cannot_work_are_refused_by_their_check(changes, message):
+    """A NaN scattering passed the check and divided by zero in the white run, an infinite one never
+    finished, a billion photons asked for 17 GB, a list or a fractional boundary gave TypeErrors."""
+    from dataclasses import replace
+
+    from ringlight.core.inversion.settings import InversionError
+
+    with pytest.raises(InversionError, match=message):
+        replace(InversionSettings(boundaries=(2,), mus=1.0), **changes).check()
+
+
+def test_a_boundary_deeper_than_a_search_reaches_is_fitted_with_a_common_scattering():
+    """Two layers of one scattering meeting 10 grid steps down (a search stops at 8; given, it gave an
+    IndexError): the white database gets a bin a step down to the boundary, and the fit of the
+    direct simulator's profile holds the truth in each layer's region and finds the top's colour."""
+    mua = [[0.02, 0.1, 0.3], [0.3, 0.05, 0.01]]
+    mean, error = direct_profile([1.0, 1.0], mua, [0, 10], 0.0, 1.4, 24.0, 20_000, seed=9)
+    settings = InversionSettings(boundaries=(10,), mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000)
+    assert database_optics(settings, 1.0).bins == 11
+    inversion = invert(MeasuredProfile(RADII, mean, error, 1), settings)
+    assert inversion.warning is None
+    for layer, truth in zip(inversion.layers, mua):
+        truth_xy = chromaticity(thick_slab_reflectance(np.ones(3), np.array(truth), 0.0, 1.4), "sRGB")
+        assert region_contains(layer.region, truth_xy)
+    top_xy = chromaticity(thick_slab_reflectance(np.ones(3), np.array(mua[0]), 0.0, 1.4), "sRGB")
+    assert np.hypot(*(inversion.layers[0].xy - top_xy)) < 0.03
+
+
+def test_rings_no_white_photon_reaches_and_an_underflowing_model_do_not_stop_a_fit(layers3_sample, shared_cache,
+                                                                                   monkeypatch):
+    """A strongly scattering model: its white run's photons never reach the outer rings (the model
+    is 0 there), and at the absorption bound the model underflows to 0; the log of 0 stopped the
+    fit with a ValueError (a math domain error in the Layers tab). Now those rings are left out
+    (counted against a brute-force search of the records) and the misfit is reported."""
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    dataset = open_dataset(layers3_sample)
+    radii = profile_radii(dataset)
+    settings = InversionSettings(boundaries=(2, 5), mus=100.0, n=1.3, g=0.0, depth=24.0, photons=1000)
+    database = white_database(database_optics(settings, 100.0), 1000)
+    rings = ring_matrix(radii, database.optics.reach)
+    reached = [bool((rings[row, database.pixel] > 0).any()) for row in range(len(radii))]
+    expected = reached.index(False) if False in reached else len(radii)
+    forward = Forward(database, Structure((0, 2, 5)), radii)
+    assert forward.reached == expected < len(radii)
+    inversion = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", settings).inversion
+    assert inversion.used.max() <= expected
+    assert "does not fit" in inversion.warning and not any(layer.determined for layer in inversion.layers)
+
+
+def test_a_profile_of_no_more_rings_than_layers_is_refused_before_fitting():
+    from ringlight.core.inversion.settings import InversionError
+
+    measured = MeasuredProfile(np.arange(3.0), np.ones((3, 3)), np.full((3, 3), 0.01), 2)
+    with pytest.raises(InversionError, match="holds 3 ring.*fitting 3 layer"):
+        invert(measured, InversionSettings(boundaries=(2, 5), mus=1.0))

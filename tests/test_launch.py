@@ -99,7 +99,22 @@ def test_layer_radii_are_checked_before_the_dataset_is_opened(capsys, tmp_path):
     # The dataset does not even exist: the radii error must come first, without loading anything.
     status, _, err = run(capsys, "layers", str(tmp_path / "absent"), "--radii", "10,5,1")
     assert status == 2
-    assert err.strip() == "ringlight: error: --radii '10,5,1' must be non-negative and increase strictly, e.g. 2,5,8"
+    assert err.strip() == "ringlight: error: --radii '10,5,1' must be finite, non-negative and increase strictly, e.g. 2,5,8"
+
+
+@pytest.mark.parametrize(("options", "line"), [
+    (["--radii", "1,nan,3"], "--radii '1,nan,3' must be finite, non-negative and increase strictly, e.g. 2,5,8"),
+    (["--step", "0"], "radius step must be > 0, got 0.0"),
+    (["--thickness", "nan"], "ring thickness must be > 0, got nan"),
+    (["--dr", "-1"], "transient step dr must be > 0, got -1.0"),
+    (["--json", ""], "--json needs a file name"),
+])
+def test_layer_options_that_cannot_work_are_one_line_before_the_dataset_is_opened(capsys, tmp_path, options, line):
+    """--step 0 looped for good, --thickness nan gave a traceback, --radii 1,nan,3 was read as
+    1, 0, 3 and --json "" wrote nothing and said nothing."""
+    status, _, err = run(capsys, "layers", str(tmp_path / "absent"), *options)
+    assert status == 2
+    assert err.strip() == f"ringlight: error: {line}"
 
 
 def test_a_screenshot_prints_one_line_and_no_qt_notices(tmp_path):

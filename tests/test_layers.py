@@ -23,6 +23,8 @@ from ringlight.core.colour.regions import (
     polygon_region,
     rectangle_region,
 )
+from ringlight.core.colour.layer_report import analyse_layers, analysis_stack_request
+from ringlight.core.errors import StackError
 
 # Published primaries and white points: IEC 61966-2-1 (sRGB, D65) and SMPTE ST 2065-1 / ACEScg (AP1).
 SRGB = {"red": (0.64, 0.33), "green": (0.30, 0.60), "blue": (0.15, 0.06), "white": (0.3127, 0.3290)}
@@ -134,6 +136,12 @@ def test_bad_requests_get_clear_messages(synthetic):
         recover_layers(path, [1, 2.5], "paper")
     with pytest.raises(LayerError, match="must increase strictly"):
         recover_layers(path, [4, 1], "paper")
+    with pytest.raises(LayerError, match="must be finite numbers"):  # NaN was taken as the stack's first radius
+        recover_layers(path, [1, float("nan"), 3], "paper")
+    with pytest.raises(LayerError, match="--auto needs at least 1 radius, got 0"):  # 0 was taken as 3
+        analyse_layers(dataset, full_region(dataset.grid_shape), "all pixels", auto=0)
+    with pytest.raises(StackError, match="at most 256: use a step of at least"):  # millions of images before
+        analysis_stack_request(dataset, step=1e-6)
     with pytest.raises(LayerError, match="method must be one of"):
         recover_layers(path, [1], "magic")
     # Beyond the last band (|d| >= 7.5) the impulses are 0: T_8 = E_8 - E_9 = 0 is dark.

@@ -22,6 +22,7 @@ from ringlight.core.inversion.settings import (
     settings_from_text,
 )
 from ringlight.core.inversion.report import invert_region, inversion_json
+from ringlight.core.rings.stack_request import StackRequest
 
 from .progress import progress_bar
 
@@ -68,8 +69,8 @@ def parse_radii(text: str) -> list[float]:
         radii = [float(part) for part in text.split(",")]
     except ValueError:
         raise RinglightError(f"--radii {text!r} must be numbers separated by commas, e.g. 2,5,8") from None
-    if any(b <= a for a, b in zip(radii, radii[1:])) or any(r < 0 for r in radii):
-        raise RinglightError(f"--radii {text!r} must be non-negative and increase strictly, e.g. 2,5,8")
+    if not all(0 <= r < float("inf") for r in radii) or any(b <= a for a, b in zip(radii, radii[1:])):
+        raise RinglightError(f"--radii {text!r} must be finite, non-negative and increase strictly, e.g. 2,5,8")
     return radii
 
 
@@ -81,8 +82,11 @@ def parse_inversion(args) -> InversionSettings:
 
 def run_layers(args) -> int:
     radii = parse_radii(args.radii) if args.radii else None
+    StackRequest(step=args.step, dr=args.dr, thickness=args.thickness).check_rings()  # before the dataset opens
     settings = parse_inversion(args) if args.method == "inverse" else None
-    if args.json:
+    if args.json is not None:
+        if not args.json.strip():
+            raise RinglightError("--json needs a file name")
         check_output_file(args.json, args.force)  # refused before the dataset is opened
     manifest = load_manifest(args.dataset)
     require_colour(dataset_channels(manifest, args.allow_outside))  # from the first frame's header

@@ -198,6 +198,8 @@ def radius_indices(path: Trajectory, radii) -> list[int]:
     radii = [float(r) for r in radii]
     if len(radii) < 1:
         raise LayerError("pick at least one radius")
+    if not all(math.isfinite(r) for r in radii):
+        raise LayerError(f"picked radii must be finite numbers, got {radii}")
     if any(b <= a for a, b in zip(radii, radii[1:])):
         raise LayerError(f"picked radii must increase strictly, got {radii}")
     indices = []

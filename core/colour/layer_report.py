@@ -16,11 +16,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
+from ..errors import StackError
 from ..rings.noise import StackNoise, region_snr, stack_noise
 from ..rings.stack_request import StackRequest, largest_stop
 from ..rings.stacks import Stack, transient_stack
 from .chroma import MIN_SNR, LayerResult, Trajectory, propose_radii, recover_layers, trajectory
 
+MOST_ANALYSIS_RADII = 256
+"""Transient images a layer analysis's stack may hold (the explorer's default stack holds 64)."""
 TRUST_RULE = (f"trusted: the region-mean luminance of T_r is at least {MIN_SNR:g} standard errors above 0; "
               "standard errors from the spread of each pixel's ring members (SE of T_r from both rings), "
               "an upper bound of the noise where the surface itself varies")
@@ -53,9 +56,17 @@ def layer_snr(analysis: LayerAnalysis) -> list[float]:
 
 def analysis_stack_request(dataset: ImpulseDataset, step: float = 1.0, dr: float = 1.0,
                            thickness: float = 1.0) -> StackRequest:
-    """Radii 0, step, ... as far as the dataset's max_radius allows."""
+    """Radii 0, step, ... as far as the dataset's max_radius allows, at most
+    :data:`MOST_ANALYSIS_RADII` of them (StackError beyond: a step of 1e-6 asked for millions of
+    images)."""
     request = StackRequest(0.0, 0.0, step, dr=dr, thickness=thickness)
-    return request.with_changes(stop=largest_stop(dataset.max_radius, request))
+    request = request.with_changes(stop=largest_stop(dataset.max_radius, request))
+    count = len(request.radii())
+    if count > MOST_ANALYSIS_RADII:
+        raise StackError(f"a radius step of {step:g} gives {count} transient images up to r = {request.stop:g}; "
+                         f"at most {MOST_ANALYSIS_RADII}: use a step of at least "
+                         f"{request.stop / (MOST_ANALYSIS_RADII - 1):.3g}")
+    return request
 
 
 def truth_layers(dataset: ImpulseDataset) -> tuple[tuple[str, ...], np.ndarray | None]:
@@ -80,7 +91,7 @@ def analyse_layers(dataset: ImpulseDataset, region: np.ndarray, region_descripti
                         (lambda fraction: progress(0.5 + fraction / 2)) if progress else None)
     path = with_ring_noise(trajectory(stack, region), stack, noise, region)
     if radii is None:
-        radii = propose_radii(path, auto or 3)
+        radii = propose_radii(path, 3 if auto is None else auto)
     names, truth_rgb = truth_layers(dataset)
     result = recover_layers(path, radii, method, truth_rgb)
     return LayerAnalysis(region_description, path, result, names)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
-from .forward import Forward
+from .forward import SMALLEST_E, Forward
 
 MUA_BOUNDS = (1e-5, 10.0)
 """Absorption per grid step that a fit may take (10: opaque within a tenth of a step)."""
@@ -122,7 +122,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
     layers = forward.structure.layers
     low, high = math.log(MUA_BOUNDS[0]), math.log(MUA_BOUNDS[1])
     sigma = np.hypot(error, RELATIVE_FLOOR * np.abs(measured))
-    used = used_rings(measured, sigma)
+    used = min(used_rings(measured, sigma), forward.reached)
     if used <= layers:
         mua = np.full(layers, np.nan)
         interval = np.tile(np.array(MUA_BOUNDS), (layers, 1))
@@ -190,6 +190,7 @@ def _objective(forward: Forward, used: int, target: np.ndarray, relative: np.nda
         if key not in memo:
             memo.clear()
             profile, slopes = forward.profile(np.exp(theta), derivatives=True)
+            profile = np.maximum(profile, SMALLEST_E)
             memo[key] = ((target - np.log(profile[:used])) / relative,
                          -(slopes[:used] * np.exp(theta)) / profile[:used, None] / relative[:, None])
         return memo[key]

@@ -20,6 +20,13 @@ from ..rings.geometry import ring_geometry
 from .white_mc import WhiteDatabase
 
 
+SMALLEST_E = float(np.finfo(np.float64).tiny)
+"""Smallest model E a fit takes the log of: absorption at its bound (10 per grid step) makes a
+ring's E underflow to 0 over long paths, and a log of 0 stopped the fit (profile likelihoods of a
+strongly scattering slab reach that bound). A ring's E is never 0 within :attr:`Forward.reached`
+otherwise."""
+
+
 @dataclass(frozen=True)
 class Structure:
     """Layers as runs of depth bins: layer ``k`` covers bins ``[starts[k], starts[k + 1])``, the last
@@ -100,6 +107,10 @@ class Forward:
         self.lengths = np.add.reduceat(database.lengths[used], np.asarray(structure.starts), axis=1,
                                        dtype=np.float64)
         self._pixels = self.rings.shape[1]
+        white = self.profile(np.zeros(structure.layers))
+        self.reached = int(np.argmin(white > 0)) if not (white > 0).all() else len(white)
+        """Rings from r = 0 up to (not including) the first that no record of the database reaches
+        (light the run's photons never carried that far): the model is 0 there, so no fit uses it."""
 
     def profile(self, mua: np.ndarray, derivatives: bool = False):
         """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also

@@ -35,7 +35,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_distribution
 
 from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit, ring_sigma
-from .forward import Forward
+from .forward import SMALLEST_E, Forward
 
 FLOOR_CORRELATIONS = (0.0, 0.5, 0.9)
 """Correlations between channels of the relative floor that the fit chooses from, by likelihood.
@@ -211,11 +211,11 @@ def _objective(profiles, whiten: list[np.ndarray], target: np.ndarray, used: np.
             evaluated = profiles(theta)
             residual_blocks, jacobian_blocks = [], []
             for row, active in rows:
-                raw = np.array([target[row, c] - math.log(evaluated[c][0][row]) for c in active])
+                raw = np.array([target[row, c] - math.log(max(evaluated[c][0][row], SMALLEST_E)) for c in active])
                 slope = np.zeros((len(active), channels * layers))
                 for i, c in enumerate(active):
                     profile, slopes = evaluated[c]
-                    slope[i, c * layers:(c + 1) * layers] = -slopes[row] * mua[c] / profile[row]
+                    slope[i, c * layers:(c + 1) * layers] = -slopes[row] * mua[c] / max(profile[row], SMALLEST_E)
                 residual_blocks.append(whiten[row] @ raw)
                 jacobian_blocks.append(whiten[row] @ slope)
             memo[key] = np.concatenate(residual_blocks), np.vstack(jacobian_blocks)

@@ -134,6 +134,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     if beyond:
         raise InversionError(f"the profile's rings reach beyond the {REACH} pixels around the lit point that a "
                              f"white database keeps: fit rings up to r = {REACH}")
+    rings = len(measured.radii)
+    wanted = settings.layers or (len(settings.boundaries) + 1 if settings.boundaries is not None else 1)
+    if rings <= wanted:
+        raise InversionError(f"the profile holds {rings} ring(s); fitting {wanted} layer(s) needs more rings than "
+                             f"layers in each channel: use a dataset of larger max_radius or fewer layers")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
     searched = {}  # id of a database -> the records its quick fits use
@@ -153,7 +158,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                                         structure, database))
 
     databases = {}
-    structures = list(_structures(settings, database_optics(settings, mus_choices[0]).bins))
+    structures = list(_structures(settings, database_optics(settings, mus_choices[0]).bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
     share = 1.0 / (len(mus_choices) + 2 + base_search)
     for index, mus in enumerate(mus_choices):
@@ -203,6 +208,10 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     together = all(fit.joint is not None for fit in fitted)
     chosen = min(fitted, key=lambda fit: _bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
     (_, _, mus, structure, database), fits, joint = chosen
+    if all(fit.used <= structure.layers for fit in fits):
+        raise InversionError(f"no channel has more rings than layers that stand out of the noise (E >= 3 sigma) "
+                             f"and that the white database's {database.photons} photons reach: use a larger region, "
+                             f"fewer layers or more photons")
     layers = layer_colours(fits, structure, database.optics, colorspace, joint)
     for other in fitted:
         if other is not chosen:
@@ -286,7 +295,8 @@ def _mus_text(mus) -> str:
 
 def database_optics(settings: InversionSettings, mus) -> SlabOptics:
     """The white database's optics: per-layer scattering over the given boundaries, or a common
-    one over :data:`SEARCH_BINS` bins."""
+    one over :data:`SEARCH_BINS` bins (more when a given boundary lies deeper: a bin per grid step
+    down to the last boundary, then the base)."""
     if isinstance(mus, tuple):
         edges = [0, *settings.boundaries]
         bins = []
@@ -294,7 +304,8 @@ def database_optics(settings: InversionSettings, mus) -> SlabOptics:
             bottom = edges[k + 1] if k + 1 < len(edges) else top + 1
             bins += [mus[k]] * (bottom - top)
         return _optics(settings, bins)
-    return _optics(settings, [mus] * SEARCH_BINS)
+    deepest = settings.boundaries[-1] + 1 if settings.boundaries else 0
+    return _optics(settings, [mus] * max(SEARCH_BINS, deepest))
 
 
 def _base_optics(settings: InversionSettings, common: float, base: float, top: int) -> SlabOptics:
@@ -308,12 +319,12 @@ def _optics(settings: InversionSettings, bins) -> SlabOptics:
     return SlabOptics(tuple(float(m) for m in bins), settings.g, settings.n, settings.depth, REACH)
 
 
-def _structures(settings: InversionSettings, bins: int):
-    """Every structure to try."""
+def _structures(settings: InversionSettings, bins: int, most_layers: int):
+    """Every structure to try, of at most ``most_layers`` layers when their count is searched."""
     if settings.boundaries is not None:
         yield Structure((0, *settings.boundaries))
         return
-    counts = [settings.layers] if settings.layers is not None else range(1, MAX_LAYERS + 1)
+    counts = [settings.layers] if settings.layers is not None else range(1, min(MAX_LAYERS, most_layers) + 1)
     for count in counts:
         for cut in itertools.combinations(range(1, bins), count - 1):
             yield Structure((0, *cut))

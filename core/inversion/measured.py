@@ -45,9 +45,16 @@ def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickne
                      antialias: bool = False) -> MeasuredProfile:
     """The profile of the lit points in ``region`` ((H, W) bool) at ``radii`` (within max_radius).
 
-    Raises :class:`.settings.InversionError` naming the dataset when the region holds fewer than 2
-    lit points (no spread, so no standard error) or a ring reaches beyond max_radius."""
+    Raises :class:`.settings.InversionError` naming the dataset when the region is not of the
+    grid's shape or holds fewer than 2 lit points (no spread, so no standard error), or when there
+    are no radii or a ring reaches beyond max_radius."""
     width = dataset.grid_shape[1]
+    if np.shape(region) != tuple(dataset.grid_shape):
+        raise InversionError(f"{dataset.path}: the region is {np.shape(region)}, not the grid's "
+                             f"{tuple(dataset.grid_shape)}")
+    if len(radii) == 0:
+        raise InversionError(f"{dataset.path}: max_radius {dataset.max_radius:g} holds no ring to measure a profile at "
+                             "(r = 0 needs 0.5)")
     index = {(int(dy), int(dx)): k for k, (dy, dx) in enumerate(dataset.offsets)}
     qy, qx = np.nonzero(region & dataset.lit)
     if len(qy) < 2:

@@ -16,6 +16,14 @@ MUS_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
 """Common scattering coefficients (per grid step) tried when none is given."""
 MAX_LAYERS = 4
 DEFAULT_PHOTONS = 20_000
+PHOTON_RANGE = (1000, 1_000_000)
+"""Photons of a white database a user may ask for: a 20 000-photon database holds 14-43 MB, and a
+search keeps dozens of them (its peak RSS on a 24 px sample is 2.5 GB at the default)."""
+MAX_MUS = 100.0
+"""Largest scattering coefficient (per grid step) a database is run for: a walk's scattering events
+grow with mus x depth (about 10^5 per photon at this bound over the default depth), and light that
+spreads over a small part of a grid step says nothing about the layers' colours (measure at a finer
+grid instead)."""
 DEFAULT_DEPTH = 64.0
 
 
@@ -54,6 +62,12 @@ class InversionSettings:
 
     def check(self) -> None:
         """Raise :class:`InversionError` naming the first setting that cannot work."""
+        if self.boundaries is not None and not all(isinstance(b, (int, np.integer)) for b in self.boundaries):
+            raise InversionError(f"layer boundaries must be whole grid steps, got {self.boundaries}")
+        if self.mus is not None and not isinstance(self.mus, (int, float, np.number, tuple)):
+            raise InversionError(f"mus must be one number or a tuple of one per layer, got {self.mus!r}")
+        if not PHOTON_RANGE[0] <= self.photons <= PHOTON_RANGE[1]:
+            raise InversionError(f"photons must be {PHOTON_RANGE[0]} to {PHOTON_RANGE[1]}, got {self.photons}")
         if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
             raise InversionError(f"layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
         if self.boundaries is not None:
@@ -69,8 +83,9 @@ class InversionSettings:
             if len(self.mus) != len(self.boundaries) + 1:
                 raise InversionError(f"{len(self.boundaries) + 1} layers need {len(self.boundaries) + 1} "
                                      f"scattering coefficients, got {len(self.mus)}")
-        if self.mus is not None and min(np.atleast_1d(self.mus)) <= 0:
-            raise InversionError("scattering coefficients must be > 0")
+        if self.mus is not None and not all(0 < m <= MAX_MUS for m in np.atleast_1d(self.mus)):
+            raise InversionError(f"scattering coefficients must be > 0 and at most {MAX_MUS:g} per grid step, "
+                                 f"got {', '.join(f'{m:g}' for m in np.atleast_1d(self.mus))}")
         if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
             raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
         if not 1.0 <= self.n <= 3.0:
@@ -103,8 +118,6 @@ def settings_from_text(layers: str, boundaries: str, mus: str, n: float, g: floa
     if mus.strip():
         values = numbers(mus, float, "mus")
         scattering = values[0] if len(values) == 1 else values
-    if photons < 1000:
-        raise InversionError(f"photons must be at least 1000, got {photons}")
     settings = InversionSettings(count, cuts, scattering, n, g, depth, photons)
     settings.check()
     return settings

@@ -37,12 +37,21 @@ class StackRequest:
         """Largest lit-point distance (grid steps) the request's rings use."""
         return needed_radius(self.radii(), self.thickness, self.dr, self.antialias)
 
-    def check(self, dataset: ImpulseDataset) -> None:
-        """Raise StackError when ``dataset`` cannot serve the request."""
+    def check_rings(self) -> None:
+        """Raise StackError unless the radius step, dr and thickness are finite and > 0 and the
+        first radius finite and >= 0."""
+        if not (math.isfinite(self.start) and self.start >= 0):
+            raise StackError(f"the first radius must be >= 0, got {self.start}")
+        if not (math.isfinite(self.step) and self.step > 0):
+            raise StackError(f"radius step must be > 0, got {self.step}")
         if not (math.isfinite(self.dr) and self.dr > 0):
             raise StackError(f"transient step dr must be > 0, got {self.dr}")
         if not (math.isfinite(self.thickness) and self.thickness > 0):
             raise StackError(f"ring thickness must be > 0, got {self.thickness}")
+
+    def check(self, dataset: ImpulseDataset) -> None:
+        """Raise StackError when ``dataset`` cannot serve the request."""
+        self.check_rings()
         if self.reach() > dataset.max_radius + 1e-9:
             raise StackError(
                 f"radii up to {self.stop:g} + dr {self.dr:g} (thickness {self.thickness:g}) reach "
@@ -69,13 +78,26 @@ class StackPair:
 
 def largest_stop(max_radius: float, request: StackRequest) -> float:
     """Largest ``stop`` on the request's radius grid whose rings stay within ``max_radius``;
-    ``request.start`` when even that does not fit."""
-    stop = request.start
-    while True:
-        candidate = round(stop + request.step, 9)
-        if needed_radius([candidate], request.thickness, request.dr, request.antialias) > max_radius + 1e-9:
-            return stop
-        stop = candidate
+    ``request.start`` when even that does not fit. Raises StackError for a step, dr or thickness
+    that is not finite and > 0 (a step of 0 looped for good)."""
+    request.check_rings()
+
+    def radius(steps: int) -> float:
+        return round(request.start + steps * request.step, 9)
+
+    def fits(steps: int) -> bool:
+        return needed_radius([radius(steps)], request.thickness, request.dr, request.antialias) <= max_radius + 1e-9
+
+    if not fits(1):
+        return request.start
+    # The reach grows with the radius: double the steps until they do not fit, then bisect.
+    low, high = 1, 2
+    while fits(high):
+        low, high = high, 2 * high
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (middle, high) if fits(middle) else (low, middle)
+    return radius(low)
 
 
 def default_request(max_radius: float, most_radii: int = 64) -> StackRequest:
