@@ -91,21 +91,24 @@ Progress = Callable[[float, str], None]
 
 
 class Candidate(NamedTuple):
-    """One structure tried in a search: its BIC and chi-square (quick fit), scattering, database."""
+    """One structure tried in a search: its BIC and chi-square (quick fit), scattering, and the optics
+    of its white database (the database itself is loaded again for the few fitted fully)."""
 
     bic: float
     chi2: float
     mus: float | tuple[float, ...]
     structure: Structure
-    database: WhiteDatabase
+    optics: SlabOptics
 
 
 class Fitted(NamedTuple):
-    """A candidate fitted with every white photon: per channel, and jointly (None when that failed)."""
+    """A candidate fitted with every white photon of its ``database``: per channel, and jointly (None
+    when that failed)."""
 
     candidate: Candidate
     fits: list[ChannelFit]
     joint: JointFit | None
+    database: WhiteDatabase
 
     def misfit(self, together: bool) -> tuple[float, int]:
         """Minus twice the log-likelihood (up to a constant) and residual count of the joint fit
@@ -141,23 +144,29 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                              f"layers in each channel: use a dataset of larger max_radius or fewer layers")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
     candidates = []
-    searched = {}  # id of a database -> the records its quick fits use
+    # The records each database's quick fits use, by its optics: a search keeps a quarter of each
+    # database's photons and loads the whole database again only for the few it fits fully (it held
+    # every database whole: 2.5 GB on a 24 px sample).
+    searched: dict[SlabOptics, WhiteDatabase] = {}
+
+    def keep(database: WhiteDatabase) -> None:
+        searched[database.optics] = (_thinned(database, SEARCH_SHARE) if settings.boundaries is None
+                                     else database)
 
     def try_structures(trials, first: float, what: str) -> None:
-        """Quick fits of ``trials``, (structure, database, mus) each, added to the candidates."""
-        for number, (structure, database, mus) in enumerate(trials):
+        """Quick fits of ``trials``, (structure, optics, mus) each, added to the candidates; each
+        database is made (or loaded) when first needed."""
+        for number, (structure, optics, mus) in enumerate(trials):
             report(first + share * number / len(trials), what)
-            if id(database) not in searched:
-                searched[id(database)] = (_thinned(database, SEARCH_SHARE) if settings.boundaries is None
-                                          else database)
-            search = searched[id(database)]
-            forward = Forward(search, structure, measured.radii, ring_weights=measured.ring_weights)
+            if optics not in searched:
+                report(first + share * number / len(trials), f"white Monte Carlo for mus {_mus_text(mus)}")
+                keep(white_database(optics, settings.photons))
+            forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
             chi2 = sum(f.chi2 for f in fits)
             candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
-                                        structure, database))
+                                        structure, optics))
 
-    databases = {}
     structures = list(_structures(settings, database_optics(settings, mus_choices[0]).bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
     share = 1.0 / (len(mus_choices) + 2 + base_search)
@@ -165,26 +174,26 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         what = f"white Monte Carlo for mus {_mus_text(mus)}"
         report(index * share, what)
         optics = database_optics(settings, mus)
-        databases[index] = white_database(optics, settings.photons,
-                                          progress=lambda fraction: report((index + 0.5 * fraction) * share, what))
+        keep(white_database(optics, settings.photons,
+                            progress=lambda fraction: report((index + 0.5 * fraction) * share, what)))
         if len(structures) == 1 and len(mus_choices) == 1:
-            candidates.append(Candidate(0.0, 0.0, mus, structures[0], databases[index]))
+            candidates.append(Candidate(0.0, 0.0, mus, structures[0], optics))
             break
         # With several scatterings to try, each is scouted on the structures with even boundaries;
         # the others are tried for the best scattering only.
         scouts = _scouts(structures) if len(mus_choices) > 1 else structures
-        try_structures([(structure, databases[index], mus) for structure in scouts], (index + 0.5) * share,
+        try_structures([(structure, optics, mus) for structure in scouts], (index + 0.5) * share,
                        f"fitting structures for mus {_mus_text(mus)}")
     if len(mus_choices) > 1 and (scouted := _best(candidates)):
-        _, _, mus, _, database = scouted
+        _, _, mus, _, optics = scouted
         rest = [structure for structure in structures if structure not in _scouts(structures)]
-        try_structures([(structure, database, mus) for structure in rest], len(mus_choices) * share,
+        try_structures([(structure, optics, mus) for structure in rest], len(mus_choices) * share,
                        f"fitting every structure for mus {_mus_text(mus)}")
     if base_search and (leading := _best(candidates)):
         # A base of its own scattering is tried for the layer count that fitted best (two at least).
         count = max(leading.structure.layers, 2)
         _base_search(settings, [structure for structure in structures if structure.layers == count], candidates,
-                     try_structures, lambda fraction: (len(mus_choices) + 1 + fraction) * share, report)
+                     try_structures, lambda fraction: (len(mus_choices) + 1 + fraction) * share)
     best = _best(candidates)
     if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
@@ -194,29 +203,32 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     rivals = sorted((c for c in usable if c.structure.layers == best.structure.layers
                      and (c.structure != best.structure or c.mus != best.mus)), key=lambda c: c.chi2)
     rivals = [c for c in rivals if c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
+    if settings.boundaries is None:
+        searched.clear()  # thinned: the few fitted fully are loaded whole below
     fitted = []
     for number, candidate in enumerate([best, *rivals]):
         report((len(mus_choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
-        forward = Forward(candidate.database, candidate.structure, measured.radii,
-                          ring_weights=measured.ring_weights)
+        database = searched.get(candidate.optics) or white_database(candidate.optics, settings.photons)
+        forward = Forward(database, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
         fits = fit_channels(forward, measured.mean, measured.standard_error)
-        fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits)))
+        fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits),
+                             database))
     # The search compared quick fits on thinned databases, each with noise of its own: of the
     # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
     # fits' chi-square when every one has one (it weighs the noise common to the channels as such).
     together = all(fit.joint is not None for fit in fitted)
     chosen = min(fitted, key=lambda fit: _bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
-    (_, _, mus, structure, database), fits, joint = chosen
+    (_, _, mus, structure, optics), fits, joint, database = chosen
     if all(fit.used <= structure.layers for fit in fits):
         raise InversionError(f"no channel has more rings than layers that stand out of the noise (E >= 3 sigma) "
                              f"and that the white database's {database.photons} photons reach: use a larger region, "
                              f"fewer layers or more photons")
-    layers = layer_colours(fits, structure, database.optics, colorspace, joint)
+    layers = layer_colours(fits, structure, optics, colorspace, joint)
     for other in fitted:
         if other is not chosen:
             layers = [widened(layer, widening) for layer, widening in zip(layers, layer_colours(
-                other.fits, other.candidate.structure, other.candidate.database.optics, colorspace, other.joint))]
+                other.fits, other.candidate.structure, other.candidate.optics, colorspace, other.joint))]
     if joint is not None:
         chi2, dof, model, sigma = joint.chi2, joint.dof, joint.model, joint.sigma
     else:
@@ -258,22 +270,16 @@ def _bic(chi2: float, points: int, structure: Structure, mus) -> float:
 
 
 def _base_search(settings: InversionSettings, structures: list[Structure], candidates: list[Candidate],
-                 try_structures, fraction_done: Callable[[float], float], report: Progress) -> None:
+                 try_structures, fraction_done: Callable[[float], float]) -> None:
     """Try structures of two or more layers again with a base that scatters otherwise than the
     layers above: every pair of scatterings of :data:`MUS_GRID` on those of ``structures`` with even
     boundaries, then every other one with the pair that fitted best. A thin upper layer over a base
     that scatters otherwise (skin over flesh) is the common case; one scattering for all may then
     fit a wrong structure as well as the right one, with regions that leave out the truth, or fit
     none. ``try_structures`` adds its quick fits to ``candidates``."""
-    databases: dict[tuple[float, float, int], WhiteDatabase] = {}
-
     def trial(structure: Structure, common: float, base: float):
-        key = (common, base, structure.starts[-1])
-        if key not in databases:
-            report(fraction_done(0.0), f"white Monte Carlo for mus {common:g} over a base of {base:g}")
-            databases[key] = white_database(_base_optics(settings, common, base, structure.starts[-1]),
-                                            settings.photons)
-        return structure, databases[key], (common,) * (structure.layers - 1) + (base,)
+        return (structure, _base_optics(settings, common, base, structure.starts[-1]),
+                (common,) * (structure.layers - 1) + (base,))
 
     scouts = _scouts([structure for structure in structures if structure.layers > 1])
     first = len(candidates)
