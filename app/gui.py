@@ -74,7 +74,7 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
     from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
 
     try:
-        check_output_file(out, overwrite)  # before any window: an existing file is not replaced
+        check_output_file(out, overwrite, probe=True)  # before any window: an existing file is not replaced
     except RinglightError as error:
         print(f"ringlight: error: {error}", file=sys.stderr)
         return 2

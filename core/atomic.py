@@ -280,15 +280,24 @@ def atomic_file(final: str | os.PathLike, *, overwrite: bool = False, make_paren
         temporary.unlink(missing_ok=True)
 
 
-def check_output_file(final: str | os.PathLike, overwrite: bool = False) -> None:
+def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: bool = False) -> None:
     """Raise :class:`OutputError` unless :func:`atomic_file` may write ``final`` (call it before
-    long work, so that a refusal comes first)."""
+    long work, so that a refusal comes first). With ``probe``, a hidden temporary is also created
+    and removed in ``final``'s folder where that exists, so that a folder the user cannot write
+    (``/proc``, a read-only mount) is refused before the work rather than after it."""
     final = Path(final)
     if final.is_dir():
         raise OutputError(f"{final}: is a folder; give a file name")
     if os.path.lexists(final) and not overwrite:
         raise OutputError(f"{final}: already exists; refusing to overwrite it "
                           "(choose another name, or allow overwriting: --force on the command line)")
+    if probe and final.parent.is_dir():
+        temporary = final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
+        try:
+            os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            os.unlink(temporary)
+        except OSError as error:
+            raise _named(error, final) from error
 
 
 def _publish_file(temporary: Path, final: Path, overwrite: bool) -> None:

@@ -337,3 +337,16 @@ def test_a_link_planted_at_a_private_folders_name_as_its_path_is_resolved_is_nev
     assert tree(thesis) == {"thesis.tex": b"precious"}
     assert not entry.is_symlink() and sorted(tree(entry)) == ["meta.json"]
     assert sorted(path.name for path in entry.parent.iterdir()) == ["entry"]  # the link removed, not left hidden
+
+
+@pytest.mark.skipif(not Path("/proc/version").exists(), reason="needs Linux's /proc, a folder no one can write")
+def test_an_output_file_in_a_folder_that_cannot_be_written_is_refused_before_the_work(tmp_path, capsys):
+    """`layers --json /proc/version --force` computed the whole fit, then failed to write (found by
+    a user review): the folder is now probed first, and the probe leaves nothing behind."""
+    from ringlight.core.atomic import check_output_file
+
+    assert main(["layers", str(tmp_path / "absent"), "--json", "/proc/version", "--force"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and error[0].startswith("ringlight: error: /proc/version: cannot write here")
+    check_output_file(tmp_path / "out.json", probe=True)
+    assert list(tmp_path.iterdir()) == []

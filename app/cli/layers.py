@@ -87,7 +87,7 @@ def run_layers(args) -> int:
     if args.json is not None:
         if not args.json.strip():
             raise RinglightError("--json needs a file name")
-        check_output_file(args.json, args.force)  # refused before the dataset is opened
+        check_output_file(args.json, args.force, probe=True)  # refused before the dataset is opened
     manifest = load_manifest(args.dataset)
     require_colour(dataset_channels(manifest, args.allow_outside))  # from the first frame's header
     with progress_bar("opening the dataset") as progress:
