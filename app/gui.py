@@ -22,7 +22,10 @@ def parse_pick(text: str | None) -> tuple[int, int] | None:
     parts = text.split(",")
     if len(parts) != 2:
         raise ValueError(f"--pick {text!r} must be Y,X, e.g. 16,20")
-    y, x = (int(part) for part in parts)
+    try:
+        y, x = (int(part) for part in parts)
+    except ValueError:
+        raise ValueError(f"--pick {text!r} must be two whole numbers Y,X, e.g. 16,20") from None
     return (y, x)
 
 
@@ -34,6 +37,10 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         parser.error(str(error))
     if (args.radius is not None or pick is not None or args.overwrite) and not args.screenshot:
         parser.error("--radius and --pick go with --screenshot")
+    if args.screenshot is not None and not args.screenshot.strip():
+        parser.error("--screenshot needs a file name")
+    if args.radius is not None and not 0 <= args.radius < float("inf"):
+        parser.error(f"--radius must be a finite number >= 0, got {args.radius}")
     if args.screenshot and not os.environ.get("QT_QPA_PLATFORM"):
         os.environ["QT_QPA_PLATFORM"] = "offscreen"
     from PySide6.QtCore import QSettings
@@ -102,6 +109,11 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
                     return 2
                 window.pick(*pick)
             if radius is not None:
+                shown = window.loaded.stacks.pair.radii
+                if not shown[0] - 1e-9 <= radius <= shown[-1] + 1e-9:
+                    print(f"ringlight: error: --radius {radius:g} is outside the stack shown "
+                          f"(radii {shown[0]:g}..{shown[-1]:g})", file=sys.stderr)
+                    return 2
                 window.set_radius(radius)
             QCoreApplication.processEvents()  # pending layout (panels shown on load) before the grab
             pixmap = window.grab()

@@ -117,6 +117,31 @@ def test_layer_options_that_cannot_work_are_one_line_before_the_dataset_is_opene
     assert err.strip() == f"ringlight: error: {line}"
 
 
+@pytest.mark.parametrize(("arguments", "line"), [
+    (["stack", "{absent}", "--radii", "0:5:1e-9", "--out", "{out}"],
+     "radii 0:5:1e-09 are more than 10000: use a larger step or a shorter range"),  # asked for 37 GiB
+    (["stack", "{absent}", "--radii", "0:1e308:1", "--out", "{out}"],
+     "radii 0:1e+308:1 are more than 10000: use a larger step or a shorter range"),
+    (["stack", "{absent}", "--radii", "0:11:1", "--thickness", "nan", "--out", "{out}"],
+     "ring thickness must be > 0, got nan"),
+    (["stack", "{absent}", "--radii", "0:11:1", "--thickness", "100000", "--out", "{out}"],  # a 149 GiB grid
+     "rings to radius 12 of thickness 100000 reach beyond 4096 grid steps, more than any dataset holds"),
+    (["stack", "{absent}", "--kind", "transient", "--radii", "0:5:1", "--dr", "inf", "--out", "{out}"],
+     "transient step dr must be > 0, got inf"),
+    (["simulate", "layers3", "--size", "8x8", "--photons", "99999999999999999999", "--out", "{out}"],
+     "--photons must be 1 to 10,000,000 per lit point, got 99999999999999999999"),
+    (["simulate", "layers3", "--size", "8x8", "--seed", "99999999999999999999", "--out", "{out}"],
+     "--seed must be 0 to 4294967295, got 99999999999999999999"),
+])
+def test_option_values_that_cannot_work_are_one_line_before_any_work(capsys, tmp_path, arguments, line):
+    """Each was a traceback, a hang or a memory blow-up (a user review of the commands' options);
+    the dataset does not exist, so each is refused before anything is opened."""
+    arguments = [part.format(absent=tmp_path / "absent", out=tmp_path / "out") for part in arguments]
+    status, _, err = run(capsys, *arguments)
+    assert status == 2 and err.strip() == f"ringlight: error: {line}"
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_screenshot_prints_one_line_and_no_qt_notices(tmp_path):
     """--screenshot under the offscreen platform: Qt's "propagateSizeHints" notice (printed for
     every window) is dropped; what is left is the one line naming the file."""

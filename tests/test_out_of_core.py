@@ -1,6 +1,7 @@
 """Datasets over the memory budget: built band by band into their store, read from it band by band,
 and every result equal bit for bit to the in-memory path (and to brute force)."""
 
+import re
 import shutil
 import subprocess
 import sys
@@ -161,6 +162,17 @@ def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_f
     assert_array_equal(transient.images, transient_memory.images)
     assert_array_equal(by_address.images, ring_memory.images)
     assert fractions[-1] == 1.0 and len(fractions) == 6
+
+
+@pytest.mark.allow_leaks("dask.distributed keeps its IO loop threads for the process")
+@pytest.mark.parametrize("address", ["garbage", "tcp://", "127.0.0.1:abc", "inproc://x"])
+def test_a_scheduler_address_that_is_no_dask_scheduler_is_one_line(folder, address):
+    """Malformed addresses gave dask's ValueError tracebacks (a user review)."""
+    from ringlight.core.errors import StackError
+
+    lazy = open_dataset(folder, memory_budget_bytes=1)
+    with pytest.raises(StackError, match=f"{re.escape(repr(address))} is not the address of a dask scheduler"):
+        ring_stack(lazy, RADII, scheduler=address)
 
 
 def test_camera_frames_with_a_dark_frame_and_exposures_give_the_same_bands(tmp_path, impulses, monkeypatch):

@@ -380,6 +380,17 @@ def test_screenshot_option_renders_the_window_offscreen_and_exits(dataset, tmp_p
     assert "--pick 99,4 is outside the 14x12 grid" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([str(dataset), "--pick", "3,4"])  # --pick without --screenshot
+    # From a user review: --screenshot "" opened the interactive window and waited for good,
+    # --radius beyond the stack or NaN wrote a PNG at some other radius, --pick a,b printed
+    # int()'s message.
+    assert main([str(dataset), "--screenshot", str(out), "--overwrite", "--radius", "40"]) == 2
+    assert "--radius 40 is outside the stack shown (radii 0.." in capsys.readouterr().err
+    for options, message in ((["--screenshot", ""], "--screenshot needs a file name"),
+                             (["--screenshot", str(out), "--radius", "nan"], "--radius must be a finite number"),
+                             (["--screenshot", str(out), "--pick", "a,b"], "must be two whole numbers Y,X")):
+        with pytest.raises(SystemExit) as stopped:
+            main([str(dataset), *options])
+        assert stopped.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_play_advances_at_the_frame_rate_and_stops_at_the_end_without_loop(qtbot):

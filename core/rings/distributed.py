@@ -52,6 +52,9 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
                 client = Client(str(scheduler), timeout="10s")
             except OSError as error:
                 raise StackError(f"cannot reach the dask scheduler at {scheduler} ({error})") from None
+            except Exception as error:  # a malformed address, or a service that is not a scheduler
+                raise StackError(f"{scheduler!r} is not the address of a dask scheduler "
+                                 f"(tcp://HOST:PORT): {type(error).__name__}: {error}") from None
         height, width = dataset.grid_shape
         images = np.empty((len(tables[0]), height, width, 3), np.float32)
         counts = np.empty((len(tables[0]), height, width), np.int32)

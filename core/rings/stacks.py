@@ -25,6 +25,12 @@ from .geometry import ring_geometry
 from .members import ring_members, unit_weight_rings
 
 _RADIUS_DECIMALS = 9
+MAX_RADII = 10_000
+"""Radii a range may hold (a step of 1e-9 asked for 37 GiB of radii before a single image)."""
+MAX_RING_REACH = 4096.0
+"""Largest ring reach (grid steps) a stack may ask for: far beyond any max_radius a dataset can hold
+(the response array grows with its square), and a thickness of 10^5 built a 149 GiB grid of
+offsets before the dataset's max_radius was compared."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,7 +77,11 @@ def radius_range(start: float, stop: float, step: float) -> np.ndarray:
         raise StackError(f"radius step must be > 0, got {step}")
     if start < 0 or stop < start:
         raise StackError(f"radii need 0 <= start <= stop, got {start}:{stop}")
-    count = int(math.floor((stop - start) / step + 1e-9)) + 1
+    span = (stop - start) / step
+    if not span < MAX_RADII:  # infinity too
+        raise StackError(f"radii {start:g}:{stop:g}:{step:g} are more than {MAX_RADII}: use a larger step "
+                         "or a shorter range")
+    count = int(math.floor(span + 1e-9)) + 1
     return np.round(start + step * np.arange(count), _RADIUS_DECIMALS)
 
 
@@ -163,6 +173,13 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
     """Largest member distance (grid steps) of the rings a stack over ``radii`` uses: the
     ``radius`` to open a dataset without ``max_radius`` at."""
     largest = float(_as_radii(radii).max()) + step
+    if not (math.isfinite(step) and step >= 0):
+        raise StackError(f"transient step dr must be > 0, got {step}")
+    if not (math.isfinite(thickness) and thickness > 0):
+        raise StackError(f"ring thickness must be > 0, got {thickness}")
+    if not largest + thickness / 2.0 <= MAX_RING_REACH:
+        raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
+                         f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
     return ring_geometry(largest, thickness, antialias).outer_radius
 
 
