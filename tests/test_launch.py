@@ -156,3 +156,14 @@ def test_a_screenshot_prints_one_line_and_no_qt_notices(tmp_path):
     assert result.returncode == 0, result.stderr
     assert out.stat().st_size > 10_000
     assert result.stderr == "" and result.stdout.strip().splitlines() == [f"wrote {out}"]
+
+
+def test_a_capture_max_radius_that_overflows_the_lattice_is_refused_before_any_device_opens(capsys, tmp_path):
+    """--max-radius 1e308 overflowed the lattice spacing's integer after the Gray code
+    correspondence had run (a user review); the hardware plugins' own warnings may come first."""
+    status, _, err = run(capsys, "capture", "--camera", "simulated", "--projector", "simulated",
+                         "--out", str(tmp_path / "scan"), "--max-radius", "1e308")
+    assert status == 2
+    assert err.strip().splitlines()[-1] == ("ringlight: error: --max-radius must be > 0 and at most 4096 grid "
+                                            "steps, got 1e+308")
+    assert "Traceback" not in err and not (tmp_path / "scan").exists()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from ringlight.app.main import main
 from ringlight.core.dataset.impulse_dataset import open_dataset
+from ringlight.core.rings.geometry import ring_geometry
 from ringlight.core.rings.stacks import ring_stack
 from ringlight.core.simulate.convergence import ring_images
 from ringlight.core.simulate.samples import SAMPLES, load_sample, sample_dataset, sample_names, save_sample
@@ -78,3 +79,22 @@ def test_the_demo_command_writes_a_sample_once_and_describes_it(capsys):
     stamp = (folder / "dataset.json").stat().st_mtime_ns
     assert main(["demo", "--sample", "layers3"]) == 0
     assert (folder / "dataset.json").stat().st_mtime_ns == stamp  # not written again
+
+
+def test_ring_images_of_a_grid_smaller_than_its_rings_equal_brute_force():
+    """A 4 x 3 grid whose windows reach 6 steps: rings wider than the grid have members off it on
+    every side (simulate --noise on a 4 x 4 grid failed to broadcast: a slice's stop went negative).
+    Brute force: each point's mean over the ring members q = p + d on the grid, seen at offset -d."""
+    rng = np.random.default_rng(3)
+    height, width, radius = 4, 3, 6
+    windows = rng.uniform(0.0, 1.0, (height, width, 2 * radius + 1, 2 * radius + 1, 3))
+    radii = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    images = ring_images(windows, radii)
+    for index, r in enumerate(radii):
+        for y in range(height):
+            for x in range(width):
+                members = [windows[y + dy, x + dx, radius - dy, radius - dx]
+                           for dy, dx in ring_geometry(r).offsets
+                           if 0 <= y + dy < height and 0 <= x + dx < width]
+                expected = np.mean(members, axis=0) if members else np.full(3, np.nan)
+                np.testing.assert_allclose(images[index, y, x], expected, rtol=1e-12)

@@ -19,6 +19,7 @@ from ringlight.core.capture.workflow import (
     run_scan,
 )
 from ringlight.core.colour.regions import parse_rectangle
+from ringlight.core.rings.stacks import MAX_RING_REACH
 
 from .progress import progress_bar
 
@@ -57,6 +58,9 @@ def run_capture(args) -> int:
         raise ScanError(f"capture needs {', '.join(absent)} (see ringlight capture --list for device names)")
     if args.multiplex:
         s_matrix(args.multiplex)  # refuses an order that has no code before any device opens
+    if not 0 < args.max_radius <= MAX_RING_REACH:  # 1e308 overflowed the lattice spacing after the correspondence
+        raise ScanError(f"--max-radius must be > 0 and at most {MAX_RING_REACH:g} grid steps, "
+                        f"got {args.max_radius:g}")
     shared = parse_options(args.option)
     with progress_bar(f"Opening {args.camera} and {args.projector}") as progress:
         camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)}, progress)

@@ -30,8 +30,8 @@ def ring_images(windows: np.ndarray, radii) -> np.ndarray:
         total = np.zeros((height, width, 3))
         count = np.zeros((height, width, 1))
         for dy, dx in ring_geometry(float(r)).offsets:
-            if max(abs(dy), abs(dx)) > radius:
-                continue
+            if max(abs(dy), abs(dx)) > radius or abs(dy) >= height or abs(dx) >= width:
+                continue  # beyond the window, or no point of the grid has this member on it
             # Point p is lit by q = p + d, seen at offset -d of q's window.
             ys = slice(max(0, -dy), min(height, height - dy))
             xs = slice(max(0, -dx), min(width, width - dx))
