@@ -257,7 +257,7 @@ def atomic_file(final: str | os.PathLike, *, overwrite: bool = False, make_paren
     final = Path(final)
     check_output_file(final, overwrite)
     # A fresh name, not a mkstemp file: the writer creates it with the user's usual permissions.
-    temporary = final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
+    temporary = _temporary_file(final)
     try:
         if make_parents:
             try:
@@ -292,12 +292,17 @@ def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: 
         raise OutputError(f"{final}: already exists; refusing to overwrite it "
                           "(choose another name, or allow overwriting: --force on the command line)")
     if probe and final.parent.is_dir():
-        temporary = final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
+        temporary = _temporary_file(final)
         try:
             os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
             os.unlink(temporary)
         except OSError as error:
             raise _named(error, final) from error
+
+
+def _temporary_file(final: Path) -> Path:
+    """A fresh hidden name beside ``final`` with its suffix (writers pick a format by extension)."""
+    return final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
 
 
 def _publish_file(temporary: Path, final: Path, overwrite: bool) -> None:

@@ -11,6 +11,7 @@ of E_r is over a laterally homogeneous region.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba
@@ -44,6 +45,14 @@ class Structure:
         return [(float(top), float(min(bottom, depth))) for top, bottom in zip(self.starts, bottoms)]
 
 
+def weights_reach(weights: np.ndarray) -> int:
+    """Largest ``max(|dy|, |dx|)`` of an offset that ring weights ``weights`` (R, S, S) (as
+    :func:`embedded_rings` takes them) give a weight other than 0."""
+    rows, cols = np.nonzero(weights.any(axis=0))
+    half = weights.shape[1] // 2
+    return int(max(np.abs(rows - half).max(initial=0), np.abs(cols - half).max(initial=0)))
+
+
 def embedded_rings(weights: np.ndarray, reach: int) -> np.ndarray:
     """(R, (2 reach + 1)^2): ring weights ``weights`` (R, S, S) over pixel offsets
     ``[dy + S // 2, dx + S // 2]`` (:attr:`.measured.MeasuredProfile.ring_weights`) placed on the
@@ -51,10 +60,9 @@ def embedded_rings(weights: np.ndarray, reach: int) -> np.ndarray:
     rows, side, _ = weights.shape
     half = side // 2
     if half > reach:
-        inner = weights[:, half - reach:half + reach + 1, half - reach:half + reach + 1]
-        if np.count_nonzero(inner) != np.count_nonzero(weights):
+        if weights_reach(weights) > reach:
             raise ValueError(f"rings reach beyond the database's {reach} pixels")
-        weights, half = inner, reach
+        weights, half = weights[:, half - reach:half + reach + 1, half - reach:half + reach + 1], reach
     matrix = np.zeros((rows, 2 * reach + 1, 2 * reach + 1))
     matrix[:, reach - half:reach + half + 1, reach - half:reach + half + 1] = weights
     return matrix.reshape(rows, -1)
@@ -107,10 +115,13 @@ class Forward:
         self.lengths = np.add.reduceat(database.lengths[used], np.asarray(structure.starts), axis=1,
                                        dtype=np.float64)
         self._pixels = self.rings.shape[1]
-        white = self.profile(np.zeros(structure.layers))
-        self.reached = int(np.argmin(white > 0)) if not (white > 0).all() else len(white)
+
+    @functools.cached_property
+    def reached(self) -> int:
         """Rings from r = 0 up to (not including) the first that no record of the database reaches
         (light the run's photons never carried that far): the model is 0 there, so no fit uses it."""
+        lit = self.profile(np.zeros(self.structure.layers)) > 0
+        return int(np.argmin(lit)) if not lit.all() else len(lit)
 
     def profile(self, mua: np.ndarray, derivatives: bool = False):
         """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
 from .fit import JOINT_CHI2, ChannelFit, fit_channels
-from .forward import Forward, Structure
+from .forward import Forward, Structure, weights_reach
 from .joint import JointFit, fit_jointly
 from .layer_colour import InvertedLayer, layer_colours, widened
 from .measured import MeasuredProfile
@@ -128,13 +128,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     report = progress or (lambda fraction, what: None)
     if not np.isfinite(measured.mean).any():
         raise InversionError("the region's profile holds no values")
-    if measured.ring_weights is not None:
-        half = measured.ring_weights.shape[1] // 2
-        rows, cols = np.nonzero(measured.ring_weights.any(axis=0))
-        beyond = max(np.abs(rows - half).max(initial=0), np.abs(cols - half).max(initial=0)) > REACH
-    else:
-        beyond = measured.radii.max(initial=0.0) > REACH
-    if beyond:
+    if (weights_reach(measured.ring_weights) if measured.ring_weights is not None
+            else measured.radii.max(initial=0.0)) > REACH:
         raise InversionError(f"the profile's rings reach beyond the {REACH} pixels around the lit point that a "
                              f"white database keeps: fit rings up to r = {REACH}")
     rings = len(measured.radii)
@@ -146,7 +141,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     candidates = []
     # The records each database's quick fits use, by its optics: a search keeps a quarter of each
     # database's photons and loads the whole database again only for the few it fits fully (it held
-    # every database whole: 2.5 GB on a 24 px sample).
+    # every database whole: 3.0 GB of peak RSS searching layers3).
     searched: dict[SlabOptics, WhiteDatabase] = {}
 
     def keep(database: WhiteDatabase) -> None:
@@ -209,7 +204,9 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     for number, candidate in enumerate([best, *rivals]):
         report((len(mus_choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
-        database = searched.get(candidate.optics) or white_database(candidate.optics, settings.photons)
+        database = searched.get(candidate.optics)
+        if database is None:  # a search kept a quarter: the whole database, from the cache as a rule
+            database = white_database(candidate.optics, settings.photons)
         forward = Forward(database, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
         fits = fit_channels(forward, measured.mean, measured.standard_error)
         fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits),

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..errors import StackError
-from .stacks import Stack, needed_radius, radius_range, ring_and_transient_stacks
+from .stacks import Stack, check_ring_shape, needed_radius, radius_range, ring_and_transient_stacks
 
 
 @dataclass(frozen=True)
@@ -44,10 +44,7 @@ class StackRequest:
             raise StackError(f"the first radius must be >= 0, got {self.start}")
         if not (math.isfinite(self.step) and self.step > 0):
             raise StackError(f"radius step must be > 0, got {self.step}")
-        if not (math.isfinite(self.dr) and self.dr > 0):
-            raise StackError(f"transient step dr must be > 0, got {self.dr}")
-        if not (math.isfinite(self.thickness) and self.thickness > 0):
-            raise StackError(f"ring thickness must be > 0, got {self.thickness}")
+        check_ring_shape(self.thickness, self.dr, transient=True)
 
     def check(self, dataset: ImpulseDataset) -> None:
         """Raise StackError when ``dataset`` cannot serve the request."""

@@ -169,14 +169,20 @@ def _as_selection(index: np.ndarray) -> slice | np.ndarray:
     return index
 
 
+def check_ring_shape(thickness: float, dr: float = 0.0, transient: bool = False) -> None:
+    """Raise StackError unless ``thickness`` is finite and > 0 and the transient step ``dr`` is
+    finite and >= 0 (> 0 for a ``transient`` stack; 0 adds nothing to a ring light stack's reach)."""
+    if not (math.isfinite(dr) and (dr > 0 if transient else dr >= 0)):
+        raise StackError(f"transient step dr must be > 0, got {dr}")
+    if not (math.isfinite(thickness) and thickness > 0):
+        raise StackError(f"ring thickness must be > 0, got {thickness}")
+
+
 def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: bool = False) -> float:
     """Largest member distance (grid steps) of the rings a stack over ``radii`` uses: the
     ``radius`` to open a dataset without ``max_radius`` at."""
+    check_ring_shape(thickness, step)
     largest = float(_as_radii(radii).max()) + step
-    if not (math.isfinite(step) and step >= 0):
-        raise StackError(f"transient step dr must be > 0, got {step}")
-    if not (math.isfinite(thickness) and thickness > 0):
-        raise StackError(f"ring thickness must be > 0, got {thickness}")
     if not largest + thickness / 2.0 <= MAX_RING_REACH:
         raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
                          f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
