@@ -88,6 +88,7 @@ class LayerTab(QObject):
         if new_dataset:
             self.picked = []
             self.panel.diagram.reset_view()  # the new trajectory may lie outside the old zoom
+            self.panel.set_sample(dataset.manifest.sample.n, dataset.manifest.sample.g)  # the fit follows the dataset
         else:
             self.picked = [r for r in self.picked if np.isclose(stack.radii, r).any()]
         if new_dataset or self.region.shape != dataset.grid_shape:

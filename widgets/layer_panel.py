@@ -38,6 +38,9 @@ METHOD_TIPS = {
 }
 
 
+INDEX_STEP = 0.05
+"""Step of the refractive index box; one step below 1 is "auto"."""
+
 class LayerPanel(QWidget):
     """Shows a trajectory and recovered layers; reports what the user asks for.
 
@@ -99,15 +102,18 @@ class LayerPanel(QWidget):
         self.mus_edit.setPlaceholderText("auto")
         self.mus_edit.setToolTip("Scattering coefficient per grid step: one common value, or one per layer "
                                  "(with boundaries); empty: searched, common or with a base of its own")
+        # The index's lowest value, one step below 1, reads "auto": searched by the fit.
         self.n_box = QDoubleSpinBox()
-        self.n_box.setRange(1.0, 3.0)
-        self.n_box.setSingleStep(0.05)
-        self.n_box.setValue(1.4)
-        self.n_box.setToolTip("Refractive index of the sample")
+        self.n_box.setRange(1.0 - INDEX_STEP, 3.0)
+        self.n_box.setSingleStep(INDEX_STEP)
+        self.n_box.setSpecialValueText("auto")
+        self.n_box.setToolTip("Refractive index of the sample; auto: the dataset's when its manifest states one "
+                              "(sample.n), else chosen by the fit from the usual indices")
         self.g_box = QDoubleSpinBox()
         self.g_box.setRange(-0.95, 0.95)
         self.g_box.setSingleStep(0.05)
-        self.g_box.setToolTip("Henyey-Greenstein anisotropy of the scattering")
+        self.g_box.setToolTip("Henyey-Greenstein anisotropy of the scattering (the dataset's sample.g when stated)")
+        self.set_sample(None, None)
         self.depth_box = QDoubleSpinBox()
         self.depth_box.setRange(10.0, 256.0)
         self.depth_box.setDecimals(0)
@@ -177,10 +183,18 @@ class LayerPanel(QWidget):
 
     def inversion_inputs(self) -> dict:
         """The inverse method's settings as typed: ``layers`` ("auto" or "1".."4"), ``boundaries``
-        and ``mus`` (text, empty for the defaults), ``n``, ``g`` and ``depth`` (grid steps)."""
+        and ``mus`` (text, empty for the defaults), ``n`` (None: auto), ``g`` and ``depth`` (grid
+        steps)."""
         return {"layers": self.layers_box.currentText(), "boundaries": self.boundaries_edit.text().strip(),
-                "mus": self.mus_edit.text().strip(), "n": self.n_box.value(), "g": self.g_box.value(),
-                "depth": self.depth_box.value()}
+                "mus": self.mus_edit.text().strip(),
+                "n": None if self.n_box.value() == self.n_box.minimum() else self.n_box.value(),
+                "g": self.g_box.value(), "depth": self.depth_box.value()}
+
+    def set_sample(self, n: float | None, g: float | None) -> None:
+        """Show what a dataset states of its surface as the fit's index and anisotropy: ``n`` (None:
+        auto, searched) and ``g`` (None: 0)."""
+        self.n_box.setValue(self.n_box.minimum() if n is None else n)
+        self.g_box.setValue(0.0 if g is None else g)
 
     def _show_mode(self) -> None:
         inverse = self.method() == INVERSE
@@ -215,14 +229,20 @@ class LayerPanel(QWidget):
                      "" if truth_xy is None else f"{truth_xy[0]:.4f}, {truth_xy[1]:.4f}",
                      "" if truth_xy is None else f"{result.errors[row]:.4f}"
                      + ("" if result.inside[row] else " (outside)"),
-                     f"{layer.region_width:.3f}", "yes" if layer.determined else "no"]
+                     f"{layer.region_width:.3f} (data {layer.allowed_width:.3f})",
+                     "yes" if layer.determined else "no"]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setFlags(item.flags() & ~Qt.ItemFlag.ItemIsEditable)
                 if not layer.determined:
                     item.setToolTip(layer.reason)
                     item.setForeground(QColor("#8a8a8a"))
+                elif layer.limit:
+                    item.setToolTip(layer.limit)
                 self.table.setItem(row, column, item)
+            self.table.item(row, 8).setToolTip(
+                f"Two-sigma region {layer.region_width:.3f} wide in xy; the data alone allow {layer.allowed_width:.3f} "
+                f"(Fisher information at the data's noise){': ' + layer.limit if layer.limit else ''}")
             self.table.item(row, 4).setBackground(QColor(*layer.swatch))
         self.table.resizeColumnsToContents()
         grey = (138, 138, 138)

@@ -16,11 +16,14 @@ from ringlight.core.colour.regions import full_region, parse_rectangle, rectangl
 from ringlight.core.dataset.frames import dataset_channels
 from ringlight.core.inversion.settings import (
     DEFAULT_DEPTH,
+    DEFAULT_G,
     DEFAULT_PHOTONS,
     MAX_LAYERS,
+    N_GRID,
     InversionSettings,
     settings_from_text,
 )
+from ringlight.core.inversion.limit import TOLERANCE_XY
 from ringlight.core.inversion.report import invert_region, inversion_json
 from ringlight.core.rings.stack_request import StackRequest
 
@@ -47,8 +50,11 @@ def add_command(subparsers) -> None:
     inverse.add_argument("--mus", metavar="MUS|M1,M2,...",
                          help="scattering coefficient per grid step: one common value, or one per layer with "
                               "--boundaries (default: searched, common or with a base of its own, chosen by BIC)")
-    inverse.add_argument("--n", type=float, default=1.4, help="refractive index of the sample (default 1.4)")
-    inverse.add_argument("--g", type=float, default=0.0, help="scattering anisotropy g (default 0)")
+    inverse.add_argument("--n", type=float, default=None,
+                         help="refractive index of the sample (default: the dataset's sample.n when its manifest "
+                              f"states one, else chosen from {', '.join(f'{n:g}' for n in N_GRID)} by chi-square)")
+    inverse.add_argument("--g", type=float, default=None,
+                         help=f"scattering anisotropy g (default: the dataset's sample.g, else {DEFAULT_G:g})")
     inverse.add_argument("--depth", type=float, default=DEFAULT_DEPTH,
                          help=f"modelled thickness in grid steps (default {DEFAULT_DEPTH:g}: a thick sample)")
     inverse.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
@@ -131,7 +137,8 @@ def _run_inverse(args, dataset, region, description: str, settings: InversionSet
           f"{'/'.join(str(int(u)) for u in inversion.used)}, {inversion.seconds:.1f} s")
     for index, layer in enumerate(inversion.layers):
         line = (f"layer {index + 1}  depth {layer.top:g}..{layer.bottom:g}  xy ({layer.xy[0]:.4f}, {layer.xy[1]:.4f})"
-                f"  2-sigma region {layer.region_width:.3f} wide  sRGB #{'%02x%02x%02x' % layer.swatch}")
+                f"  2-sigma region {layer.region_width:.3f} wide (the data allow {layer.allowed_width:.3f})"
+                f"  sRGB #{'%02x%02x%02x' % layer.swatch}")
         if not layer.determined:
             line += "  NOT DETERMINED"
         if result.errors is not None:
@@ -141,6 +148,8 @@ def _run_inverse(args, dataset, region, description: str, settings: InversionSet
         print(line)
         if not layer.determined:
             print(f"  layer {index + 1}: {layer.reason}")
+        if layer.limit:
+            print(f"  layer {index + 1}: not determined to {TOLERANCE_XY:g} xy: {layer.limit}")
     if inversion.warning:
         print(f"warning: {inversion.warning}")
     if args.json:

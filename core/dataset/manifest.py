@@ -24,13 +24,16 @@ MANIFEST_NAME = "dataset.json"
 
 _TOP_KEYS = {
     "format", "version", "grid", "colorspace", "frame_space", "mapping", "max_radius",
-    "frames", "dark", "ground_truth", "notes", "channels", "part",
+    "frames", "dark", "ground_truth", "notes", "channels", "part", "sample",
 }
 _GRID_KEYS = {"height", "width", "pitch_mm"}
 _FRAME_KEYS = {"file", "lit", "exposure"}
 _TRUTH_KEYS = {"path_length_images", "layers"}
 _PATH_IMAGE_KEYS = {"file", "min", "max"}
 _LAYER_KEYS = {"name", "depth", "rgb"}
+_SAMPLE_KEYS = {"n", "g"}
+INDEX_RANGE = (1.0, 3.0)
+"""Refractive indices a manifest's ``sample.n`` may state (air to the densest glasses)."""
 
 MAX_GRID_POINTS = 2**26
 """Largest grid (H x W) a manifest may declare: 8192 x 8192, far beyond any projector."""
@@ -76,6 +79,17 @@ class GroundTruth:
     layers: tuple[Layer, ...] = ()
 
 
+@dataclass(frozen=True)
+class Sample:
+    """What is known of the surface (the manifest's optional ``sample`` key): refractive index ``n``
+    in [1, 3] and Henyey-Greenstein anisotropy ``g`` in (-1, 1); None where not stated. The
+    simulator writes its scene's; a user may state them for a real capture; tools (the layer
+    inversion) take them as defaults."""
+
+    n: float | None = None
+    g: float | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class Manifest:
     """A validated ``dataset.json``. Paths are relative to ``folder``."""
@@ -99,6 +113,8 @@ class Manifest:
     or ``Y`` when frames hold a single ``Y`` and no R, G, B (see :mod:`.frames`)."""
     part: str | None = None
     """Name of the part of multi-part frames to read; None: the one part holding the channels."""
+    sample: Sample = Sample()
+    """The surface's stated refractive index and anisotropy (both None when not stated)."""
     source_sha256: str | None = None
     """SHA-256 (hex) of the ``dataset.json`` bytes this was read from; None when built in memory.
     A dataset's store keeps a copy of the manifest under it (:mod:`.manifest_copy`), so a
@@ -226,6 +242,7 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
         raise DatasetError(f"{where}: 'max_radius' {max_radius:g} is over {MAX_RADIUS_LIMIT:g} grid steps")
     dark = check.relative_file(doc["dark"], "dark") if "dark" in doc else None
     notes = check.string(doc["notes"], "notes") if "notes" in doc else None
+    sample = _parse_sample(check, doc["sample"]) if "sample" in doc else Sample()
 
     checked = frames is not None
     if not checked:
@@ -236,7 +253,7 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
         folder=folder, height=height, width=width, pitch_mm=pitch_mm, colorspace=colorspace,
         frame_space=frame_space, mapping=mapping, max_radius=max_radius, frames=frames, dark=dark,
         ground_truth=_parse_ground_truth(check, doc["ground_truth"]) if "ground_truth" in doc else None,
-        notes=notes, channels=channels, part=part, source_sha256=source_sha256,
+        notes=notes, channels=channels, part=part, sample=sample, source_sha256=source_sha256,
     )
     if manifest.multiplexed:
         if max_radius is None:
@@ -244,6 +261,24 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
         if not checked:
             check_multiplexed_spacing(where, frames, max_radius)
     return manifest
+
+
+def _parse_sample(check: Validator, value: object) -> Sample:
+    """The ``sample`` key: ``{"n": ..., "g": ...}``, each optional."""
+    doc = check.mapping(value, "sample", _SAMPLE_KEYS, set())
+    n = check.number(doc["n"], "sample.n") if "n" in doc else None
+    if n is not None and not INDEX_RANGE[0] <= n <= INDEX_RANGE[1]:
+        raise check.fail("sample.n", f"a refractive index in [{INDEX_RANGE[0]:g}, {INDEX_RANGE[1]:g}]", doc["n"])
+    g = check.number(doc["g"], "sample.g") if "g" in doc else None
+    if g is not None and not -1.0 < g < 1.0:
+        raise check.fail("sample.g", "an anisotropy in (-1, 1)", doc["g"])
+    return Sample(n, g)
+
+
+def sample_json(sample: Sample) -> dict | None:
+    """The ``sample`` key of ``sample`` as a manifest writes it; None when nothing is stated."""
+    stated = {key: value for key, value in (("n", sample.n), ("g", sample.g)) if value is not None}
+    return stated or None
 
 
 def _parse_channels(check: Validator, value: object) -> tuple[str, ...]:

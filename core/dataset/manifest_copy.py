@@ -45,6 +45,7 @@ from .manifest import (
     Manifest,
     locate_manifest,
     parse_manifest,
+    sample_json,
 )
 
 COPY_NAME = "manifest.npz"
@@ -161,6 +162,7 @@ def _header(manifest: Manifest) -> dict:
         "frame_space": manifest.frame_space, "mapping": manifest.mapping, "max_radius": manifest.max_radius,
         "dark": manifest.dark, "notes": manifest.notes,
         "channels": None if manifest.channels is None else list(manifest.channels), "part": manifest.part,
+        "sample": sample_json(manifest.sample),
         "ground_truth": None if truth is None else {
             "path_length_images": [{"file": image.file, "min": image.min, "max": image.max}
                                    for image in truth.path_length_images],

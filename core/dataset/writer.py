@@ -25,7 +25,7 @@ from ..ownership import Owned
 from ..validation import read_json
 from .cache import CACHE_FOLDER_NAME
 from .exr import write_exr_channels, write_exr_rgb
-from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, parse_manifest
+from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, Sample, parse_manifest, sample_json
 
 RINGLIGHT_SUBFOLDERS = (CACHE_FOLDER_NAME, ".scan")
 """Folders ringlight keeps inside a dataset: the cache and a capture's scan record."""
@@ -74,6 +74,9 @@ class DatasetWriter:
         ``(H, W)`` of the grid.
     max_radius, pitch_mm, colorspace, notes
         Manifest keys (FORMAT.md); None leaves a key out.
+    sample
+        The surface's refractive index and anisotropy, as far as known (the ``sample`` key; left
+        out when nothing is stated).
     frame_space
         ``"grid"`` (frames H x W) or ``"camera"`` (call :meth:`set_mapping` first).
     half
@@ -90,6 +93,7 @@ class DatasetWriter:
         colorspace: str = "sRGB",
         frame_space: str = "grid",
         notes: str | None = None,
+        sample: Sample = Sample(),
         half: bool = False,
         overwrite: bool = False,
     ):
@@ -110,6 +114,8 @@ class DatasetWriter:
             self.manifest["max_radius"] = float(max_radius)
         if notes is not None:
             self.manifest["notes"] = notes
+        if (stated := sample_json(sample)) is not None:
+            self.manifest["sample"] = stated
         self.half = half
         self._exit_stack: ExitStack | None = None
         self.staging: Path | None = None

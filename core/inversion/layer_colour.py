@@ -14,6 +14,7 @@ both, so the region never shrinks below what either shows.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, replace
 
 import cv2
@@ -58,6 +59,11 @@ class InvertedLayer:
         (K, 2) the two-sigma region in xy, a convex polygon.
     swatch
         8-bit sRGB of ``rgb``.
+    allowed_width
+        The width (as :attr:`region_width`) of the two-sigma region the data alone allow
+        (:mod:`.limit`); NaN when not computed.
+    limit
+        Why the data cannot place this layer within :data:`.limit.TOLERANCE_XY` ("" when they can).
     """
 
     top: float
@@ -71,6 +77,8 @@ class InvertedLayer:
     xy: np.ndarray
     region: np.ndarray
     swatch: tuple[int, int, int]
+    allowed_width: float = math.nan
+    limit: str = ""
 
     @property
     def region_width(self) -> float:
@@ -107,8 +115,8 @@ def layer_colours(fits: list[ChannelFit], structure: Structure, optics: SlabOpti
             covariance = joint.layer_covariance(k)
             if (not open_channels and not joint.at_bound[:, k].any()
                     and np.all(np.sqrt(np.diagonal(covariance)) <= QUADRATIC_SPREAD)):
-                gradient = _gradient(lambda theta: chromaticity(colour(np.exp(theta)), colorspace), np.log(mua))
-                points.append(chromaticity_ellipse(xy, gradient, covariance))
+                points.append(chromaticity_ellipse(xy, chromaticity_gradient(mus, mua, optics, colorspace),
+                                                   covariance))
         layers.append(InvertedLayer(top, bottom, mus, mua, interval, not open_channels, reason, rgb, xy,
                                     _hull(np.vstack(points)), srgb_swatch(rgb, colorspace)))
     return layers
@@ -143,11 +151,18 @@ def _hull(points: np.ndarray) -> np.ndarray:
     return cv2.convexHull(points.astype(np.float32)).reshape(-1, 2).astype(np.float64)
 
 
-def _gradient(function, theta: np.ndarray) -> np.ndarray:
-    """(2, C) central-difference derivatives of ``function`` (C,) -> (2,) at ``theta``."""
+def chromaticity_gradient(mus: float, mua: np.ndarray, optics: SlabOptics, colorspace: str) -> np.ndarray:
+    """(2, C) derivatives of the xy chromaticity of a layer's thick-slab colour (scattering ``mus``,
+    absorption ``mua`` (C,) per grid step, ``optics``' g and n) per unit of each channel's
+    ``log mua``: central differences of step :data:`GRADIENT_STEP`."""
+    def xy(theta):
+        return chromaticity(thick_slab_reflectance(np.full(theta.shape, mus), np.exp(theta), optics.g, optics.n),
+                            colorspace)
+
+    theta = np.log(np.asarray(mua, np.float64))
     columns = []
     for c in range(len(theta)):
         step = np.zeros_like(theta)
         step[c] = GRADIENT_STEP
-        columns.append((function(theta + step) - function(theta - step)) / (2.0 * GRADIENT_STEP))
+        columns.append((xy(theta + step) - xy(theta - step)) / (2.0 * GRADIENT_STEP))
     return np.stack(columns, axis=1)

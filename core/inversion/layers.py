@@ -1,8 +1,10 @@
 """Layer colours by inversion: fit a layered slab to a region's ring-light profiles.
 
 The model (:mod:`.forward`, :mod:`.white_mc`): layers of a common or given scattering
-coefficient, each with its own absorption per channel, index ``n`` and anisotropy ``g`` given.
-The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
+coefficient, each with its own absorption per channel, anisotropy ``g`` given, refractive index
+``n`` given or chosen from :data:`~.settings.N_GRID` like the scattering (the index sets how much
+light the surface reflects back in, and so the profile's shape: assuming 1.4 for an index-matched
+slab misplaced its top layer's colour by 0.041 xy). The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
 searched by chi-square; the number of layers is given or chosen by BIC. The scattering is given
 (common or per layer) or chosen from :data:`MUS_GRID`: common to every layer, or one for the layers
 above and another for the base (:func:`_base_search`), by BIC. The search compares quick
@@ -24,20 +26,21 @@ from typing import NamedTuple
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from .fit import JOINT_CHI2, ChannelFit, fit_channels
+from .fit import JOINT_CHI2, RELATIVE_FLOOR, ChannelFit, fit_channels
 from .forward import Forward, Structure, weights_reach
 from .joint import JointFit, fit_jointly
 from .layer_colour import InvertedLayer, layer_colours, widened
+from .limit import data_limits, limit_reason
 from .measured import MeasuredProfile
-from .settings import MAX_LAYERS, MUS_GRID, SEARCH_BINS, InversionError, InversionSettings
+from .settings import MAX_LAYERS, MUS_GRID, N_GRID, SEARCH_BINS, InversionError, InversionSettings
 from .white_mc import SlabOptics, WhiteDatabase, white_database
 
 SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
 PLAUSIBLE_CHI2 = JOINT_CHI2
-"""Structures (and common scatterings) whose search chi-square is within this of the chosen one's
-are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
+"""Structures (and scatterings, and indices) whose search chi-square is within this of the chosen
+one's are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
 MAX_RIVALS = 4
 """At most this many of them (the best-fitting), to bound the time."""
 REACH = 13
@@ -138,6 +141,9 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         raise InversionError(f"the profile holds {rings} ring(s); fitting {wanted} layer(s) needs more rings than "
                              f"layers in each channel: use a dataset of larger max_radius or fewer layers")
     mus_choices = [settings.mus] if settings.mus is not None else list(MUS_GRID)
+    # Every refractive index tried goes with every scattering: the index changes how much light the
+    # surface sends back in and so the profile's shape, as the scattering does.
+    choices = [(n, mus) for n in settings.indices for mus in mus_choices]
     candidates = []
     # The records each database's quick fits use, by its optics: a search keeps a quarter of each
     # database's photons and loads the whole database again only for the few it fits fully (it held
@@ -154,7 +160,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         for number, (structure, optics, mus) in enumerate(trials):
             report(first + share * number / len(trials), what)
             if optics not in searched:
-                report(first + share * number / len(trials), f"white Monte Carlo for mus {_mus_text(mus)}")
+                report(first + share * number / len(trials), f"white Monte Carlo for {_optics_text(optics, mus)}")
                 keep(white_database(optics, settings.photons))
             forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
@@ -162,33 +168,35 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
                                         structure, optics))
 
-    structures = list(_structures(settings, database_optics(settings, mus_choices[0]).bins, rings - 1))
+    structures = list(_structures(settings, database_optics(settings, mus_choices[0], choices[0][0]).bins,
+                                  rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
-    share = 1.0 / (len(mus_choices) + 2 + base_search)
-    for index, mus in enumerate(mus_choices):
-        what = f"white Monte Carlo for mus {_mus_text(mus)}"
+    share = 1.0 / (len(choices) + 2 + base_search)
+    for index, (n, mus) in enumerate(choices):
+        optics = database_optics(settings, mus, n)
+        what = f"white Monte Carlo for {_optics_text(optics, mus)}"
         report(index * share, what)
-        optics = database_optics(settings, mus)
         keep(white_database(optics, settings.photons,
                             progress=lambda fraction: report((index + 0.5 * fraction) * share, what)))
-        if len(structures) == 1 and len(mus_choices) == 1:
+        if len(structures) == 1 and len(choices) == 1:
             candidates.append(Candidate(0.0, 0.0, mus, structures[0], optics))
             break
-        # With several scatterings to try, each is scouted on the structures with even boundaries;
-        # the others are tried for the best scattering only.
-        scouts = _scouts(structures) if len(mus_choices) > 1 else structures
+        # With several scatterings (or indices) to try, each is scouted on the structures with even
+        # boundaries; the others are tried for the best one only.
+        scouts = _scouts(structures) if len(choices) > 1 else structures
         try_structures([(structure, optics, mus) for structure in scouts], (index + 0.5) * share,
-                       f"fitting structures for mus {_mus_text(mus)}")
-    if len(mus_choices) > 1 and (scouted := _best(candidates)):
+                       f"fitting structures for {_optics_text(optics, mus)}")
+    if len(choices) > 1 and (scouted := _best(candidates)):
         _, _, mus, _, optics = scouted
         rest = [structure for structure in structures if structure not in _scouts(structures)]
-        try_structures([(structure, optics, mus) for structure in rest], len(mus_choices) * share,
-                       f"fitting every structure for mus {_mus_text(mus)}")
+        try_structures([(structure, optics, mus) for structure in rest], len(choices) * share,
+                       f"fitting every structure for {_optics_text(optics, mus)}")
     if base_search and (leading := _best(candidates)):
-        # A base of its own scattering is tried for the layer count that fitted best (two at least).
+        # A base of its own scattering is tried for the layer count and index that fitted best (two
+        # layers at least).
         count = max(leading.structure.layers, 2)
-        _base_search(settings, [structure for structure in structures if structure.layers == count], candidates,
-                     try_structures, lambda fraction: (len(mus_choices) + 1 + fraction) * share)
+        _base_search(settings, leading.optics.n, [structure for structure in structures if structure.layers == count],
+                     candidates, try_structures, lambda fraction: (len(choices) + 1 + fraction) * share)
     best = _best(candidates)
     if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
@@ -196,13 +204,13 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     # Structures and scatterings that fit about as well are as plausible as the best: each layer's
     # region spans theirs too, so the choice of model is part of its uncertainty.
     rivals = sorted((c for c in usable if c.structure.layers == best.structure.layers
-                     and (c.structure != best.structure or c.mus != best.mus)), key=lambda c: c.chi2)
+                     and (c.structure, c.optics) != (best.structure, best.optics)), key=lambda c: c.chi2)
     rivals = [c for c in rivals if c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     if settings.boundaries is None:
         searched.clear()  # thinned: the few fitted fully are loaded whole below
     fitted = []
     for number, candidate in enumerate([best, *rivals]):
-        report((len(mus_choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
+        report((len(choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
         database = searched.get(candidate.optics)
         if database is None:  # a search kept a quarter: the whole database, from the cache as a rule
@@ -226,6 +234,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         if other is not chosen:
             layers = [widened(layer, widening) for layer, widening in zip(layers, layer_colours(
                 other.fits, other.candidate.structure, other.candidate.optics, colorspace, other.joint))]
+    fitted_mua = joint.mua if joint is not None else np.array([f.mua for f in fits])
+    limits = data_limits(Forward(database, structure, measured.radii, ring_weights=measured.ring_weights),
+                         fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
+                         colorspace, joint.floor_correlation if joint is not None else 0.0)
+    layers = [replace(layer, allowed_width=width, limit=limit_reason(width)) for layer, width in zip(layers, limits)]
     if joint is not None:
         chi2, dof, model, sigma = joint.chi2, joint.dof, joint.model, joint.sigma
     else:
@@ -238,16 +251,21 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         layers = [replace(layer, determined=False, reason="the model does not fit the profile (chi-square), so its "
                           "uncertainty regions do not hold") for layer in layers]
     searched_mus = f" (chosen from {', '.join(map(str, MUS_GRID))}, common or with a base of its own)"
+    searched_n = f" (chosen from {', '.join(f'{n:g}' for n in N_GRID)} by chi-square)"
+    other_indices = sorted({fit.candidate.optics.n for fit in fitted} - {optics.n})
     notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
              f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
              f"{searched_mus if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
-             f"n {settings.n:g}, g {settings.g:g}, {database.photons} white photons"
-             + (f"; regions also span {len(rivals)} other structure(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
+             f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {database.photons} white photons"
+             + (f"; regions also span {len(rivals)} other model(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
+                + (f" (n {', '.join(f'{n:g}' for n in other_indices)} among them)" if other_indices else "")
                 if rivals else "")
              + (f"; channels fitted together (floor correlated {joint.floor_correlation:g} between them)"
                 if joint is not None else "; channels fitted one by one (the joint fit "
-                "needs every channel's own fit)"))
+                "needs every channel's own fit)")
+             + f"; data noise: the spread of the region's lit points' rings, with a {RELATIVE_FLOOR:.0%} floor for "
+               "noise the lit points share (the dataset carries no estimate of it)")
     report(1.0, "done")
     return Inversion(layers, measured, model, sigma, np.array([f.used for f in fits]), chi2, dof, warning, notes,
                      time.perf_counter() - start)
@@ -266,16 +284,16 @@ def _bic(chi2: float, points: int, structure: Structure, mus) -> float:
     return chi2 + unknowns * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
 
 
-def _base_search(settings: InversionSettings, structures: list[Structure], candidates: list[Candidate],
+def _base_search(settings: InversionSettings, n: float, structures: list[Structure], candidates: list[Candidate],
                  try_structures, fraction_done: Callable[[float], float]) -> None:
     """Try structures of two or more layers again with a base that scatters otherwise than the
     layers above: every pair of scatterings of :data:`MUS_GRID` on those of ``structures`` with even
     boundaries, then every other one with the pair that fitted best. A thin upper layer over a base
     that scatters otherwise (skin over flesh) is the common case; one scattering for all may then
     fit a wrong structure as well as the right one, with regions that leave out the truth, or fit
-    none. ``try_structures`` adds its quick fits to ``candidates``."""
+    none. ``try_structures`` adds its quick fits to ``candidates``; every database has index ``n``."""
     def trial(structure: Structure, common: float, base: float):
-        return (structure, _base_optics(settings, common, base, structure.starts[-1]),
+        return (structure, _base_optics(settings, common, base, structure.starts[-1], n),
                 (common,) * (structure.layers - 1) + (base,))
 
     scouts = _scouts([structure for structure in structures if structure.layers > 1])
@@ -296,30 +314,37 @@ def _mus_text(mus) -> str:
     return ", ".join(f"{m:g}" for m in np.atleast_1d(mus))
 
 
-def database_optics(settings: InversionSettings, mus) -> SlabOptics:
-    """The white database's optics: per-layer scattering over the given boundaries, or a common
-    one over :data:`SEARCH_BINS` bins (more when a given boundary lies deeper: a bin per grid step
-    down to the last boundary, then the base)."""
+def _optics_text(optics: SlabOptics, mus) -> str:
+    return f"mus {_mus_text(mus)}, n {optics.n:g}"
+
+
+def database_optics(settings: InversionSettings, mus, n: float | None = None) -> SlabOptics:
+    """The white database's optics at index ``n`` (default: ``settings.n``): per-layer scattering
+    over the given boundaries, or a common one over :data:`SEARCH_BINS` bins (more when a given
+    boundary lies deeper: a bin per grid step down to the last boundary, then the base)."""
+    n = settings.n if n is None else n
     if isinstance(mus, tuple):
         edges = [0, *settings.boundaries]
         bins = []
         for k, top in enumerate(edges):
             bottom = edges[k + 1] if k + 1 < len(edges) else top + 1
             bins += [mus[k]] * (bottom - top)
-        return _optics(settings, bins)
+        return _optics(settings, bins, n)
     deepest = settings.boundaries[-1] + 1 if settings.boundaries else 0
-    return _optics(settings, [mus] * max(SEARCH_BINS, deepest))
+    return _optics(settings, [mus] * max(SEARCH_BINS, deepest), n)
 
 
-def _base_optics(settings: InversionSettings, common: float, base: float, top: int) -> SlabOptics:
-    """A database's optics for a structure whose base, from bin ``top`` down, scatters with ``base``
-    and every bin above with ``common``."""
-    return _optics(settings, [common if b < top else base for b in range(max(SEARCH_BINS, top + 1))])
+def _base_optics(settings: InversionSettings, common: float, base: float, top: int, n: float) -> SlabOptics:
+    """A database's optics at index ``n`` for a structure whose base, from bin ``top`` down,
+    scatters with ``base`` and every bin above with ``common``."""
+    return _optics(settings, [common if b < top else base for b in range(max(SEARCH_BINS, top + 1))], n)
 
 
-def _optics(settings: InversionSettings, bins) -> SlabOptics:
-    """Optics of scattering ``bins`` per depth bin, with ``settings``' g, n and depth."""
-    return SlabOptics(tuple(float(m) for m in bins), settings.g, settings.n, settings.depth, REACH)
+def _optics(settings: InversionSettings, bins, n: float) -> SlabOptics:
+    """Optics of scattering ``bins`` per depth bin at index ``n``, with ``settings``' g and depth."""
+    if n is None:
+        raise ValueError("a white database needs a refractive index")
+    return SlabOptics(tuple(float(m) for m in bins), settings.anisotropy, float(n), settings.depth, REACH)
 
 
 def _structures(settings: InversionSettings, bins: int, most_layers: int):

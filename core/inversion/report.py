@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -12,6 +12,7 @@ from ..colour.chroma import chromaticity
 from ..colour.layer_report import finite_or_none, truth_layers
 from ..dataset.impulse_dataset import ImpulseDataset
 from .layer_colour import region_contains
+from .limit import TOLERANCE_XY
 from .layers import REACH, Inversion, Progress, invert
 from .settings import InversionSettings
 from .measured import measured_profile
@@ -50,7 +51,13 @@ def invert_region(dataset: ImpulseDataset, region: np.ndarray, region_descriptio
     """Measure ``region``'s profile and invert it (see :func:`ringlight.core.inversion.layers.invert`)."""
     settings.check()
     measured = measured_profile(dataset, region, profile_radii(dataset))
-    inversion = invert(measured, settings, dataset.colorspace, progress)
+    sample = dataset.manifest.sample
+    inversion = invert(measured, settings.for_dataset(sample), dataset.colorspace, progress)
+    stated = [f"{name} {value:g}" for name, value, given in (("n", sample.n, settings.n), ("g", sample.g, settings.g))
+              if value is not None and given is None]
+    if stated:
+        inversion = replace(inversion, notes=f"{inversion.notes}; {' and '.join(stated)} as the dataset states "
+                                             f"(its manifest's sample key)")
     names, truth_rgb = truth_layers(dataset)
     truth_xy = chromaticity(truth_rgb, dataset.colorspace) if truth_rgb is not None else None
     errors = inside = None
@@ -71,6 +78,9 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
             "determined": layer.determined, "not_determined_because": layer.reason or None,
             "rgb": finite_or_none(layer.rgb), "xy": finite_or_none(layer.xy), "srgb8": "#%02x%02x%02x" % layer.swatch,
             "xy_two_sigma_region": [finite_or_none(point) for point in layer.region],
+            "xy_two_sigma_width": _number(layer.region_width),
+            "xy_width_the_data_allow": _number(layer.allowed_width),
+            "within_tolerance": layer.allowed_width <= TOLERANCE_XY, "beyond_tolerance_because": layer.limit or None,
         }
         if result.errors is not None:
             entry.update(truth=result.truth_names[index], truth_xy=finite_or_none(result.truth_xy[index]),
@@ -84,7 +94,9 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
                 "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
         "uncertainty": ("two-sigma (95.4 %) region of the three channels together: the per-channel profile-likelihood "
                         "region, joined with the joint fit's ellipse where its chi-square is close to quadratic; "
-                        "see ringlight.core.inversion.layer_colour"),
+                        "see ringlight.core.inversion.layer_colour. xy_width_the_data_allow: the two-sigma width "
+                        "from the Fisher information of the fitted model at the data's noise alone (ring spread and floor) "
+                        f"(ringlight.core.inversion.limit); within_tolerance: it is at most {TOLERANCE_XY:g}"),
         "profile": {"radii": finite_or_none(inversion.measured.radii),
                     "measured": [finite_or_none(row) for row in inversion.measured.mean],
                     "standard_error": [finite_or_none(row) for row in inversion.measured.standard_error],

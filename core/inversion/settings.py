@@ -4,16 +4,22 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..dataset.manifest import Sample
 from ..errors import RinglightError
 
 SEARCH_BINS = 9
 """Depth bins of a searched structure: 8 of one grid step, then the base."""
 MUS_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
 """Common scattering coefficients (per grid step) tried when none is given."""
+N_GRID = (1.0, 1.33, 1.4, 1.5)
+"""Refractive indices tried when neither the user nor the dataset gives one: index-matched (or a
+rough surface), water, skin and tissue, plastics and glass."""
+DEFAULT_G = 0.0
+"""Anisotropy assumed when neither the user nor the dataset gives one."""
 MAX_LAYERS = 4
 DEFAULT_PHOTONS = 20_000
 PHOTON_RANGE = (1000, 1_000_000)
@@ -44,8 +50,12 @@ class InversionSettings:
     mus
         One common scattering coefficient, one per layer (boundaries then needed), or None to
         choose a common one from :data:`MUS_GRID`; per grid step.
-    n, g
-        Refractive index and Henyey-Greenstein anisotropy.
+    n
+        Refractive index; None to choose it from :data:`N_GRID` by chi-square (as the scattering).
+        A dataset that states its sample's index (the manifest's ``sample.n``) gives it instead:
+        :meth:`for_dataset`.
+    g
+        Henyey-Greenstein anisotropy; None for the dataset's ``sample.g``, else :data:`DEFAULT_G`.
     depth
         Thickness of the modelled slab, grid steps (light below is lost).
     photons
@@ -55,8 +65,8 @@ class InversionSettings:
     layers: int | None = None
     boundaries: tuple[int, ...] | None = None
     mus: float | tuple[float, ...] | None = None
-    n: float = 1.4
-    g: float = 0.0
+    n: float | None = None
+    g: float | None = None
     depth: float = DEFAULT_DEPTH
     photons: int = DEFAULT_PHOTONS
 
@@ -88,17 +98,34 @@ class InversionSettings:
                                  f"got {', '.join(f'{m:g}' for m in np.atleast_1d(self.mus))}")
         if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
             raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
-        if not 1.0 <= self.n <= 3.0:
+        if self.n is not None and not 1.0 <= self.n <= 3.0:
             raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
-        if not -1.0 < self.g < 1.0:
+        if self.g is not None and not -1.0 < self.g < 1.0:
             raise InversionError(f"the anisotropy g must be in (-1, 1), got {self.g:g}")
 
+    @property
+    def anisotropy(self) -> float:
+        """``g``, or :data:`DEFAULT_G` when none is given."""
+        return DEFAULT_G if self.g is None else self.g
 
-def settings_from_text(layers: str, boundaries: str, mus: str, n: float, g: float, depth: float = DEFAULT_DEPTH,
-                       photons: int = DEFAULT_PHOTONS) -> InversionSettings:
+    @property
+    def indices(self) -> tuple[float, ...]:
+        """The refractive indices a fit tries: ``n``, or every one of :data:`N_GRID`."""
+        return N_GRID if self.n is None else (self.n,)
+
+    def for_dataset(self, sample: Sample) -> "InversionSettings":
+        """These settings with what the dataset states of its surface (``sample``, the manifest's
+        ``sample`` key) where the user gave nothing: the user's values win."""
+        return replace(self, n=self.n if self.n is not None else sample.n,
+                       g=self.g if self.g is not None else sample.g)
+
+
+def settings_from_text(layers: str, boundaries: str, mus: str, n: float | None, g: float | None,
+                       depth: float = DEFAULT_DEPTH, photons: int = DEFAULT_PHOTONS) -> InversionSettings:
     """Settings from what a user typed (the CLI's options, the Layers tab's fields): ``layers``
     "auto" or a count, ``boundaries`` and ``mus`` comma-separated numbers or empty for the
-    defaults; checked (:class:`InversionError` naming the setting)."""
+    defaults, ``n`` and ``g`` None for the dataset's or the search's; checked
+    (:class:`InversionError` naming the setting)."""
     def numbers(text, kind, name):
         try:
             return tuple(kind(part) for part in text.split(","))

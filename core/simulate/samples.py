@@ -33,6 +33,9 @@ SAMPLES = ("red-bead", "star", "layers3", "skin1")
 DEMO_SAMPLE = "red-bead"
 """The sample ``ringlight`` opens with no dataset (the demo dataset)."""
 SAMPLE_VERSION = 1
+WRITTEN_VERSION = 2
+"""What a sample's dataset holds beyond its bundled file: 2 adds the manifest's ``sample`` key (the
+scene's n and g). Part of the sample folder's name, so a sample written before is written anew."""
 
 
 class SampleError(RinglightError):
@@ -91,11 +94,12 @@ def load_sample(name: str) -> tuple[Transport, np.ndarray]:
 
 def sample_folder(name: str) -> Path:
     """Where sample ``name`` is (or will be) written as a dataset in the user cache; the name
-    carries a hash of the bundled file, so a newer sample is written anew."""
+    carries a hash of the bundled file and :data:`WRITTEN_VERSION`, so a newer sample (or one
+    written to a newer rule) is written anew."""
     if name not in sample_names():
         raise SampleError(f"{name}: no such sample (bundled: {', '.join(sample_names()) or 'none'})")
     resource = resources.files("ringlight.resources.samples").joinpath(f"{name}.npz")
-    digest = hashlib.sha256(resource.read_bytes()).hexdigest()[:12]
+    digest = hashlib.sha256(resource.read_bytes() + f"written {WRITTEN_VERSION}".encode()).hexdigest()[:12]
     return user_cache_root() / "samples" / f"{name}-{digest}"
 
 

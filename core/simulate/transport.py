@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset.impulse_dataset import ProgressCallback, disc_offsets
-from ..dataset.manifest import Manifest
+from ..dataset.manifest import Manifest, Sample
 from ..dataset.writer import DatasetWriter
 from . import photon
 from .adding_doubling import thick_slab_reflectance
@@ -293,7 +293,7 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
              f"specular reflection {specular_reflectance(scene.n, scene.projector[0]):.6g} of the beam, "
              f"not in the frames or path-length images")
     with DatasetWriter(out, (height, width), max_radius=scene.max_radius, pitch_mm=scene.pitch_mm,
-                       notes=notes, overwrite=overwrite) as writer:
+                       notes=notes, sample=scene_sample(scene), overwrite=overwrite) as writer:
         for index, lit in enumerate(frames):
             image = np.zeros((height, width, 3), np.float32)
             for qy, qx in lit:
@@ -315,6 +315,13 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
     if progress is not None:
         progress(1.0)
     return Path(out)
+
+
+def scene_sample(scene: Scene) -> Sample:
+    """What a simulated dataset states of its surface (the manifest's ``sample`` key): the scene's
+    index, and the anisotropy when every material shares one (else none is stated)."""
+    anisotropies = {material.g for material in scene.materials}
+    return Sample(n=float(scene.n), g=float(anisotropies.pop()) if len(anisotropies) == 1 else None)
 
 
 def simulated_measure(manifest: Manifest) -> str | None:

@@ -1,0 +1,107 @@
+"""What the data alone allow: the width of each layer's colour region that the profile's own noise
+permits, from the Fisher information of the fitted model.
+
+A layer's two-sigma region (:mod:`.layer_colour`) is as wide as everything that enters the fit
+makes it: the data's noise, the white run's own noise, and the other structures, scatterings and
+indices that fit as well. Beside it the user sees the width the *data* allow: the fitted model
+taken as exact, each channel's ``log mua`` has the Fisher covariance ``(J^T J)^-1`` with ``J`` the
+derivatives of ``log E(r)`` over the rings the fit used, each divided by the relative standard
+deviation the fit assumes for the data there (:func:`.fit.data_sigma`: the measured standard
+error and the relative floor; the channels' are independent, so their covariance is diagonal
+between channels); its image in xy by the delta method is an ellipse at
+:data:`.joint.ELLIPSE_CHI2`, whose larger extent in x or y is the allowed width. A region much
+wider than it is the model's (the white run's noise, rivals); a region close to it is what this
+profile can say, and a layer whose allowed width exceeds :data:`TOLERANCE_XY` cannot be pinned
+closer by any fit of this profile.
+
+Being a local, quadratic measure, it is optimistic where an absorption is weakly determined (the
+chi-square is far from quadratic there). It holds as far as the data's noise is known: the
+measured standard error is the spread of the region's lit points' rings, which leaves out noise
+the lit points share (over a simulated layered region they share one kernel, and the spread is
+0.005-0.03 % per ring), so the relative floor stands in for it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .fit import RELATIVE_FLOOR, data_sigma
+from .forward import SMALLEST_E, Forward
+from .joint import ELLIPSE_CHI2
+from .layer_colour import chromaticity_gradient
+from .white_mc import SlabOptics
+
+TOLERANCE_XY = 0.02
+"""xy width beyond which a layer is reported as not determined to this tolerance by the data."""
+
+
+def log_absorption_covariance(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
+                              used: np.ndarray, correlation: float = 0.0) -> np.ndarray:
+    """(C L, C L) Fisher covariance of ``log mua`` (``mua`` (C, L) per grid step, flattened
+    channel-major) at the data's noise alone, over the first ``used[c]`` rings of each channel.
+
+    Each ring's residuals in log E over the channels that use it have the covariance the joint fit
+    gives the data (:mod:`.joint`, without the white run's part): the measured relative standard
+    errors (``error`` / ``measured``, (R, C)), independent between channels, plus the relative floor
+    correlated ``correlation`` between them. A channel with no more rings than layers, or a
+    non-finite absorption, has infinite variance (and no covariance with the others)."""
+    channels, layers = mua.shape
+    fitted = [c for c in range(channels) if int(used[c]) > layers and np.all(np.isfinite(mua[c]))]
+    slopes = {}
+    for c in fitted:
+        profile, derivative = forward.profile(mua[c], derivatives=True)
+        slopes[c] = derivative * mua[c] / np.maximum(profile, SMALLEST_E)[:, None]  # d log E / d log mua, (R, L)
+    fisher = np.zeros((channels * layers, channels * layers))
+    for row in range(int(max((used[c] for c in fitted), default=0))):
+        active = [c for c in fitted if row < used[c]]
+        relative = data_sigma(error[row, active], measured[row, active]) / measured[row, active]
+        floor = RELATIVE_FLOOR ** 2 * (correlation + (1.0 - correlation) * np.eye(len(active)))
+        covariance = np.diag(relative ** 2 - RELATIVE_FLOOR ** 2) + floor  # data_sigma holds the floor once
+        jacobian = np.zeros((len(active), channels * layers))
+        for i, c in enumerate(active):
+            jacobian[i, c * layers:(c + 1) * layers] = slopes[c][row]
+        fisher += jacobian.T @ np.linalg.solve(covariance, jacobian)
+    result = np.full((channels * layers, channels * layers), math.inf)
+    index = np.concatenate([np.arange(c * layers, (c + 1) * layers) for c in fitted]) if fitted else np.zeros(0, int)
+    result[np.ix_(index, index)] = np.linalg.pinv(fisher[np.ix_(index, index)])
+    return result
+
+
+def allowed_width(covariance: np.ndarray, mus: float, mua: np.ndarray, optics: SlabOptics, colorspace: str) -> float:
+    """The xy width (larger extent in x or y) of the two-sigma ellipse (:data:`.joint.ELLIPSE_CHI2`)
+    of a layer's colour whose channels' ``log mua`` (``mua`` (C,)) have ``covariance`` (C, C), by
+    the delta method; infinite when a channel that moves the colour has no finite variance."""
+    gradient = chromaticity_gradient(mus, mua, optics, colorspace)  # (2, C)
+    moving = ~np.all(gradient == 0.0, axis=0)
+    covariance = covariance[np.ix_(moving, moving)]
+    if not np.all(np.isfinite(covariance)):
+        return math.inf
+    spread = gradient[:, moving] @ covariance @ gradient[:, moving].T
+    return float(2.0 * math.sqrt(ELLIPSE_CHI2 * max(spread[0, 0], spread[1, 1], 0.0)))
+
+
+def data_limits(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray, used: np.ndarray,
+                colorspace: str, correlation: float = 0.0) -> list[float]:
+    """Each layer's :func:`allowed_width` at the fit ``mua`` (C, L) of ``forward``'s structure, the
+    floor correlated ``correlation`` between channels (the joint fit's)."""
+    covariance = log_absorption_covariance(forward, mua, measured, error, used, correlation)
+    channels, layers = mua.shape
+    optics = forward.database.optics
+    widths = []
+    for k in range(layers):
+        index = np.arange(channels) * layers + k
+        widths.append(allowed_width(covariance[np.ix_(index, index)], float(optics.mus[forward.structure.starts[k]]),
+                                    mua[:, k], optics, colorspace))
+    return widths
+
+
+def limit_reason(width: float) -> str:
+    """Why a layer whose data allow ``width`` is not determined to :data:`TOLERANCE_XY` ("" when it
+    may be)."""
+    if width <= TOLERANCE_XY:
+        return ""
+    allowed = "no finite width" if not math.isfinite(width) else f"no narrower than {width:.3f}"
+    return (f"the data allow {allowed} in xy (Fisher information of the fitted model at the data's noise), "
+            f"so no fit of this profile places this layer within {TOLERANCE_XY:g}")
