@@ -7,6 +7,12 @@ figure issue 12 asks for) and the time, and writes the sample file. The run's ch
 the user cache: running again with a longer --time continues from it.
 
     python tools/make_samples.py [--noise 0.05] [--time 10m] [--size 48] [NAME ...]
+
+A layered sample (every lit point sharing one response) can instead be simulated in independent
+replicates of a fixed number of photons (:mod:`ringlight.core.simulate.replicates`), which its
+dataset then holds, so that its noise (shared by every lit point) is measured:
+
+    python tools/make_samples.py --replicates 8 --photons 128 layers3 skin1
 """
 
 from __future__ import annotations
@@ -17,7 +23,8 @@ from pathlib import Path
 
 from ringlight.app.cli.simulate import parse_duration
 from ringlight.core.simulate.presets import load_scene
-from ringlight.core.simulate.progressive import simulate_until
+from ringlight.core.simulate.progressive import noise_radius, simulate_until
+from ringlight.core.simulate.replicates import replicate_transient_noise, simulate_replicates
 from ringlight.core.simulate.samples import SAMPLES, save_sample
 
 OUT = Path(__file__).resolve().parent.parent / "resources" / "samples"
@@ -30,10 +37,20 @@ def main() -> None:
     parser.add_argument("--noise", type=float, default=0.05)
     parser.add_argument("--time", default="10m")
     parser.add_argument("--size", type=int, default=48)
+    parser.add_argument("--replicates", type=int, default=None, help="independent replicates (with --photons)")
+    parser.add_argument("--photons", type=int, default=128, help="photons per point of all replicates together")
     args = parser.parse_args()
     for name in args.names:
         scene = load_scene(name, size=(args.size, args.size))
         print(f"{name} at {args.size} x {args.size}, max_radius {scene.max_radius:g}", flush=True)
+        if args.replicates:
+            transport = simulate_replicates(scene, args.photons, args.replicates)
+            noise = replicate_transient_noise(transport, noise_radius(scene))
+            print("  noise per radius " + " ".join(f"{r}:{v:.3f}" for r, v in enumerate(noise)), flush=True)
+            save_sample(transport, OUT / f"{name}.npz", noise)
+            print(f"  wrote {OUT / (name + '.npz')}, {args.replicates} replicates, {transport.seconds:.0f} s of "
+                  "simulation", flush=True)
+            continue
         transport, status = simulate_until(
             scene, args.noise, parse_duration(args.time), batch=BATCH,
             report=lambda s: print(f"  {s.photons} photons per point: worst noise of T_r, r <= {s.radius}: "

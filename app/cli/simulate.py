@@ -8,6 +8,7 @@ from ringlight.core.dataset.writer import check_dataset_target
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError
 from ringlight.core.simulate.progressive import CheckpointError, Status, forget_checkpoint, simulate_until
+from ringlight.core.simulate.replicates import MAX_REPLICATES, simulate_replicates
 from ringlight.core.simulate.transport import ESTIMATORS, simulate_transport, write_transport
 
 from .progress import progress_bar
@@ -37,6 +38,11 @@ def add_command(subparsers) -> None:
                                "far less noise); analogue: every point's photons on their own")
     simulate.add_argument("--size", default=None, metavar="HxW", help="grid size, e.g. 32x32 (shapes scale)")
     simulate.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's)")
+    simulate.add_argument("--replicates", type=int, default=None, metavar="K",
+                          help=f"split the photons into K independent runs (2..{MAX_REPLICATES}) written as the "
+                               "dataset's replicates, so that its noise, shared by lit points or not, can be "
+                               "measured (the standard errors of the explorer and of the layer inversion); "
+                               "with --photons, not --noise or --time")
     simulate.add_argument("--overwrite", action="store_true",
                           help="replace an earlier dataset at --out (only if the folder holds nothing else)")
     simulate.add_argument("--list", action="store_true", help="list the bundled presets and exit")
@@ -107,10 +113,20 @@ def run_simulate(args) -> int:
         raise SceneError(f"--seed must be 0 to {2**32 - 1}, got {args.seed}")
     if args.noise is not None and not 0 < args.noise < 1:
         raise SceneError(f"--noise must be a fraction between 0 and 1, e.g. 0.05, got {args.noise}")
+    if args.replicates is not None:
+        if not 2 <= args.replicates <= MAX_REPLICATES:
+            raise SceneError(f"--replicates must be 2 to {MAX_REPLICATES}, got {args.replicates}")
+        if args.noise is not None or args.time is not None:
+            raise SceneError("--replicates splits a fixed number of photons (--photons): it does not go with "
+                             "--noise or --time")
     seconds = parse_duration(args.time) if args.time is not None else None
     scene = load_scene(args.scene, size=parse_size(args.size) if args.size else None)
     check_dataset_target(args.out, overwrite=args.overwrite)  # refused before simulating
-    if args.noise is None and seconds is None:
+    if args.replicates is not None:
+        with progress_bar(f"simulating {scene.name} in {args.replicates} replicates") as progress:
+            transport = simulate_replicates(scene, args.photons or scene.photons_per_point, args.replicates,
+                                            args.seed, progress, args.estimator)
+    elif args.noise is None and seconds is None:
         with progress_bar(f"simulating {scene.name}") as progress:
             transport = simulate_transport(scene, photons=args.photons, seed=args.seed, progress=progress,
                                            estimator=args.estimator)

@@ -27,7 +27,8 @@ _TOP_KEYS = {
     "frames", "dark", "ground_truth", "notes", "channels", "part", "sample",
 }
 _GRID_KEYS = {"height", "width", "pitch_mm"}
-_FRAME_KEYS = {"file", "lit", "exposure"}
+_FRAME_KEYS = {"file", "lit", "exposure", "replicate"}
+MAX_REPLICATE = 2**31 - 1
 _TRUTH_KEYS = {"path_length_images", "layers"}
 _PATH_IMAGE_KEYS = {"file", "min", "max"}
 _LAYER_KEYS = {"name", "depth", "rgb"}
@@ -47,12 +48,15 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 class FrameEntry:
     """One captured frame: its file (relative to the dataset folder), lit points and exposure.
 
-    ``lit`` is an (n, 2) int64 array of grid positions ``[y, x]``.
+    ``lit`` is an (n, 2) int64 array of grid positions ``[y, x]``. ``replicate`` labels the
+    independent repeat of the capture the frame belongs to (the manifest's optional frame key;
+    0 when absent): see :attr:`Manifest.replicates`.
     """
 
     file: str
     lit: np.ndarray
     exposure: float
+    replicate: int = 0
 
 
 @dataclass(frozen=True)
@@ -128,6 +132,14 @@ class Manifest:
     def multiplexed(self) -> bool:
         """True when some frame lights more than one point (parallel capture)."""
         return any(len(frame.lit) > 1 for frame in self.frames)
+
+    @property
+    def replicates(self) -> tuple[int, ...]:
+        """The replicate labels of the frames, sorted: two or more when the capture was repeated
+        independently (a rig's repeated scans, a simulator's independent batches), each replicate
+        lighting the same points, so that the spread of anything computed from each replicate
+        alone measures the noise of the whole, noise shared by lit points included."""
+        return tuple(sorted({frame.replicate for frame in self.frames}))
 
     def lit_counts(self) -> np.ndarray:
         """(H, W) int32: in how many frames each grid point is lit (0 = missing).
@@ -255,6 +267,8 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
         ground_truth=_parse_ground_truth(check, doc["ground_truth"]) if "ground_truth" in doc else None,
         notes=notes, channels=channels, part=part, sample=sample, source_sha256=source_sha256,
     )
+    if not checked and len(manifest.replicates) > 1:
+        _check_replicates(where, manifest)
     if manifest.multiplexed:
         if max_radius is None:
             raise DatasetError(f"{where}: frames light several points at once, so 'max_radius' is required")
@@ -273,6 +287,21 @@ def _parse_sample(check: Validator, value: object) -> Sample:
     if g is not None and not -1.0 < g < 1.0:
         raise check.fail("sample.g", "an anisotropy in (-1, 1)", doc["g"])
     return Sample(n, g)
+
+
+def _check_replicates(where: Path, manifest: Manifest) -> None:
+    """Every replicate must light the same points (else a point's noise has no replicate spread)."""
+    lit = {}
+    for frame in manifest.frames:
+        lit.setdefault(frame.replicate, []).append(frame.lit[:, 0] * manifest.width + frame.lit[:, 1])
+    labels = manifest.replicates
+    first = np.unique(np.concatenate(lit[labels[0]]))
+    for label in labels[1:]:
+        points = np.unique(np.concatenate(lit[label]))
+        if not np.array_equal(points, first):
+            raise DatasetError(f"{where}: replicate {label} lights {len(points)} points and replicate {labels[0]} "
+                               f"{len(first)}{'' if len(points) != len(first) else ' others'}: every replicate must "
+                               "light the same points")
 
 
 def sample_json(sample: Sample) -> dict | None:
@@ -298,7 +327,7 @@ def _parse_frames(check: Validator, entries: list, height: int, width: int) -> t
     together with numpy: a 100,000-frame manifest validates in well under a second. Anything
     unusual takes the slow path through :class:`Validator`, which raises the precise message.
     """
-    files, exposures, counts, points = [], [], [], []
+    files, exposures, counts, points, replicates = [], [], [], [], []
     for index, entry in enumerate(entries):
         if type(entry) is not dict or not entry.keys() <= _FRAME_KEYS or "file" not in entry or "lit" not in entry:
             check.mapping(entry, f"frames[{index}]", _FRAME_KEYS, required={"file", "lit"})
@@ -311,6 +340,10 @@ def _parse_frames(check: Validator, entries: list, height: int, width: int) -> t
         exposure = entry.get("exposure", 1.0)
         if type(exposure) is not float or not FLOAT32_TINY <= exposure <= FLOAT32_MAX:
             exposure = _checked_exposure(check, index, exposure)
+        replicate = entry.get("replicate", 0)
+        if type(replicate) is not int or not 0 <= replicate <= MAX_REPLICATE:
+            raise check.fail(f"frames[{index}].replicate", f"a whole number in [0, {MAX_REPLICATE}]", replicate)
+        replicates.append(replicate)
         files.append(file)
         exposures.append(exposure)
         counts.append(len(lit))
@@ -339,8 +372,9 @@ def _parse_frames(check: Validator, entries: list, height: int, width: int) -> t
             repeated = np.setdiff1d(np.arange(len(keys)), first_of)[0]
             index = int(frame_of_point[multiple][repeated])
             raise DatasetError(f"{check.where}: frames[{index}] ({files[index]}) lists a lit point twice")
-    return tuple(FrameEntry(file=file, lit=points_of_frame, exposure=exposure)
-                 for file, points_of_frame, exposure in zip(files, np.split(lit, ends[:-1]), exposures))
+    return tuple(FrameEntry(file=file, lit=points_of_frame, exposure=exposure, replicate=replicate)
+                 for file, points_of_frame, exposure, replicate
+                 in zip(files, np.split(lit, ends[:-1]), exposures, replicates))
 
 
 def _raise_bad_lit(check: Validator, index: int, file: str, lit: object) -> None:

@@ -14,8 +14,8 @@ The copy is read only when its bytes are those the store's table recorded
 used), every array's declared size must fit the bytes that hold it (a header claiming 10^12
 points is not allocated), and then it is checked again as far as it costs little: the manifest's
 keys go through :func:`.manifest.parse_manifest` again, every file name through the same rules, and
-every lit point must lie inside the grid. Only the spacing of multiplexed points is not checked
-again. A copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
+every lit point must lie inside the grid. Only the spacing of multiplexed points and that every
+replicate lights the same points are not checked again. A copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from .manifest import (
     FLOAT32_MAX,
     FLOAT32_TINY,
     FORMAT_NAME,
+    MAX_REPLICATE,
     FORMAT_VERSION,
     MANIFEST_NAME,
     FrameEntry,
@@ -49,7 +50,8 @@ from .manifest import (
 )
 
 COPY_NAME = "manifest.npz"
-COPY_VERSION = 1
+COPY_VERSION = 2
+"""2: frames carry their replicate labels."""
 MAX_COPY_BYTES = 2**30
 """Largest copy read (its arrays unpacked): a one-point-per-frame 1024 x 1024 manifest's is 120 MB."""
 
@@ -86,6 +88,7 @@ def write_manifest_copy(folder: Path, manifest: Manifest) -> None:
              files=np.array([frame.file for frame in frames], dtype=str),
              exposures=np.array([frame.exposure for frame in frames], np.float64),
              counts=np.array([len(frame.lit) for frame in frames], np.int64),
+             replicates=np.array([frame.replicate for frame in frames], np.int64),
              lit=np.concatenate([frame.lit for frame in frames]).astype(np.int64))
 
 
@@ -112,11 +115,11 @@ def read_manifest_copy(entry: Path, folder: Path, digest: str) -> Manifest | Non
                 return None
             header = json.loads(stored["header"].tobytes().decode("utf-8"))
             files, exposures = stored["files"].tolist(), stored["exposures"]
-            counts, lit = stored["counts"], stored["lit"]
+            counts, lit, replicates = stored["counts"], stored["lit"], stored["replicates"]
     except (OSError, ValueError, KeyError, TypeError, EOFError, RecursionError, MemoryError, zipfile.BadZipFile):
         return None
     try:
-        return _rebuild(header, files, exposures, counts, lit, folder, digest)
+        return _rebuild(header, files, exposures, counts, lit, replicates, folder, digest)
     except (DatasetError, ValueError, TypeError, KeyError):
         return None
 
@@ -131,9 +134,11 @@ def _fits(archive: zipfile.ZipFile, member: zipfile.ZipInfo) -> bool:
 
 
 def _rebuild(header: dict, files: list, exposures: np.ndarray, counts: np.ndarray, lit: np.ndarray,
-             folder: Path, digest: str) -> Manifest | None:
+             replicates: np.ndarray, folder: Path, digest: str) -> Manifest | None:
     frames_count = len(files)
     if (exposures.shape != (frames_count,) or counts.shape != (frames_count,) or lit.ndim != 2
+            or replicates.shape != (frames_count,) or replicates.dtype != np.int64
+            or np.any(replicates < 0) or np.any(replicates > MAX_REPLICATE)
             or lit.shape[1] != 2 or lit.dtype != np.int64 or counts.dtype != np.int64
             or np.any(counts < 1) or np.any(counts > len(lit)) or int(counts.sum()) != len(lit)):
         return None
@@ -145,8 +150,8 @@ def _rebuild(header: dict, files: list, exposures: np.ndarray, counts: np.ndarra
     for index, file in enumerate(files):
         check.relative_file(file, f"frames[{index}].file")
     points = np.split(lit, np.cumsum(counts)[:-1])
-    frames = tuple(FrameEntry(file=file, lit=points_of_frame, exposure=float(exposure))
-                   for file, points_of_frame, exposure in zip(files, points, exposures))
+    frames = tuple(FrameEntry(file=file, lit=points_of_frame, exposure=float(exposure), replicate=int(replicate))
+                   for file, points_of_frame, exposure, replicate in zip(files, points, exposures, replicates))
     return parse_manifest({**header, "frames": []}, folder, source_sha256=digest, frames=frames)
 
 

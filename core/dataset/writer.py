@@ -145,18 +145,20 @@ class DatasetWriter:
             raise RuntimeError("DatasetWriter must be used inside a 'with' block")
         return self.staging
 
-    def add_frame(self, image: np.ndarray, lit, exposure: float = 1.0) -> str:
-        """Write one frame: (h, w, 3) radiance x exposure, lighting the ``[y, x]`` points ``lit``.
+    def add_frame(self, image: np.ndarray, lit, exposure: float = 1.0, replicate: int | None = None) -> str:
+        """Write one frame: (h, w, 3) radiance x exposure, lighting the ``[y, x]`` points ``lit``,
+        of independent replicate ``replicate`` of the capture (None: the key is left out).
 
         Returns the frame's file name relative to the dataset folder.
         """
         staging = self._require_open()
         name = f"frames/{len(self.manifest['frames']):06d}.exr"
         write_exr_rgb(staging / name, image, half=self.half)
-        self.manifest["frames"].append(
-            {"file": name, "lit": [[int(y), int(x)] for y, x in np.asarray(lit).reshape(-1, 2)],
-             "exposure": float(exposure)}
-        )
+        entry = {"file": name, "lit": [[int(y), int(x)] for y, x in np.asarray(lit).reshape(-1, 2)],
+                 "exposure": float(exposure)}
+        if replicate is not None:
+            entry["replicate"] = int(replicate)
+        self.manifest["frames"].append(entry)
         return name
 
     def set_dark(self, image: np.ndarray) -> None:

@@ -9,7 +9,8 @@ channel is fitted on its own: the parameters are ``theta_k = log mua_k`` per lay
 over the rings from r = 0 up to the first whose E is below :data:`MIN_SNR` sigma. ``sigma_r``
 combines the measured standard error (:mod:`.measured`), the white run's own noise
 (:meth:`.forward.Forward.variance`) and a relative floor :data:`RELATIVE_FLOOR` for what neither
-shows (noise common to every lit point, database binning).
+shows (noise common to every lit point, database binning); the floor is 0 where the measured error
+holds the noise the lit points share (a dataset's replicates, :mod:`.measured`).
 
 Uncertainty. Each ``theta_k`` gets an interval where the fit's chi-square stays within
 :data:`JOINT_CHI2` of its minimum: the Fisher (Wald) interval where it is narrow (half-width below
@@ -102,34 +103,39 @@ def used_rings(measured: np.ndarray, sigma: np.ndarray) -> int:
     return int(np.argmin(good)) if not good.all() else len(good)
 
 
-def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> list[ChannelFit]:
+def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True,
+                 floor: float = RELATIVE_FLOOR) -> list[ChannelFit]:
     """:func:`fit_channel` for each channel of ``measured`` and ``error`` (R, C), the channels in
     threads (the forward model's kernel releases the GIL, and it is most of a fit's time)."""
     channels = measured.shape[1]
     with ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1))) as pool:
-        return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals), range(channels)))
+        return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals, floor),
+                             range(channels)))
 
 
-def data_sigma(error: np.ndarray, measured: np.ndarray) -> np.ndarray:
+def data_sigma(error: np.ndarray, measured: np.ndarray, floor: float = RELATIVE_FLOOR) -> np.ndarray:
     """Each ring's standard deviation of E that the fit assumes for the data (arrays of one shape):
-    the measured ``error`` and the relative floor :data:`RELATIVE_FLOOR`, which stands in for the
-    noise the data do not show."""
-    return np.hypot(error, RELATIVE_FLOOR * np.abs(measured))
+    the measured ``error`` and the relative ``floor`` (:data:`RELATIVE_FLOOR`), which stands in for
+    the noise the data do not show (0 where the data's noise is measured in full: replicates)."""
+    return np.hypot(error, floor * np.abs(measured))
 
 
-def ring_sigma(error: np.ndarray, white_variance: np.ndarray, measured: np.ndarray) -> np.ndarray:
+def ring_sigma(error: np.ndarray, white_variance: np.ndarray, measured: np.ndarray,
+               floor: float = RELATIVE_FLOOR) -> np.ndarray:
     """Each ring's standard deviation of E: its measured ``error``, the white run's
-    ``white_variance`` at the fit and the relative floor :data:`RELATIVE_FLOOR` (arrays of one shape)."""
-    return np.sqrt(error ** 2 + white_variance + (RELATIVE_FLOOR * measured) ** 2)
+    ``white_variance`` at the fit and the relative ``floor`` (arrays of one shape)."""
+    return np.sqrt(error ** 2 + white_variance + (floor * measured) ** 2)
 
 
-def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True) -> ChannelFit:
+def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True,
+                floor: float = RELATIVE_FLOOR) -> ChannelFit:
     """Fit one channel: ``measured`` and ``error`` (R,) are the region's E(r) and its standard
-    error at ``forward.radii``. Without ``intervals`` (a structure search's quick fit) the fit
-    starts from equal absorptions only and no intervals are computed."""
+    error at ``forward.radii``; ``floor`` the relative floor (:func:`data_sigma`). Without
+    ``intervals`` (a structure search's quick fit) the fit starts from equal absorptions only and
+    no intervals are computed."""
     layers = forward.structure.layers
     low, high = math.log(MUA_BOUNDS[0]), math.log(MUA_BOUNDS[1])
-    sigma = data_sigma(error, measured)
+    sigma = data_sigma(error, measured, floor)
     used = min(used_rings(measured, sigma), forward.reached)
     if used <= layers:
         mua = np.full(layers, np.nan)
@@ -155,7 +161,7 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
     # The second pass weighs by the white run's noise at the first pass's best fit too, and starts
     # again from each first-pass fit that fits about as well under the new weights (within
     # JOINT_CHI2 of the lowest): another minimum may then be lower. A quick fit goes on from its best.
-    sigma = ring_sigma(error, forward.variance(np.exp(best.x)), measured)
+    sigma = ring_sigma(error, forward.variance(np.exp(best.x)), measured, floor)
     residuals, jacobian = weighted(sigma)
     if intervals:
         costs = np.array([np.sum(residuals(result.x) ** 2) for result in results])

@@ -104,9 +104,12 @@ class JointFit:
         return self.covariance[np.ix_(index, index)]
 
 
-def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits: list[ChannelFit]) -> JointFit | None:
+def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits: list[ChannelFit],
+                floor: float = RELATIVE_FLOOR, data_covariance: np.ndarray | None = None) -> JointFit | None:
     """Refit the channels of ``fits`` (per-channel fits of ``measured`` and ``error`` (R, C) with
-    ``forward``) together. None when a channel's own fit
+    ``forward``, relative ``floor``) together; ``data_covariance`` (R, C, C), when the data's
+    covariance between channels is measured (replicates), replaces ``diag(error^2)``. None when a
+    channel's own fit
     failed (too few rings), or the joint fit does not fit better than the channels' fits under its
     own weights (it starts from them, so it cannot, unless the optimiser fails)."""
     if any(not np.all(np.isfinite(f.mua)) for f in fits):
@@ -128,7 +131,7 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
             """``(residuals, jacobian, log_det)`` under the weights at ``theta``; ``log_det`` sums
             ``log det S_r`` over the rings and channels fitted."""
             covariance = _ring_covariances(forward, np.exp(theta.reshape(channels, layers)), measured, error, used,
-                                           correlation)
+                                           correlation, floor, data_covariance)
             whiten, log_det = _whitening(covariance, used)
             return *_objective(profiles, whiten, target, used, channels, layers), log_det
 
@@ -148,7 +151,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
             chi2 = float(np.sum(residuals(theta) ** 2))
             return chi2 + log_det, chi2, theta, jacobian(theta).T @ jacobian(theta)
 
-        results = {correlation: fitted(correlation) for correlation in FLOOR_CORRELATIONS}
+        # Without a floor its correlation changes nothing: one fit.
+        results = {correlation: fitted(correlation) for correlation in (FLOOR_CORRELATIONS if floor > 0 else (0.0,))}
         results = {correlation: result for correlation, result in results.items() if result is not None}
         if not results:
             return None
@@ -158,15 +162,17 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
         pool.shutdown()
-    sigma = ring_sigma(error, np.diagonal(forward.covariance(mua), axis1=1, axis2=2), measured)
+    sigma = ring_sigma(error, np.diagonal(forward.covariance(mua), axis1=1, axis2=2), measured, floor)
     return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma)
 
 
 def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
-                      used: np.ndarray, correlation: float) -> np.ndarray:
-    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L) and floor ``correlation``
-    between channels, for the channels that use each ring (the other entries are finite and
-    unused); rings no channel uses are left at the identity."""
+                      used: np.ndarray, correlation: float, floor: float = RELATIVE_FLOOR,
+                      data_covariance: np.ndarray | None = None) -> np.ndarray:
+    """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L) and ``floor`` correlated
+    ``correlation`` between channels (``data_covariance`` (R, C, C) for the measured errors'
+    ``diag(error^2)`` when given), for the channels that use each ring (the other entries are finite
+    and unused); rings no channel uses are left at the identity."""
     rings, channels = measured.shape
     covariance = np.tile(np.eye(channels), (rings, 1, 1))
     last = int(used.max())
@@ -174,10 +180,13 @@ def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, e
     fitted = np.arange(last)[:, None] < used[None, :]
     scale = np.where(fitted, np.abs(measured[:last]), 1.0)  # a ring a channel does not use may hold 0
     relative_white = white / (scale[:, :, None] * scale[:, None, :])
-    floor = RELATIVE_FLOOR ** 2 * (correlation + (1.0 - correlation) * np.eye(channels))
-    data = np.zeros((last, channels, channels))
-    data[:, np.arange(channels), np.arange(channels)] = (error[:last] / scale) ** 2
-    covariance[:last] = np.nan_to_num(data + relative_white + floor)
+    floor_covariance = floor ** 2 * (correlation + (1.0 - correlation) * np.eye(channels))
+    if data_covariance is not None:
+        data = data_covariance[:last] / (scale[:, :, None] * scale[:, None, :])
+    else:
+        data = np.zeros((last, channels, channels))
+        data[:, np.arange(channels), np.arange(channels)] = (error[:last] / scale) ** 2
+    covariance[:last] = np.nan_to_num(data + relative_white + floor_covariance)
     return covariance
 
 

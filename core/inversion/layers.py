@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from .fit import JOINT_CHI2, RELATIVE_FLOOR, ChannelFit, fit_channels
+from .fit import JOINT_CHI2, ChannelFit, fit_channels
 from .forward import Forward, Structure, weights_reach
 from .joint import JointFit, fit_jointly
 from .layer_colour import InvertedLayer, layer_colours, widened
@@ -163,7 +163,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                 report(first + share * number / len(trials), f"white Monte Carlo for {_optics_text(optics, mus)}")
                 keep(white_database(optics, settings.photons))
             forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
-            fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False)
+            fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False, floor=measured.floor)
             chi2 = sum(f.chi2 for f in fits)
             candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
                                         structure, optics))
@@ -216,8 +216,9 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         if database is None:  # a search kept a quarter: the whole database, from the cache as a rule
             database = white_database(candidate.optics, settings.photons)
         forward = Forward(database, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
-        fits = fit_channels(forward, measured.mean, measured.standard_error)
-        fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits),
+        fits = fit_channels(forward, measured.mean, measured.standard_error, floor=measured.floor)
+        fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits,
+                                                          measured.floor, measured.covariance),
                              database))
     # The search compared quick fits on thinned databases, each with noise of its own: of the
     # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
@@ -237,7 +238,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     fitted_mua = joint.mua if joint is not None else np.array([f.mua for f in fits])
     limits = data_limits(Forward(database, structure, measured.radii, ring_weights=measured.ring_weights),
                          fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
-                         colorspace, joint.floor_correlation if joint is not None else 0.0)
+                         colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
+                         measured.covariance)
     layers = [replace(layer, allowed_width=width, limit=limit_reason(width)) for layer, width in zip(layers, limits)]
     if joint is not None:
         chi2, dof, model, sigma = joint.chi2, joint.dof, joint.model, joint.sigma
@@ -264,8 +266,10 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              + (f"; channels fitted together (floor correlated {joint.floor_correlation:g} between them)"
                 if joint is not None else "; channels fitted one by one (the joint fit "
                 "needs every channel's own fit)")
-             + f"; data noise: the spread of the region's lit points' rings, with a {RELATIVE_FLOOR:.0%} floor for "
-               "noise the lit points share (the dataset carries no estimate of it)")
+             + (f"; data noise: the spread of its {measured.replicates} replicates (noise the lit points share "
+                "included), no floor" if measured.replicates > 1 else
+                f"; data noise: the spread of the region's lit points' rings, with a {measured.floor:.0%} floor for "
+                "noise the lit points share (the dataset holds no replicates to measure it)"))
     report(1.0, "done")
     return Inversion(layers, measured, model, sigma, np.array([f.used for f in fits]), chi2, dof, warning, notes,
                      time.perf_counter() - start)

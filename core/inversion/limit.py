@@ -7,18 +7,19 @@ indices that fit as well. Beside it the user sees the width the *data* allow: th
 taken as exact, each channel's ``log mua`` has the Fisher covariance ``(J^T J)^-1`` with ``J`` the
 derivatives of ``log E(r)`` over the rings the fit used, each divided by the relative standard
 deviation the fit assumes for the data there (:func:`.fit.data_sigma`: the measured standard
-error and the relative floor; the channels' are independent, so their covariance is diagonal
-between channels); its image in xy by the delta method is an ellipse at
+error, independent between channels unless replicates measured their covariance, and the relative
+floor, correlated between channels as the joint fit found); its image in xy by the delta method is an ellipse at
 :data:`.joint.ELLIPSE_CHI2`, whose larger extent in x or y is the allowed width. A region much
 wider than it is the model's (the white run's noise, rivals); a region close to it is what this
 profile can say, and a layer whose allowed width exceeds :data:`TOLERANCE_XY` cannot be pinned
 closer by any fit of this profile.
 
 Being a local, quadratic measure, it is optimistic where an absorption is weakly determined (the
-chi-square is far from quadratic there). It holds as far as the data's noise is known: the
-measured standard error is the spread of the region's lit points' rings, which leaves out noise
-the lit points share (over a simulated layered region they share one kernel, and the spread is
-0.005-0.03 % per ring), so the relative floor stands in for it.
+chi-square is far from quadratic there). It holds as far as the data's noise is known. A dataset
+with replicates measures it in full (:mod:`.measured`), and there is no floor. Otherwise the measured
+standard error is the spread of the region's lit points' rings, which leaves out noise the lit
+points share (over a simulated layered region they share one kernel, and the spread is 0.005-0.03 %
+per ring), and the relative floor stands in for it.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import math
 
 import numpy as np
 
-from .fit import RELATIVE_FLOOR, data_sigma
+from .fit import RELATIVE_FLOOR
 from .forward import SMALLEST_E, Forward
 from .joint import ELLIPSE_CHI2
 from .layer_colour import chromaticity_gradient
@@ -38,14 +39,16 @@ TOLERANCE_XY = 0.02
 
 
 def log_absorption_covariance(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
-                              used: np.ndarray, correlation: float = 0.0) -> np.ndarray:
+                              used: np.ndarray, correlation: float = 0.0, floor: float = RELATIVE_FLOOR,
+                              data_covariance: np.ndarray | None = None) -> np.ndarray:
     """(C L, C L) Fisher covariance of ``log mua`` (``mua`` (C, L) per grid step, flattened
     channel-major) at the data's noise alone, over the first ``used[c]`` rings of each channel.
 
     Each ring's residuals in log E over the channels that use it have the covariance the joint fit
     gives the data (:mod:`.joint`, without the white run's part): the measured relative standard
-    errors (``error`` / ``measured``, (R, C)), independent between channels, plus the relative floor
-    correlated ``correlation`` between them. A channel with no more rings than layers, or a
+    errors (``error`` / ``measured``, (R, C)), independent between channels (or their measured
+    covariance, ``data_covariance`` (R, C, C)), plus the relative ``floor`` correlated ``correlation``
+    between them. A channel with no more rings than layers, or a
     non-finite absorption, has infinite variance (and no covariance with the others)."""
     channels, layers = mua.shape
     fitted = [c for c in range(channels) if int(used[c]) > layers and np.all(np.isfinite(mua[c]))]
@@ -56,9 +59,12 @@ def log_absorption_covariance(forward: Forward, mua: np.ndarray, measured: np.nd
     fisher = np.zeros((channels * layers, channels * layers))
     for row in range(int(max((used[c] for c in fitted), default=0))):
         active = [c for c in fitted if row < used[c]]
-        relative = data_sigma(error[row, active], measured[row, active]) / measured[row, active]
-        floor = RELATIVE_FLOOR ** 2 * (correlation + (1.0 - correlation) * np.eye(len(active)))
-        covariance = np.diag(relative ** 2 - RELATIVE_FLOOR ** 2) + floor  # data_sigma holds the floor once
+        scale = measured[row, active]
+        if data_covariance is not None:
+            data = data_covariance[row][np.ix_(active, active)] / np.outer(scale, scale)
+        else:
+            data = np.diag((error[row, active] / scale) ** 2)
+        covariance = data + floor ** 2 * (correlation + (1.0 - correlation) * np.eye(len(active)))
         jacobian = np.zeros((len(active), channels * layers))
         for i, c in enumerate(active):
             jacobian[i, c * layers:(c + 1) * layers] = slopes[c][row]
@@ -83,10 +89,11 @@ def allowed_width(covariance: np.ndarray, mus: float, mua: np.ndarray, optics: S
 
 
 def data_limits(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray, used: np.ndarray,
-                colorspace: str, correlation: float = 0.0) -> list[float]:
+                colorspace: str, correlation: float = 0.0, floor: float = RELATIVE_FLOOR,
+                data_covariance: np.ndarray | None = None) -> list[float]:
     """Each layer's :func:`allowed_width` at the fit ``mua`` (C, L) of ``forward``'s structure, the
-    floor correlated ``correlation`` between channels (the joint fit's)."""
-    covariance = log_absorption_covariance(forward, mua, measured, error, used, correlation)
+    data's noise as :func:`log_absorption_covariance` takes it (the joint fit's floor correlation)."""
+    covariance = log_absorption_covariance(forward, mua, measured, error, used, correlation, floor, data_covariance)
     channels, layers = mua.shape
     optics = forward.database.optics
     widths = []

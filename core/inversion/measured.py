@@ -6,7 +6,9 @@ rings of :func:`ringlight.core.rings.geometry.ring_geometry`). Over a laterally 
 region the mean of ``P_q(r)`` over lit points is the region mean of E_r, and its standard error
 is the spread of ``P_q(r)`` over the ``m`` lit points divided by ``sqrt(m)``: the ring members'
 spread, lit point by lit point. Light common to every lit point (a simulator's shared kernel)
-does not show in that spread; the fit adds a floor for it (:mod:`.fit`).
+does not show in that spread; the fit adds a floor for it (:mod:`.fit`). A dataset that holds
+independent replicates of its capture measures that noise too: there the standard error is the
+spread of the region's profile over the replicates, with the channels' covariance.
 
 A ring cut by the grid's edge (or by unobserved pixels) keeps the members left, renormalised: its
 mean leans toward the members that remain, and a ring's members lie at different distances (at
@@ -19,12 +21,14 @@ region (impulse response ``I(d)`` at offset ``d`` for every lit point) the measu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..dataset.impulse_dataset import ImpulseDataset
+from ..dataset.impulse_dataset import ImpulseDataset, open_dataset
+from ..dataset.replicates import replicate_manifests
 from ..rings.geometry import ring_geometry
+from .fit import RELATIVE_FLOOR
 from .settings import InversionError
 
 
@@ -32,18 +36,29 @@ from .settings import InversionError
 class MeasuredProfile:
     """``mean`` and ``standard_error`` (R, C) of the region-mean E_r at ``radii`` (R,), over
     ``points`` lit points. ``ring_weights`` (R, S, S), S odd: each ring's effective weight of the
-    pixel offset ``[dy + S // 2, dx + S // 2]`` (each row sums to 1), or None for whole rings."""
+    pixel offset ``[dy + S // 2, dx + S // 2]`` (each row sums to 1), or None for whole rings.
+
+    From a dataset of ``replicates`` > 1, the standard error and ``covariance`` (R, C, C) between
+    the channels are the replicates' spread, which holds the noise the lit points share, and the
+    fit's relative ``floor`` for that noise is 0; else ``covariance`` is None and ``floor`` is
+    :data:`.fit.RELATIVE_FLOOR`."""
 
     radii: np.ndarray
     mean: np.ndarray
     standard_error: np.ndarray
     points: int
     ring_weights: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    replicates: int = 1
+    floor: float = RELATIVE_FLOOR
 
 
 def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickness: float = 1.0,
                      antialias: bool = False) -> MeasuredProfile:
     """The profile of the lit points in ``region`` ((H, W) bool) at ``radii`` (within max_radius).
+
+    The standard error is the spread of the lit points' own profiles, or, for a dataset of two or
+    more replicates, of the replicates' profiles (:func:`replicate_profile`).
 
     Raises :class:`.settings.InversionError` naming the dataset when the region is not of the
     grid's shape or holds fewer than 2 lit points (no spread, so no standard error), or when there
@@ -88,7 +103,27 @@ def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickne
     mean = np.nanmean(profiles, axis=0)
     spread = np.nanstd(profiles, axis=0, ddof=1)
     effective = _effective_weights(dataset, qy, qx, rings, weights, np.isfinite(profiles).all(axis=2).T, reach)
-    return MeasuredProfile(np.asarray(radii, np.float64), mean, spread / np.sqrt(counts), int(len(qy)), effective)
+    measured = MeasuredProfile(np.asarray(radii, np.float64), mean, spread / np.sqrt(counts), int(len(qy)), effective)
+    if len(dataset.manifest.replicates) > 1:
+        return replicate_profile(dataset, region, measured, thickness, antialias)
+    return measured
+
+
+def replicate_profile(dataset: ImpulseDataset, region: np.ndarray, measured: MeasuredProfile, thickness: float,
+                      antialias: bool) -> MeasuredProfile:
+    """``measured`` (the dataset's profile) with its standard error and channel covariance from the
+    spread of the region's profile over the dataset's ``K`` replicates, each opened on its own
+    (:mod:`ringlight.core.dataset.replicates`): ``cov_k(P_k) / K`` per ring, ddof 1, and no floor."""
+    profiles = []
+    for manifest in replicate_manifests(dataset.manifest):
+        replicate = open_dataset(manifest, radius=dataset.max_radius, use_cache=False)
+        profiles.append(measured_profile(replicate, region, measured.radii, thickness, antialias).mean)
+    profiles = np.stack(profiles)  # (K, R, C)
+    count = len(profiles)
+    centred = profiles - profiles.mean(axis=0)
+    covariance = np.einsum("krc,krd->rcd", centred, centred) / (count - 1) / count
+    error = np.sqrt(np.diagonal(covariance, axis1=1, axis2=2))
+    return replace(measured, standard_error=error, covariance=covariance, replicates=count, floor=0.0)
 
 
 def _members_inside(dataset: ImpulseDataset, qy, qx, dy: int, dx: int, row0: int, row1: int, width: int):

@@ -23,8 +23,10 @@ upper bound.
 
 The spread of the members is noise only on a homogeneous surface: it also holds real spatial
 variation (a heterogeneous surface, an oblique view), so on such a surface these standard
-errors are an upper bound of the noise. Each member is a different lit point, measured in a
-different frame or simulated with its own photons, so members are independent.
+errors are an upper bound of the noise. Members are taken as independent: each is a different
+lit point, measured in a different frame. Noise the lit points share (a simulator's kernel common
+to every point, a projector's flicker) does not show in their spread: a dataset that holds
+independent replicates of its capture gets its standard errors from them (:mod:`.replicate_noise`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import numpy as np
 from ..colourspaces import colour_module
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..errors import StackError
+from .replicate_noise import replicate_spread
 from .stacks import ring_weight_matrix
 
 _RADIUS_DECIMALS = 9
@@ -88,8 +91,10 @@ def stack_noise(dataset: ImpulseDataset, radii, step: float = 1.0, thickness: fl
                 antialias: bool = False, progress: ProgressCallback | None = None) -> StackNoise:
     """Standard errors of E_r and T_r = E_r - E_{r+step} for each radius (grid steps) of ``radii``.
 
-    Uses the rings of :func:`ringlight.core.rings.stacks.transient_stack` with the same
-    arguments; each distinct ring is measured once, by one compiled kernel over the responses and
+    A dataset of two or more replicates (:attr:`~ringlight.core.dataset.manifest.Manifest.replicates`)
+    gets them from the replicates' spread instead (:mod:`.replicate_noise`), which holds noise its
+    lit points share. Otherwise: uses the rings of :func:`ringlight.core.rings.stacks.transient_stack`
+    with the same arguments; each distinct ring is measured once, by one compiled kernel over the responses and
     each band's validity flags (``benchmarks/bench_stack.py``: 72-91 ms, 4.5-4.8x the stack, which
     counts members from the lit mask instead of reading flags). ``progress`` may raise
     ``Cancelled``.
@@ -100,8 +105,12 @@ def stack_noise(dataset: ImpulseDataset, radii, step: float = 1.0, thickness: fl
     outer = np.round(radii + step, _RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
     luma = luminance_weights(dataset.colorspace)
-    se, se_luminance = _ring_spread(dataset, unique, thickness, antialias, luma, progress)
     inner, outer = np.searchsorted(unique, radii), np.searchsorted(unique, outer)
+    if len(dataset.manifest.replicates) > 1:
+        ring, transient, ring_y, transient_y = replicate_spread(dataset, unique, inner, outer, thickness, antialias,
+                                                                luma, progress)
+        return StackNoise(radii, float(step), ring, transient, ring_y, transient_y, luma)
+    se, se_luminance = _ring_spread(dataset, unique, thickness, antialias, luma, progress)
     return StackNoise(
         radii, float(step), se[inner], np.sqrt(se[inner] ** 2 + se[outer] ** 2),
         se_luminance[inner], np.sqrt(se_luminance[inner] ** 2 + se_luminance[outer] ** 2), luma,

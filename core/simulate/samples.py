@@ -5,9 +5,11 @@ the user cache on first use (a second or two, no simulation).
 A sample file (``NAME.npz``) holds a :class:`.transport.Transport` in little space: the windows
 inside the disc of ``max_radius`` only (the frames hold nothing else), as float16 ratios to a
 float32 scale per offset and channel (relative precision 5e-4, far below the noise), or, for a
-layered scene where every lit point sees the same response, that one response; the path-length
-images in float32; the scene is the preset at the stored size. Its ``noise`` array is the
-estimated relative noise of T_r per radius (:mod:`.progressive`) that ``make_samples`` printed.
+layered scene where every lit point sees the same response, that one response (and, when the
+sample was simulated in independent replicates, :mod:`.replicates`, each replicate's response:
+the dataset then holds them as its replicates, and its noise is measured); the path-length images
+in float32; the scene is the preset at the stored size. Its ``noise`` array is the estimated
+relative noise of T_r per radius that ``make_samples`` printed.
 """
 
 from __future__ import annotations
@@ -59,6 +61,12 @@ def save_sample(transport: Transport, path: Path, noise: np.ndarray) -> None:
                   photons=transport.photons, seed=transport.seed, seconds=transport.seconds,
                   estimator=transport.estimator, measure=transport.measure, shared=shared)
     arrays = {"truth": transport.path_length_images.astype(np.float32), "noise": np.asarray(noise, np.float32)}
+    if transport.replicates:
+        replicates = [windows[:, :, offsets[:, 0], offsets[:, 1], :].astype(np.float32)
+                      for windows in transport.replicates]
+        if not shared or not all(np.all(each == each[:1, :1]) for each in replicates):
+            raise SampleError(f"{path}: a sample keeps replicates only of a response every lit point shares")
+        arrays["replicates"] = np.stack([each[0, 0] for each in replicates])
     if shared:
         arrays["response"] = inside[0, 0]
     else:
@@ -84,11 +92,15 @@ def load_sample(name: str) -> tuple[Transport, np.ndarray]:
             inside = np.broadcast_to(data["response"], (scene.height, scene.width) + data["response"].shape)
         else:
             inside = data["ratio"].astype(np.float32) * data["scale"]
-        windows = np.zeros((scene.height, scene.width, 2 * radius + 1, 2 * radius + 1, 3), np.float32)
-        windows[:, :, offsets[:, 0], offsets[:, 1], :] = inside
+        def windows_of(responses):
+            windows = np.zeros((scene.height, scene.width, 2 * radius + 1, 2 * radius + 1, 3), np.float32)
+            windows[:, :, offsets[:, 0], offsets[:, 1], :] = responses
+            return windows
+
+        replicates = tuple(windows_of(response) for response in data["replicates"]) if "replicates" in data else ()
         transport = Transport(scene=scene, photons=fields["photons"], seed=fields["seed"], window_radius=radius,
-                              windows=windows, path_length_images=data["truth"], seconds=fields["seconds"],
-                              measure=fields["measure"], estimator=fields["estimator"])
+                              windows=windows_of(inside), path_length_images=data["truth"], seconds=fields["seconds"],
+                              measure=fields["measure"], estimator=fields["estimator"], replicates=replicates)
         return transport, data["noise"].copy()
 
 

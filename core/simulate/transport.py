@@ -67,6 +67,10 @@ class Transport:
         grid point's beam), by path-length bin ``[b * step, (b + 1) * step)``.
     measure
         ``"camera"`` or ``"exitance"``, the scene's.
+    replicates
+        Windows (each as ``windows``) of independent runs whose mean ``windows`` is
+        (:mod:`.replicates`), or empty: written as the dataset's replicates (FORMAT.md's frame key
+        ``replicate``), so that its noise, shared by lit points or not, can be measured.
     """
 
     scene: Scene
@@ -78,6 +82,7 @@ class Transport:
     seconds: float
     measure: str = "camera"
     estimator: str = "reference"
+    replicates: tuple[np.ndarray, ...] = ()
 
 
 def channel_groups(scene: Scene) -> list[tuple[int, ...]]:
@@ -292,18 +297,26 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
              f"([zenith, azimuth] degrees)\n"
              f"specular reflection {specular_reflectance(scene.n, scene.projector[0]):.6g} of the beam, "
              f"not in the frames or path-length images")
+    if transport.replicates:
+        notes += f"\n{len(transport.replicates)} independent replicates of {transport.photons // len(transport.replicates)} " \
+                 "photons per point each (the frames' replicate key)"
+    # With replicates, their frames are the dataset: a point's response is the mean of its frames.
+    replicates = transport.replicates or (transport.windows,)
+    labelled = len(replicates) > 1
+    steps = len(frames) * len(replicates) + 1
     with DatasetWriter(out, (height, width), max_radius=scene.max_radius, pitch_mm=scene.pitch_mm,
                        notes=notes, sample=scene_sample(scene), overwrite=overwrite) as writer:
-        for index, lit in enumerate(frames):
-            image = np.zeros((height, width, 3), np.float32)
-            for qy, qx in lit:
-                py, px = qy + offsets[:, 0], qx + offsets[:, 1]
-                inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
-                image[py[inside], px[inside]] += transport.windows[
-                    qy, qx, offsets[inside, 0] + radius, offsets[inside, 1] + radius]
-            writer.add_frame(image, lit)
-            if progress is not None:
-                progress((index + 1) / (len(frames) + 1))
+        for label, windows in enumerate(replicates):
+            for index, lit in enumerate(frames):
+                image = np.zeros((height, width, 3), np.float32)
+                for qy, qx in lit:
+                    py, px = qy + offsets[:, 0], qx + offsets[:, 1]
+                    inside = (py >= 0) & (py < height) & (px >= 0) & (px < width)
+                    image[py[inside], px[inside]] += windows[
+                        qy, qx, offsets[inside, 0] + radius, offsets[inside, 1] + radius]
+                writer.add_frame(image, lit, replicate=label if labelled else None)
+                if progress is not None:
+                    progress((label * len(frames) + index + 1) / steps)
         for b, image in enumerate(transport.path_length_images):
             writer.add_path_length_image(image, b * scene.bin_step, (b + 1) * scene.bin_step)
         if scene.layers:
