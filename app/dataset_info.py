@@ -46,6 +46,16 @@ def describe_dataset(manifest: Manifest, allow_outside: bool = False, radius: fl
         f"missing      {missing} point(s) lit in no frame",
         f"dark frame   {manifest.dark or 'none'}",
     ]
+    replicates = manifest.replicates
+    if len(replicates) > 1:
+        lines.append(f"replicates   {len(replicates)}: standard errors from their spread, shared noise included")
+    else:
+        lines.append("replicates   none: standard errors from each ring's spread, blind to shared noise")
+    sample = manifest.sample
+    if sample.n is not None or sample.g is not None:
+        stated = ", ".join(f"{name} {value:g}" for name, value in (("n", sample.n), ("g", sample.g))
+                           if value is not None)
+        lines.append(f"sample       {stated} (stated; the layer inversion takes them)")
     diagonal = effective_max_radius(manifest)
     if manifest.max_radius is not None:
         lines.append(f"max radius   {manifest.max_radius:g} grid steps")

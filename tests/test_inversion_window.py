@@ -23,9 +23,11 @@ def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, 
     panel.method_box.setCurrentIndex(panel.method_box.findData("inverse"))
     assert panel.inverse_rows.isVisible() and not panel.picking_row.isVisible()
     assert "Press Fit" in panel.message_label.text()
+    # The fit follows the dataset: layers3's manifest states n 1.3 and g 0.
+    assert (panel.n_box.text(), panel.g_box.value()) == ("1.30", 0.0)
+    assert panel.inversion_inputs()["n"] == 1.3
     panel.boundaries_edit.setText("2,5")
     panel.mus_edit.setText("0.5,0.5,1.5")
-    panel.n_box.setValue(1.3)
     panel.depth_box.setValue(24)
 
     # Esc cancels a running fit and says so.
@@ -45,6 +47,9 @@ def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, 
     np.testing.assert_allclose([l.xy for l in shown.inversion.layers], [l.xy for l in expected.layers], atol=1e-9)
     assert [panel.table.item(row, 9).text() for row in range(3)] == ["yes", "yes", "no"]
     assert "absorption in G" in panel.table.item(2, 9).toolTip()
+    # Beside each region's width, the width the data allow.
+    assert [panel.table.item(row, 8).text() for row in range(3)] == [
+        f"{l.region_width:.3f} (data {l.allowed_width:.3f})" for l in expected.layers]
     assert panel.table.item(0, 4).text() == "#%02x%02x%02x" % expected.layers[0].swatch
     # Three regions on the diagram; the undetermined base dashed and grey.
     regions = panel.diagram._regions
@@ -64,8 +69,10 @@ def test_inverse_method_fits_in_a_worker_and_shows_regions_fit_and_flags(qtbot, 
     document = json.loads((tmp_path / "inverse.json").read_text())
     assert document["method"] == "inverse" and [l["determined"] for l in document["layers"]] == [True, True, False]
 
-    # Changing a setting makes the shown fit stale: the table empties until the next fit.
-    panel.n_box.setValue(1.4)
+    # Changing a setting makes the shown fit stale: the table empties until the next fit. Below 1
+    # the index reads auto: searched.
+    panel.n_box.setValue(panel.n_box.minimum())
+    assert panel.n_box.text() == "auto" and panel.inversion_inputs()["n"] is None
     window.layer_tab.refresh()
     assert panel.table.rowCount() == 0 and "Press Fit" in panel.message_label.text()
     # A setting that cannot work is refused in the tab, in one line, and nothing starts.

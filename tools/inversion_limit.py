@@ -7,12 +7,13 @@ E_c(r) at the scene's true absorption, r = 0 .. ``--radius``, and the inversion 
 standard error of ``--noise`` times E per ring. The model is then exact and the profile has no
 error, so what is left of each layer's two-sigma region (and of its xy distance to the truth, the
 thick-slab colour of FORMAT.md) is set by the information the profile holds at that noise and by
-the white run's own noise alone: no method fitting E(r) alone can be surer. The fit's relative
-floor (:data:`ringlight.core.inversion.fit.RELATIVE_FLOOR`, for noise that a dataset does not
-show) is set to ``--noise`` here, since the noise is known.
+the white run's own noise alone: no method fitting E(r) alone can be surer. The noise is known, so
+the fit's relative floor for noise a dataset does not show is 0.
 
 Prints one markdown row per scene, noise and layer: the truth's and the fit's absorption per
-channel with its two-sigma range, the layer's xy error and region width.
+channel with its two-sigma range, the layer's xy error, its region's width and the width the data
+alone allow (:mod:`ringlight.core.inversion.limit`: the Fisher information at the data's noise,
+without the white run's): their ratio is what the white run's noise costs.
 
     python tools/inversion_limit.py [--noise 0.01 0.001] [--photons 20000] [--radius 11] [--reach 13] [SCENE ...]
 """
@@ -24,7 +25,7 @@ import argparse
 import numpy as np
 
 from ringlight.core.colour.chroma import chromaticity
-from ringlight.core.inversion import fit, layers
+from ringlight.core.inversion import layers
 from ringlight.core.inversion.forward import Forward, Structure
 from ringlight.core.inversion.layers import database_optics, invert
 from ringlight.core.inversion.measured import MeasuredProfile
@@ -51,8 +52,8 @@ def main() -> None:
         parser.error(f"--reach {args.reach} must be at least --radius {args.radius}")
     layers.REACH = args.reach
     print("| scene | noise | layer | truth mua R, G, B | fitted mua [two-sigma range] R; G; B | xy error | "
-          "2-sigma width |")
-    print("|---|---|---|---|---|---|---|")
+          "2-sigma width | data allow |")
+    print("|---|---|---|---|---|---|---|---|")
     for name in args.scenes:
         scene = load_scene(name)
         materials = {material.name: material for material in scene.materials}
@@ -69,8 +70,7 @@ def main() -> None:
         truth_xy = chromaticity(np.array([thick_slab_reflectance(np.full(3, m), row, g, scene.n)
                                           for m, row in zip(mus, truth)]), "sRGB")
         for noise in args.noise:
-            fit.RELATIVE_FLOOR = noise
-            measured = MeasuredProfile(forward.radii, profile, noise * profile, points=2)
+            measured = MeasuredProfile(forward.radii, profile, noise * profile, points=2, floor=0.0)
             inversion = invert(measured, settings)
             for index, layer in enumerate(inversion.layers):
                 ranges = "; ".join(f"{m:.4f} [{low:.4f}, {high:.4g}]"
@@ -78,7 +78,7 @@ def main() -> None:
                 error = float(np.hypot(*(layer.xy - truth_xy[index])))
                 print(f"| {name} | {noise:g} | {index + 1}{'' if layer.determined else '*'} | "
                       f"{', '.join(f'{m:g}' for m in truth[index])} | {ranges} | {error:.3f} | "
-                      f"{layer.region_width:.3f} |", flush=True)
+                      f"{layer.region_width:.3f} | {layer.allowed_width:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
