@@ -1,21 +1,22 @@
 """A validated manifest kept in the dataset's store, so that a reopen need not parse its JSON.
 
-A paper-scale manifest is large: 1024 x 1024 grid points lit 256 at a time are 4225 frames and
-34 MB of JSON, which take about 3 s to decode and validate, most of a reopen. When a store is
-written (:func:`write_manifest_copy`, inside the store's folder, so it is published and replaced
-with it), the manifest it was built from goes with it as ``manifest.npz``: the SHA-256 of the
+A paper-scale manifest is large: 1024 x 1024 grid points lit 256 at a time are 4225 frames and 34
+MB of JSON, which take about 3 s to decode and validate, most of a reopen. When a store is written
+(:func:`write_manifest_copy`, inside the store's folder, so it is published and replaced with it),
+the manifest it was built from goes with it as ``manifest.npz``: the SHA-256 of the
 ``dataset.json`` bytes, the manifest without its frames (JSON), and the frames as arrays (files,
 exposures, lit points, and how many points each frame lights). :func:`load_manifest` reads the
 manifest's bytes and hashes them (0.1 s at that size); when the copy was made from the same bytes
 it is used, else the manifest is parsed.
 
 The copy is read only when its bytes are those the store's table recorded
-(:func:`.response_store.entry_file`: an edited copy, even one that keeps the digest, is not
-used), every array's declared size must fit the bytes that hold it (a header claiming 10^12
-points is not allocated), and then it is checked again as far as it costs little: the manifest's
-keys go through :func:`.manifest.parse_manifest` again, every file name through the same rules, and
-every lit point must lie inside the grid. Only the spacing of multiplexed points and that every
-replicate lights the same points are not checked again. A copy that cannot be read (damaged, of another version, not ringlight's) is ignored.
+(:func:`.response_store.entry_file`: an edited copy, even one that keeps the digest, is not used),
+every array's declared size must fit the bytes that hold it (a header claiming 10^12 points is not
+allocated), and then it is checked again as far as it costs little: the manifest's keys go through
+:func:`.manifest.parse_manifest` again, every file name through the same rules, and every lit point
+must lie inside the grid. Only the spacing of multiplexed points and that every replicate lights
+the same points are not checked again. A copy that cannot be read (damaged, of another version, not
+ringlight's) is ignored.
 """
 
 from __future__ import annotations

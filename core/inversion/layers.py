@@ -1,17 +1,17 @@
 """Layer colours by inversion: fit a layered slab to a region's ring-light profiles.
 
-The model (:mod:`.forward`, :mod:`.white_mc`): layers of a common or given scattering
-coefficient, each with its own absorption per channel, anisotropy ``g`` given, refractive index
-``n`` given or chosen from :data:`~.settings.N_GRID` like the scattering (the index sets how much
-light the surface reflects back in, and so the profile's shape: assuming 1.4 for an index-matched
-slab misplaced its top layer's colour by 0.041 xy). The structure (layer boundaries, whole grid steps down to :data:`SEARCH_BINS` - 1) is given or
-searched by chi-square; the number of layers is given or chosen by BIC. The scattering is given
-(common or per layer) or chosen from :data:`MUS_GRID`: common to every layer, or one for the layers
-above and another for the base (:func:`_base_search`), by BIC. The search compares quick
-per-channel fits (:mod:`.fit`) on thinned databases; the chosen structure and those that fit about
-as well are fitted again with every photon, per channel and with the channels together
-(:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each layer's colour and
-its two-sigma region in xy: :mod:`.layer_colour`.
+The model (:mod:`.forward`, :mod:`.white_mc`): layers of a common or given scattering coefficient,
+each with its own absorption per channel, anisotropy ``g`` given, refractive index ``n`` given or
+chosen from :data:`~.settings.N_GRID` like the scattering (the index sets how much light the
+surface reflects back in, and so the profile's shape: assuming 1.4 for an index-matched slab
+misplaced its top layer's colour by 0.041 xy). The structure (layer boundaries, whole grid steps
+down to :data:`SEARCH_BINS` - 1) is given or searched by chi-square; the number of layers is given
+or chosen by BIC. The scattering is given (common or per layer) or chosen from :data:`MUS_GRID`:
+common to every layer, or one for the layers above and another for the base (:func:`_base_search`),
+by BIC. The search compares quick per-channel fits (:mod:`.fit`) on thinned databases; the chosen
+structure and those that fit about as well are fitted again with every photon, per channel and with
+the channels together (:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each
+layer's colour and its two-sigma region in xy: :mod:`.layer_colour`.
 """
 
 from __future__ import annotations

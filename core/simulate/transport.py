@@ -298,8 +298,9 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
              f"specular reflection {specular_reflectance(scene.n, scene.projector[0]):.6g} of the beam, "
              f"not in the frames or path-length images")
     if transport.replicates:
-        notes += f"\n{len(transport.replicates)} independent replicates of {transport.photons // len(transport.replicates)} " \
-                 "photons per point each (the frames' replicate key)"
+        count = len(transport.replicates)
+        notes += f"\n{count} independent replicates of {transport.photons // count} photons per point each (the frames' " \
+                 "replicate key)"
     # With replicates, their frames are the dataset: a point's response is the mean of its frames.
     replicates = transport.replicates or (transport.windows,)
     labelled = len(replicates) > 1
