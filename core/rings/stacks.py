@@ -114,6 +114,7 @@ def ring_stack(
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
     radii = _as_radii(radii)
+    check_reach(dataset, radii, 0.0, thickness, antialias)
     images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler)
     return Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images, counts)
 
@@ -149,6 +150,7 @@ def ring_and_transient_stacks(
     radii = _as_radii(radii)
     if not math.isfinite(step) or step <= 0:
         raise StackError(f"transient step dr must be > 0, got {step}")
+    check_reach(dataset, radii, step, thickness, antialias)
     outer = np.round(radii + step, _RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
     images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler)
@@ -187,6 +189,36 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
         raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
                          f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
     return ring_geometry(largest, thickness, antialias).outer_radius
+
+
+def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: float = 1.0,
+                antialias: bool = False) -> None:
+    """Raise StackError, naming the dataset and the radii that would work, when a ring of
+    ``radii`` (or, for a transient ``step`` > 0, of ``radii + step``) reaches beyond the
+    dataset's ``max_radius`` (grid steps)."""
+    radii = _as_radii(radii)
+
+    def reach(radius: float) -> float:
+        return needed_radius([radius], thickness, step, antialias)
+
+    limit = dataset.max_radius + 1e-9
+    beyond = [float(radius) for radius in radii if reach(radius) > limit]
+    if not beyond:
+        return
+    ring_radius = beyond[0] + step
+    working = [float(radius) for radius in radii if reach(radius) <= limit]
+    kind = f"transient radii (dr {step:g})" if step > 0 else "ring radii"
+    if working:
+        regular = len(radii) > 1 and np.allclose(np.diff(radii), radii[1] - radii[0])
+        suggestion = f"{kind} up to {max(working):g} work" + (
+            f" (radii {radii[0]:g}:{max(working):g}:{radii[1] - radii[0]:g})" if regular else "")
+    else:
+        suggestion = f"no {kind} of those requested work"
+    raise StackError(
+        f"{dataset.manifest.folder}: the ring of radius {ring_radius:g} (thickness {thickness:g}) reaches "
+        f"{reach(beyond[0]):.3f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; "
+        f"{suggestion}"
+    )
 
 
 def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
