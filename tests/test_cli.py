@@ -179,3 +179,17 @@ def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that
     assert status == 2 and len(error) == 1
     assert str(folder) in error[0] and f"up to {best} work (radii 0:{best}:1)" in error[0]
     assert main(["stack", str(folder), "--radii", f"0:{best}:1", "--out", str(tmp_path / "o")]) == 0
+
+
+def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys):
+    """``ringlight demo --out DIR``: the same dataset as the user cache's copy, bit for bit in
+    its responses; a second run is refused with one line unless --overwrite."""
+    from ringlight.core.simulate.samples import sample_dataset
+
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 0
+    assert f"dataset      {tmp_path / 'layers3'}" in capsys.readouterr().out
+    ours, cached = open_dataset(tmp_path / "layers3"), open_dataset(sample_dataset("layers3"))
+    assert np.array_equal(ours.responses, cached.responses)
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 2
+    assert "already holds a dataset" in capsys.readouterr().err
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3"), "--overwrite"]) == 0
