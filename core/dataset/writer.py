@@ -1,4 +1,4 @@
-"""Writing impulse datasets (FORMAT.md v1) atomically.
+"""Writing impulse datasets (format version 1, ``docs/format/dataset.md``) atomically::
 
     with DatasetWriter("sample", (48, 48), max_radius=16) as writer:
         writer.add_frame(image, lit=[[8, 8], [8, 41]])

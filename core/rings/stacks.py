@@ -1,4 +1,5 @@
-"""Ring light and transient image stacks for every grid point (FORMAT.md definitions).
+"""Ring light and transient image stacks for every grid point (the definitions of the dataset
+format, ``docs/format/dataset.md``)::
 
     E_r(p) = sum_q w_q I_q(p) / sum_q w_q   over ring members q = p + d that are in the grid
                                             and lit (weights 1 for the default ring)
