@@ -110,8 +110,10 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     }, {"format", "version", "grid", "depth", "materials", "background"})
     if doc["format"] != SCENE_FORMAT:
         raise SceneError(f"{where}: 'format' is {doc['format']!r}, expected {SCENE_FORMAT!r}")
-    if doc["version"] != SCENE_VERSION:
+    if doc["version"] != SCENE_VERSION or isinstance(doc["version"], bool):  # true == 1 in Python
         raise SceneError(f"{where}: unsupported 'version' {doc['version']!r} (expected {SCENE_VERSION})")
+    if "notes" in doc:
+        fail.string(doc["notes"], "notes")
     grid = fail.mapping(doc["grid"], "grid", {"height", "width", "pitch_mm"}, {"height", "width"})
     height, width = fail.positive_int(grid["height"], "grid.height"), fail.positive_int(grid["width"], "grid.width")
     scale_y = scale_x = 1.0
