@@ -14,11 +14,13 @@ from pathlib import Path
 from sphinx_gallery.scrapers import figure_rst
 
 _FOLDERS: list[Path] = []
+_BASE = tempfile.gettempdir()
+"""The system's temporary folder, before the first example's folder replaces it in ``tempfile``."""
 
 
 def reset_example_folder(gallery_conf, fname, when=None):
     """Point ``tempfile`` at a new, empty folder before each example runs."""
-    folder = Path(tempfile.mkdtemp(prefix="ringlight-gallery-"))
+    folder = Path(tempfile.mkdtemp(prefix="ringlight-gallery-", dir=_BASE))
     _FOLDERS.append(folder)
     tempfile.tempdir = str(folder)
 
