@@ -73,7 +73,7 @@ class DatasetWriter:
     grid_shape
         ``(H, W)`` of the grid.
     max_radius, pitch_mm, colorspace, notes
-        Manifest keys (FORMAT.md); None leaves a key out.
+        Manifest keys (docs/format/dataset.md); None leaves a key out.
     frame_space
         ``"grid"`` (frames H x W) or ``"camera"`` (call :meth:`set_mapping` first).
     half
