@@ -287,6 +287,8 @@ def test_a_ring_beyond_max_radius_names_the_dataset_and_the_radii_that_work(tmp_
     assert f"up to {transient_best:g} work (radii 0:{transient_best:g}:0.5)" in message
     with pytest.raises(StackError, match=f"ring radii up to {ring_best:g} work"):
         ring_stack(dataset, radii)
+    with pytest.raises(StackError, match="no transient radii \\(dr 0.5\\) of those requested work"):
+        transient_stack(dataset, [3.0, 2.5], step=0.5)
     assert transient_stack(dataset, radius_range(0, transient_best, 0.5), step=0.5).images.shape[0] == 5
 
 

@@ -198,27 +198,32 @@ def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: fl
     ``radii`` (or, for a transient ``step`` > 0, of ``radii + step``) reaches beyond the
     dataset's ``max_radius`` (grid steps)."""
     radii = _as_radii(radii)
+    limit = dataset.max_radius + 1e-9
+    if needed_radius(radii, thickness, step, antialias) <= limit:
+        return
 
     def reach(radius: float) -> float:
         return needed_radius([radius], thickness, step, antialias)
 
-    limit = dataset.max_radius + 1e-9
-    beyond = [float(radius) for radius in radii if reach(radius) > limit]
-    if not beyond:
-        return
-    ring_radius = beyond[0] + step
-    working = [float(radius) for radius in radii if reach(radius) <= limit]
+    # The reach grows with the radius: bisect the sorted radii for the last one that fits
+    # (a few ring geometries, where testing each of up to 10 000 radii could take minutes).
+    ordered = np.unique(radii)
+    low, high = -1, len(ordered) - 1  # ordered[high] does not fit; ordered[low] does (or none)
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (middle, high) if reach(ordered[middle]) <= limit else (low, middle)
+    beyond = float(ordered[high])
     kind = f"transient radii (dr {step:g})" if step > 0 else "ring radii"
-    if working:
-        regular = len(radii) > 1 and np.allclose(np.diff(radii), radii[1] - radii[0])
-        suggestion = f"{kind} up to {max(working):g} work" + (
-            f" (radii {radii[0]:g}:{max(working):g}:{radii[1] - radii[0]:g})" if regular else "")
+    if low >= 0:
+        best = float(ordered[low])
+        spacing = float(radii[1] - radii[0]) if len(radii) > 1 else 0.0
+        regular = spacing > 0 and np.allclose(np.diff(radii), spacing)
+        suggestion = f"{kind} up to {best:g} work" + (f" (radii {radii[0]:g}:{best:g}:{spacing:g})" if regular else "")
     else:
         suggestion = f"no {kind} of those requested work"
     raise StackError(
-        f"{dataset.manifest.folder}: the ring of radius {ring_radius:g} (thickness {thickness:g}) reaches "
-        f"{reach(beyond[0]):.3f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; "
-        f"{suggestion}"
+        f"{dataset.manifest.folder}: the ring of radius {beyond + step:g} (thickness {thickness:g}) reaches "
+        f"{reach(beyond):.3f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; {suggestion}"
     )
 
 
