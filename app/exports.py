@@ -26,7 +26,7 @@ def stack_levels(stack: Stack, settings: DisplaySettings) -> list[tuple[float, f
 
 
 def stack_work(stack: Stack, folder: Path):
-    """Write ``stack`` in FORMAT.md's stack export format."""
+    """Write ``stack`` as a stack export (docs/format/stack.md)."""
     return lambda progress: write_stack(stack, folder, progress)
 
 

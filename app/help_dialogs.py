@@ -17,8 +17,9 @@ from .dataset_info import describe_dataset
 
 PAPER = ('K. Nishino, A. Subpa-asa, Y. Asano, M. Shimano and I. Sato, "Variable Ring Light Imaging: '
          'Capturing Transient Subsurface Scattering with an Ordinary Camera", ECCV 2018')
-README_SECTIONS = ("Explorer window", "Capture", "Command line", "Safety: what ringlight promises about your data")
-"""The README.md sections About points to, their headings as written there."""
+README_SECTIONS = ("A five-minute tour", "Command line", "Documentation")
+"""The README.md sections About points to, their headings as written there (Documentation links
+the user guide, the format and the API reference in docs/)."""
 EXITANCE_NOTICE = """{path} was simulated by an earlier ringlight, whose frames hold exitance: all light
 leaving each pixel in any direction, plus the specular reflection at the lit pixel. A camera sees the
 radiance toward it, which has another radial shape (about 1.6x at the lit point, 0.6-0.85x one to

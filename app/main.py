@@ -93,7 +93,7 @@ def display_problem() -> str | None:
                 "or use --screenshot FILE.png, or the command-line tools (ringlight --help)")
     if not wayland and ctypes.util.find_library("xcb-cursor") is None:
         return ("Qt needs the X11 library libxcb-cursor (Debian/Ubuntu: apt install libxcb-cursor0 and the "
-                "other xcb libraries listed in README.md)")
+                "other xcb libraries listed in docs/guide/install.md)")
     return None
 
 

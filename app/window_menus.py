@@ -37,7 +37,7 @@ class WindowMenus:
         file_menu.addSeparator()
         self.export_actions = [
             self._action(file_menu, "Export stack as &EXR…", self.choose_stack_export, "Ctrl+E",
-                         "The shown stack in the stack format of FORMAT.md"),
+                         "The shown stack as a stack export (docs/format/stack.md)"),
             self._action(file_menu, "Export view as &PNG…", self.choose_png_export, "Ctrl+Shift+P",
                          "The image's data pixels, one per grid point, lossless"),
             self._action(file_menu, "Export view as shown, with &overlays (PNG)…", self.choose_shown_export,

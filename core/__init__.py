@@ -1,9 +1,11 @@
 """ringlight.core: variable ring light imaging as a numpy library (no Qt).
 
-    from ringlight.core import open_dataset, transient_stack
-    dataset = open_dataset("sample")
-    stack = transient_stack(dataset, radii=range(0, 12), step=1.0)
-    stack.images            # (12, H, W, 3) float32, NaN where undefined
+    from ringlight.core import open_dataset, radius_range, transient_stack
+    dataset = open_dataset("red-bead")      # after: ringlight demo --sample red-bead --out red-bead
+    stack = transient_stack(dataset, radius_range(0, 10, 1), step=1.0)
+    stack.images            # (11, 48, 48, 3) float32, NaN where undefined
+
+(docs/guide/python.md runs the same lines.)
 """
 
 from .dataset.exr import read_exr_rgb, write_exr_rgb

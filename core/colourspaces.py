@@ -1,5 +1,5 @@
 """Access to colour-science's RGB colourspaces without its optional-dependency chatter, and the
-manifest's ``colorspace`` (FORMAT.md): a colour-science name, primaries and a white point, or a
+manifest's ``colorspace`` (docs/format/dataset.md): a colour-science name, primaries and a white point, or a
 3 x 3 matrix to CIE XYZ.
 
 A colourspace given by primaries or a matrix becomes a colour-science ``RGB_Colourspace``
@@ -144,7 +144,7 @@ def colourspace_chromaticities(name: str) -> np.ndarray:
 
 def chromaticities_differ(file_xy, name: str, tolerance: float = 1e-3) -> bool:
     """True when a file's ``chromaticities`` (8 numbers: xy of R, G, B and white) differ from the
-    colourspace's by more than ``tolerance`` in x or y (FORMAT.md "Frame files")."""
+    colourspace's by more than ``tolerance`` in x or y (docs/format/dataset.md, "Frame files")."""
     file_xy = np.asarray(file_xy, np.float64).reshape(4, 2)
     return not bool(np.all(np.abs(file_xy - colourspace_chromaticities(name)) <= tolerance))
 

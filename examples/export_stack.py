@@ -1,6 +1,9 @@
-"""Compute a transient stack of a dataset and export it as EXR (the stack format of FORMAT.md).
+"""Export a transient stack as EXR
+===============================
 
-    python examples/export_stack.py [DATASET] [OUT_FOLDER]
+Compute a transient stack of a dataset and export it as EXR (the stack export of docs/format/stack.md).
+
+Run ``python examples/export_stack.py [DATASET] [OUT_FOLDER]``.
 
 DATASET defaults to the bundled demo dataset; OUT_FOLDER must be new (default: a temp folder).
 """

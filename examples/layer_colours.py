@@ -1,6 +1,9 @@
-"""Recover the layer colours of a rectangular region from transient images at three radii.
+"""Layer colours of a region
+=========================
 
-    python examples/layer_colours.py [DATASET]
+Recover the layer colours of a rectangular region from transient images at three radii.
+
+Run ``python examples/layer_colours.py [DATASET]``.
 
 Without DATASET, the layers3 preset is simulated at 16 x 16 into a temp folder first.
 """

@@ -1,6 +1,9 @@
-"""Open the bundled demo dataset and save its transient image T_r at r = 2 as a PNG.
+"""A transient image of the demo
+=============================
 
-    python examples/open_demo_save_transient.py [OUT_FOLDER]
+Open the bundled demo dataset and save its transient image T_r at r = 2 as a PNG.
+
+Run ``python examples/open_demo_save_transient.py [OUT_FOLDER]``.
 
 The demo (the bundled red-bead sample, 48 x 48) is written into the user cache on first use.
 """

@@ -1,8 +1,10 @@
-"""A hardware plugin skeleton: copy it into your lab's package and fill in the device calls.
+"""A hardware plugin skeleton
+==========================
 
-    python examples/plugin_skeleton.py      # checks the skeleton against ringlight's protocols
+Copy it into your lab's package and fill in the device calls.
+``python examples/plugin_skeleton.py`` checks the skeleton against ringlight's protocols.
 
-Register it in your package's pyproject.toml and ringlight lists it in the wizard and the CLI:
+Register it in your package's pyproject.toml and ringlight lists it in the wizard and the CLI::
 
     [project.entry-points."ringlight.hardware"]
     mylab = "mylab_rig.ringlight_plugin:PLUGIN"

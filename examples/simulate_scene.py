@@ -1,6 +1,9 @@
-"""Simulate a layered preset scene into an impulse dataset by Monte Carlo, then describe it.
+"""Simulate a layered scene
+========================
 
-    python examples/simulate_scene.py [OUT_FOLDER]
+Simulate a layered preset scene into an impulse dataset by Monte Carlo, then describe it.
+
+Run ``python examples/simulate_scene.py [OUT_FOLDER]``.
 
 A 16 x 16 grid with 400 photons per lit point and channel takes a few seconds.
 """

@@ -1,8 +1,9 @@
-"""Run a whole capture with the simulated rig: Gray code, plan, HDR scan, then open the dataset.
+"""A whole capture with the simulated rig
+======================================
 
-    python examples/simulated_scan.py [OUT_FOLDER]
-
-The same steps as the Capture tab and `ringlight capture`, on a 12 x 12 virtual projector.
+Gray code, plan, HDR scan, then open the dataset: the same steps as the Capture tab and
+``ringlight capture``, on a 12 x 12 virtual projector. Run
+``python examples/simulated_scan.py [OUT_FOLDER]``.
 """
 
 import sys

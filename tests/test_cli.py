@@ -160,3 +160,36 @@ def test_a_damaged_chunk_read_out_of_core_by_the_command_line_prints_one_line(tm
                             timeout=300, env={**os.environ, "RINGLIGHT_MEMORY_BUDGET": str(budget)})
     assert result.returncode != 0
     assert result.stderr.count("\n") == 1 and "damaged cache chunk" in result.stderr, result.stderr
+
+
+def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that_work(tmp_path, capsys):
+    """README's old command (0:20:1) on a bundled sample (max_radius 12): one line naming the
+    dataset and the range that works. A transient at r uses the ring r + 1, whose members
+    (|d| < r + 1.5) must all lie within 12 grid steps: at r = 11 the offset (12, 3), 12.37 steps
+    away, is a member, so r = 10 is the last (brute force below)."""
+    from ringlight.core.simulate.samples import sample_dataset
+
+    folder = sample_dataset("red-bead")
+    span = np.arange(-14, 15)
+    distance = np.hypot(*np.meshgrid(span, span))
+    best = max(r for r in range(21) if (distance[distance < r + 1.5] <= 12).all())
+    assert best == 10
+    status = main(["stack", str(folder), "--kind", "transient", "--radii", "0:20:1", "--out", str(tmp_path / "o")])
+    error = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(error) == 1
+    assert str(folder) in error[0] and f"up to {best} work (radii 0:{best}:1)" in error[0]
+    assert main(["stack", str(folder), "--radii", f"0:{best}:1", "--out", str(tmp_path / "o")]) == 0
+
+
+def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys):
+    """``ringlight demo --out DIR``: the same dataset as the user cache's copy, bit for bit in
+    its responses; a second run is refused with one line unless --overwrite."""
+    from ringlight.core.simulate.samples import sample_dataset
+
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 0
+    assert f"dataset      {tmp_path / 'layers3'}" in capsys.readouterr().out
+    ours, cached = open_dataset(tmp_path / "layers3"), open_dataset(sample_dataset("layers3"))
+    assert np.array_equal(ours.responses, cached.responses)
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 2
+    assert "already holds a dataset" in capsys.readouterr().err
+    assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3"), "--overwrite"]) == 0

@@ -49,7 +49,7 @@ def test_about_links_the_readme_sections_it_names(qtbot, window):
                     if line.startswith("#")]
         anchors = {heading_anchor(heading) for heading in headings}
         assert [link.fragment() for link in links[1:]] == [
-            "explorer-window", "capture", "command-line", "safety-what-ringlight-promises-about-your-data"]
+            "a-five-minute-tour", "command-line", "documentation"]
         assert all(link.fragment() in anchors for link in links[1:])
     finally:
         dialog.close()
@@ -57,4 +57,4 @@ def test_about_links_the_readme_sections_it_names(qtbot, window):
 
 def test_without_a_readme_about_names_the_sections_in_plain_text():
     text = about_html("9.9", None)
-    assert "href" not in text and '"Explorer window", "Capture", "Command line", "Safety"' in text
+    assert "href" not in text and '"A five-minute tour", "Command line", "Documentation"' in text

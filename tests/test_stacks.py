@@ -263,6 +263,35 @@ def test_ring_beyond_max_radius_is_refused_with_the_limit_named(tmp_path):
         transient_stack(dataset, [2.0, 3.0], step=1.0)
 
 
+def test_a_ring_beyond_max_radius_names_the_dataset_and_the_radii_that_work(tmp_path):
+    """The refusal names the dataset's folder and the largest requested radius whose rings fit
+    (issue 39: README's 0:20:1 failed on every sample without saying what would work)."""
+    rng = np.random.default_rng(16)
+    impulses = random_impulses(rng, 12, 12, support=3)
+    write_dataset(tmp_path / "ds", 12, 12, impulses, max_radius=3, multiplex=True)
+    dataset = open_dataset(tmp_path / "ds")
+
+    def fits(radius):  # brute force: every offset of the default ring (|d| < radius + 1/2) is within 3
+        span = np.arange(-8, 9)
+        distance = np.hypot(*np.meshgrid(span, span))
+        return bool((distance[distance < radius + 0.5] <= 3).all())
+
+    radii = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
+    transient_best = max(r for r in radii if fits(r + 0.5))
+    ring_best = max(r for r in radii if fits(r))
+    assert (transient_best, ring_best) == (2.0, 2.5)  # sqrt(10) = 3.16 > 3 from |d| < 3.5 on
+    with pytest.raises(StackError) as refused:
+        transient_stack(dataset, radii, step=0.5)
+    message = refused.value.args[0]
+    assert str(tmp_path / "ds") in message and "beyond the dataset's max_radius 3" in message
+    assert f"up to {transient_best:g} work (radii 0:{transient_best:g}:0.5)" in message
+    with pytest.raises(StackError, match=f"ring radii up to {ring_best:g} work"):
+        ring_stack(dataset, radii)
+    with pytest.raises(StackError, match="no transient radii \\(dr 0.5\\) of those requested work"):
+        transient_stack(dataset, [3.0, 2.5], step=0.5)
+    assert transient_stack(dataset, radius_range(0, transient_best, 0.5), step=0.5).images.shape[0] == 5
+
+
 @pytest.mark.parametrize("antialias", [False, True])
 def test_ring_members_of_a_band_equal_the_sums_of_its_validity_flags(antialias):
     """The members counted from the lit mask (whole rows at once) against a sum over the

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_dataset, sample_names
+from ringlight.core.simulate.samples import DEMO_SAMPLE, load_sample, sample_dataset, sample_names
+from ringlight.core.simulate.transport import write_transport
 
 from .info import run_info
 from .progress import progress_bar
@@ -14,12 +15,22 @@ def add_command(subparsers) -> None:
         description="Write a bundled sample dataset into the user cache (the first time only) and describe it; "
                     "its folder can then be opened with 'ringlight FOLDER'.")
     demo.add_argument("--sample", choices=sample_names(), default=DEMO_SAMPLE, help="which sample (default: %(default)s)")
+    demo.add_argument("--out", metavar="DIR",
+                      help="write the sample into DIR (a new folder) instead of the user cache, e.g. to try the "
+                           "documentation's commands on it")
+    demo.add_argument("--overwrite", action="store_true",
+                      help="with --out: replace an earlier dataset there (only if the folder holds nothing else)")
     demo.set_defaults(handler=run_demo)
 
 
 def run_demo(args) -> int:
-    """Write (once) and describe a bundled sample dataset."""
-    with progress_bar(f"writing the {args.sample} sample (first run only)") as progress:
-        path = sample_dataset(args.sample, progress=progress)
+    """Write (once, or into ``--out``) and describe a bundled sample dataset."""
+    if args.out is not None:
+        with progress_bar(f"writing the {args.sample} sample") as progress:
+            path = write_transport(load_sample(args.sample)[0], args.out, overwrite=args.overwrite,
+                                   progress=progress)
+    else:
+        with progress_bar(f"writing the {args.sample} sample (first run only)") as progress:
+            path = sample_dataset(args.sample, progress=progress)
     args.dataset = str(path)
     return run_info(args)

@@ -37,7 +37,7 @@ def add_command(subparsers) -> None:
     stack.add_argument("--antialias", action="store_true", help="weight ring pixels by area")
     stack.add_argument("--interpolate", action="store_true",
                        help="estimate each ring mean by interpolating every pixel's responses in distance "
-                            "(for sparsely lit datasets; not the FORMAT.md default)")
+                            "(for sparsely lit datasets; not the default ring mean of docs/format/dataset.md)")
     stack.add_argument("--out", required=True, help="output folder (new, empty, or an earlier stack)")
     stack.add_argument("--no-cache", action="store_true",
                        help="neither read nor write the dataset's store (the responses must then fit in memory)")

@@ -8,8 +8,8 @@
   picker: colour-checker-detection would need the non-headless ``opencv-python``, which cannot be
   installed beside ringlight's ``opencv-contrib-python-headless``); the mean camera RGB of each
   patch is fitted by least squares to the patches' published CIE XYZ (colour-science's
-  "ColorChecker24 - After November 2014", illuminant D50), giving the 3 x 3 matrix that FORMAT.md's
-  ``colorspace: {"matrix": M}`` records.
+  "ColorChecker24 - After November 2014", illuminant D50), giving the 3 x 3 matrix that the
+  manifest's ``colorspace: {"matrix": M}`` records (docs/format/dataset.md).
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ class ColourFit:
     residual: float
 
     def colorspace(self) -> dict:
-        """The manifest's ``colorspace`` value (FORMAT.md): ``{"matrix": [[...], [...], [...]]}``,
+        """The manifest's ``colorspace`` value (docs/format/dataset.md): ``{"matrix": [[...], [...], [...]]}``,
         the matrix scaled so that camera RGB (1, 1, 1) has Y = 1. A dataset's values are relative
         radiance (their scale depends on exposure and gain), and the scale keeps the matrix's
         entries near 1 where a reader's checks (singularity, white point) expect them."""

@@ -6,8 +6,9 @@ keeps the rest out). The decoded integer positions are then fitted by a homograp
 least median of squares: a flat surface seen through a lens without distortion; decoding errors
 at stripe edges, which subsurface scattering blurs, are outvoted), which gives every camera pixel a
 sub-pixel projector position. (RANSAC with a sub-pixel threshold fits worse here: integer decoding
-alone scatters points by up to 0.71 px.) The mapping stored in a dataset (FORMAT.md ``mapping``) is that position
-minus half a pixel, so that rounding it gives the projector pixel the camera pixel's centre lies in.
+alone scatters points by up to 0.71 px.) The mapping stored in a dataset (``mapping`` of
+docs/format/dataset.md) is that position minus half a pixel, so that rounding it gives the
+projector pixel the camera pixel's centre lies in.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Parallel impulse scanning: plan, capture with a journal, resume, and the finished dataset.
 
 Lit points are the projector pixels of a region of interest on a lattice of spacing
-``floor(2 * max_radius) + 1`` (> 2 max_radius, so FORMAT.md attributes all light within
+``floor(2 * max_radius) + 1`` (> 2 max_radius, so docs/format/dataset.md attributes all light within
 max_radius of a lit point to it): (spacing)^2 frames instead of one per pixel. With a multiplexed
 plan, blocks of lattice frames are captured through a Hadamard code and demultiplexed
 (:mod:`.multiplex`); the dataset holds the lattice frames either way.

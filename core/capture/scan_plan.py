@@ -96,7 +96,7 @@ class ScanPlan:
 
     def to_json(self, camera_notes: str = "", colorspace: str | dict = "sRGB") -> str:
         """The plan as ``plan.json`` holds it, with the camera's description and colourspace
-        (FORMAT.md's ``colorspace`` value) for the manifest."""
+        (docs/format/dataset.md's ``colorspace`` value) for the manifest."""
         return json.dumps({**asdict(self), "camera_notes": camera_notes, "colorspace": colorspace}, sort_keys=True)
 
     @classmethod

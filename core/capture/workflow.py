@@ -2,7 +2,7 @@
 
 1. devices open; 2. an exposure for the white pattern; 3. Gray code correspondence; 4. the grid
 (region of interest, max_radius), its mapping and the scan plan with a probed exposure bracket;
-5. the scan (resumable); the result is a FORMAT.md dataset in camera frame space.
+5. the scan (resumable); the result is an impulse dataset (docs/format) in camera frame space.
 """
 
 from __future__ import annotations

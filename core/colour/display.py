@@ -54,7 +54,7 @@ class DisplaySettings:
     normalisation
         One of :data:`NORMALISATIONS`.
     percentile
-        Robust maximum percentile (of finite channel values, or |values| when diverging).
+        Robust maximum percentile (of finite channel values, or ``|values|`` when diverging).
     manual_levels
         (low, high) linear radiance for ``"manual"``.
     exposure_stops
@@ -95,7 +95,7 @@ class DisplaySettings:
 
 
 def robust_maximum(values: np.ndarray, percentile: float, signed: bool = False) -> float:
-    """The ``percentile`` of the finite entries of ``values`` (of |values| when ``signed``),
+    """The ``percentile`` of the finite entries of ``values`` (of ``|values|`` when ``signed``),
     or 0 when none is finite. Any shape; all channels count."""
     flat = np.asarray(values, np.float32).ravel()
     flat = flat[np.isfinite(flat)]

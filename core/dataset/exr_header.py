@@ -1,4 +1,4 @@
-"""The header of an OpenEXR frame file as FORMAT.md "Frame files" reads it: which part, which
+"""The header of an OpenEXR frame file as docs/format/dataset.md, "Frame files" reads it: which part, which
 channels, the image size, the window rule, chromaticities; refusals before any pixel is decoded.
 
 Everything the OpenEXR library prints itself (warnings on stdout, errors on stderr) is swallowed
@@ -185,7 +185,7 @@ def _parts(path: Path) -> list[tuple[str, dict, tuple, bool]]:
 
 
 def _choose_part(path: Path, parts, names: tuple[str, ...] | None, part: str | None) -> int:
-    """Index of the part to read (FORMAT.md ``part``): the named one, the only one, or the one
+    """Index of the part to read (docs/format/dataset.md ``part``): the named one, the only one, or the one
     part holding ``names``."""
     listed = ", ".join(repr(name) for name, *_ in parts)
     if part is not None:
@@ -204,7 +204,7 @@ def _choose_part(path: Path, parts, names: tuple[str, ...] | None, part: str | N
 
 
 def frame_channels(path: str | os.PathLike, part: str | None = None) -> tuple[str, ...]:
-    """The channels a frame is read with when the manifest names none (FORMAT.md ``channels``):
+    """The channels a frame is read with when the manifest names none (docs/format/dataset.md ``channels``):
     :data:`MONOCHROME` when the part read holds ``Y`` and no R, G, B, else :data:`RGB`."""
     path = Path(path)
     _check_magic(path)

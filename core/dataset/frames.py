@@ -2,7 +2,7 @@
 
 Frames are read with the manifest's ``channels`` (three for R, G, B; one for a monochrome
 camera, whose value every tool takes as R = G = B), from its ``part``, checked against its
-``colorspace`` (FORMAT.md "Frame files").
+``colorspace`` (docs/format/dataset.md, "Frame files").
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def _map_camera_pixels(y, x, height, width):  # pragma: no cover - compiled
     grid_of = np.empty(y.size, np.int32)
     seen = 0
     for i in range(y.size):
-        # floor(v + 0.5) in float64, as FORMAT.md's rounding; NaN fails every comparison.
+        # floor(v + 0.5) in float64, as docs/format/dataset.md's rounding; NaN fails every comparison.
         row = np.floor(np.float64(y[i]) + 0.5)
         col = np.floor(np.float64(x[i]) + 0.5)
         if row >= 0 and row < height and col >= 0 and col < width:
@@ -143,7 +143,7 @@ class CameraMapping:
 class FrameReader:
     """Reads a dataset's frames as grid-space linear radiance (H, W, 3) float32.
 
-    radiance = frame / exposure - dark: the dark frame is in exposure-1 units (FORMAT.md).
+    radiance = frame / exposure - dark: the dark frame is in exposure-1 units (docs/format/dataset.md).
     Frames of ``frame_space`` "camera" are averaged onto the grid through the mapping. Files
     resolving outside the dataset folder are refused unless ``allow_outside``. Every file's header
     is checked against the size it must have before its pixels are decoded.

@@ -1,7 +1,7 @@
 """Comparing transient images with a synthetic dataset's path-length ground truth.
 
 A simulated dataset carries images of the light whose path length inside the surface lies in
-``[min, max)`` grid steps (FORMAT.md ``ground_truth.path_length_images``). A transient image T_r
+``[min, max)`` grid steps (docs/format/dataset.md ``ground_truth.path_length_images``). A transient image T_r
 bounds path length to about [r, r+dr), so each T_r is compared with the bin that best matches that
 interval, by zero-mean normalised cross-correlation (NCC), which ignores the two images' scales.
 """

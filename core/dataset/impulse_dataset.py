@@ -1,4 +1,4 @@
-"""Opening impulse datasets (FORMAT.md v1) into a compact in-memory response model.
+"""Opening impulse datasets (format version 1, docs/format/dataset.md) into a compact in-memory response model.
 
 The model never forms the dense N x N light transport. For each grid point ``p`` it keeps the
 radiance seen at ``p`` from every lit point within ``max_radius`` of it:

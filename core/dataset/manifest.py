@@ -1,4 +1,5 @@
-"""The dataset manifest (``dataset.json``): parsing and validation against FORMAT.md v1.
+"""The dataset manifest (``dataset.json``): parsing and validation against format version 1
+(docs/format/dataset.md).
 
 Parsing never touches image data: it checks the manifest's structure, types and geometry
 (lit points inside the grid, multiplexed points far enough apart) and returns a frozen

@@ -5,7 +5,7 @@ and its spread give the noise of the whole.
 A dataset whose frames carry two or more replicate labels (each lighting the same points) is
 ``K`` independent measurements of the same impulse responses: a rig's repeated scans, or a
 simulator's independent batches. The dataset's responses are the mean of a point's frames
-(FORMAT.md), so for every quantity ``Q`` linear in the responses (ring light and transient
+(docs/format/dataset.md), so for every quantity ``Q`` linear in the responses (ring light and transient
 images, a region's ring profile), ``Q`` of the dataset is the mean of the ``Q_k`` of its replicates
 (exactly when each replicate lights every point once at one exposure), and its standard error is
 ``std_k(Q_k) / sqrt(K)``, ddof 1: noise shared by lit points (one simulated kernel, a projector's

@@ -1,4 +1,4 @@
-"""The spacing rule of multiplexed frames (FORMAT.md): points lit in one frame are more than
+"""The spacing rule of multiplexed frames (docs/format/dataset.md): points lit in one frame are more than
 ``2 * max_radius`` apart, so that no grid point sees two of them within ``max_radius``.
 
 Checked for every frame of a manifest at once, in linear time, compiled: a paper-scale capture

@@ -1,4 +1,4 @@
-"""Writing impulse datasets (FORMAT.md v1) atomically.
+"""Writing impulse datasets (format version 1, ``docs/format/dataset.md``) atomically::
 
     with DatasetWriter("sample", (48, 48), max_radius=16) as writer:
         writer.add_frame(image, lit=[[8, 8], [8, 41]])
@@ -73,7 +73,7 @@ class DatasetWriter:
     grid_shape
         ``(H, W)`` of the grid.
     max_radius, pitch_mm, colorspace, notes
-        Manifest keys (FORMAT.md); None leaves a key out.
+        Manifest keys (docs/format/dataset.md); None leaves a key out.
     sample
         The surface's refractive index and anisotropy, as far as known (the ``sample`` key; left
         out when nothing is stated).

@@ -1,6 +1,6 @@
 """Each fitted layer's colour and its two-sigma region in xy.
 
-A layer's colour is what FORMAT.md defines as the truth: the thick-slab reflectance of its fitted
+A layer's colour is what the format defines as the truth (docs/format/dataset.md): the thick-slab reflectance of its fitted
 material (adding-doubling). Its region joins two things: the chromaticities of every combination
 of per-channel absorptions within the channels' profile-likelihood intervals (:mod:`.fit`; a
 convex polygon, the image of a box), and, when the channels were fitted jointly (:mod:`.joint`),

@@ -6,7 +6,7 @@ Geometry and estimator are the simulator's (:mod:`ringlight.core.simulate.photon
 :mod:`ringlight.core.simulate.camera`): a laterally homogeneous slab of index ``n`` below a flat
 surface, ``depth`` grid steps deep (light crossing ``z = depth`` is lost), the beam straight down
 entering uniformly over the lit pixel with the Fresnel transmission as its weight, the camera
-straight down (FORMAT.md, "What a simulated frame holds"). Lengths are in grid steps, coefficients
+straight down (docs/format/scene.md, "What a simulated frame holds"). Lengths are in grid steps, coefficients
 per grid step.
 
 The scattering coefficient may differ per depth bin (bin ``b < B - 1`` is ``[b, b + 1)``, the last

@@ -1,4 +1,4 @@
-"""Ring coverage: how well the lit points of a dataset fill each ring (FORMAT.md lets a dataset
+"""Ring coverage: how well the lit points of a dataset fill each ring (docs/format/dataset.md lets a dataset
 light only some grid points, e.g. a lattice of every 4th point).
 
 For a pixel ``p`` and a default ring of radius ``r`` (offsets ``r - w/2 <= |d| < r + w/2``), the

@@ -1,6 +1,6 @@
 """Ring geometry: which lit points form the ring of radius r around a surface point.
 
-The default ring (FORMAT.md) of radius ``r`` and thickness ``w`` is the set of integer offsets
+The default ring (docs/format/dataset.md) of radius ``r`` and thickness ``w`` is the set of integer offsets
 ``d = [dy, dx]`` with ``r - w/2 <= |d| < r + w/2``, every member weighted 1. The anti-aliased ring
 weights each offset by the exact area of its unit pixel square inside the annulus
 ``max(r - w/2, 0) <= |x| < r + w/2``, so its weights sum to the annulus area.

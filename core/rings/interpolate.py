@@ -8,7 +8,7 @@ between its two nearest samples, log-linearly when both are positive (diffuse pr
 about exponentially), else linearly; before the nearest or after the farthest sample, the two
 nearest samples are extrapolated up to ``max_gap`` grid steps, beyond which the estimate is
 undefined (NaN). On a
-densely lit grid every ring offset is a sample and the estimate is the ring mean of FORMAT.md.
+densely lit grid every ring offset is a sample and the estimate is the ring mean of docs/format/dataset.md.
 """
 
 from __future__ import annotations

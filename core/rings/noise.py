@@ -1,7 +1,7 @@
 """Standard errors of ring light and transient images from the spread of each ring's members.
 
 E_r(p) is the weighted mean of its ring members x_q = I_q(p) with weights w_q (1, or the pixel's
-area inside the annulus for anti-aliased rings). Members at the same distance |q - p| share one
+area inside the annulus for anti-aliased rings). Members at the same distance ``|q - p|`` share one
 expected value on a homogeneous surface, while across the ring's thickness the radial fall-off
 changes it (at r = 1 the members at distances 1 and 1.41 differ by far more than their noise),
 so the spread is pooled within the groups g of equal distance::
@@ -118,7 +118,7 @@ def stack_noise(dataset: ImpulseDataset, radii, step: float = 1.0, thickness: fl
 
 
 def transient_snr(transient_images: np.ndarray, noise: StackNoise) -> np.ndarray:
-    """(n, H, W) float32 signal-to-noise ratio |Y(T_r)| / SE(Y(T_r)) of (n, H, W, 3) transient
+    """(n, H, W) float32 signal-to-noise ratio ``|Y(T_r)| / SE(Y(T_r))`` of (n, H, W, 3) transient
     images; NaN where T_r or its standard error is undefined, inf where the error is 0."""
     luminance = np.abs(transient_images @ noise.luminance_weights.astype(np.float32))
     with np.errstate(invalid="ignore", divide="ignore"):

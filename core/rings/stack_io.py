@@ -1,4 +1,4 @@
-"""Exporting and reading computed stacks (FORMAT.md "Stack export")."""
+"""Exporting and reading computed stacks (docs/format/stack.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Ring light and transient image stacks for every grid point (FORMAT.md definitions).
+"""Ring light and transient image stacks for every grid point (the definitions of the dataset
+format, ``docs/format/dataset.md``)::
 
     E_r(p) = sum_q w_q I_q(p) / sum_q w_q   over ring members q = p + d that are in the grid
                                             and lit (weights 1 for the default ring)
@@ -114,6 +115,7 @@ def ring_stack(
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
     radii = _as_radii(radii)
+    check_reach(dataset, radii, 0.0, thickness, antialias)
     images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler)
     return Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images, counts)
 
@@ -149,6 +151,7 @@ def ring_and_transient_stacks(
     radii = _as_radii(radii)
     if not math.isfinite(step) or step <= 0:
         raise StackError(f"transient step dr must be > 0, got {step}")
+    check_reach(dataset, radii, step, thickness, antialias)
     outer = np.round(radii + step, _RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
     images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler)
@@ -187,6 +190,41 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
         raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
                          f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
     return ring_geometry(largest, thickness, antialias).outer_radius
+
+
+def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: float = 1.0,
+                antialias: bool = False) -> None:
+    """Raise StackError, naming the dataset and the radii that would work, when a ring of
+    ``radii`` (or, for a transient ``step`` > 0, of ``radii + step``) reaches beyond the
+    dataset's ``max_radius`` (grid steps)."""
+    radii = _as_radii(radii)
+    limit = dataset.max_radius + 1e-9
+    if needed_radius(radii, thickness, step, antialias) <= limit:
+        return
+
+    def reach(radius: float) -> float:
+        return needed_radius([radius], thickness, step, antialias)
+
+    # The reach grows with the radius: bisect the sorted radii for the last one that fits
+    # (a few ring geometries, where testing each of up to 10 000 radii could take minutes).
+    ordered = np.unique(radii)
+    low, high = -1, len(ordered) - 1  # ordered[high] does not fit; ordered[low] does (or none)
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (middle, high) if reach(ordered[middle]) <= limit else (low, middle)
+    beyond = float(ordered[high])
+    kind = f"transient radii (dr {step:g})" if step > 0 else "ring radii"
+    if low >= 0:
+        best = float(ordered[low])
+        spacing = float(radii[1] - radii[0]) if len(radii) > 1 else 0.0
+        regular = spacing > 0 and np.allclose(np.diff(radii), spacing)
+        suggestion = f"{kind} up to {best:g} work" + (f" (radii {radii[0]:g}:{best:g}:{spacing:g})" if regular else "")
+    else:
+        suggestion = f"no {kind} of those requested work"
+    raise StackError(
+        f"{dataset.manifest.folder}: the ring of radius {beyond + step:g} (thickness {thickness:g}) reaches "
+        f"{reach(beyond):.3f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; {suggestion}"
+    )
 
 
 def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:

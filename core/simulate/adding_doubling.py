@@ -25,7 +25,7 @@ method", in *Optical-Thermal Response of Laser-Irradiated Tissue*, Welch and van
   (1 beyond the critical angle) and pass the rest out.
 
 Results are per unit *incident* power, with the specular reflection of the beam at the top
-surface excluded (FORMAT.md, scene section: a layer's reference colour): the beam is first
+surface excluded (docs/format/scene.md, scene section: a layer's reference colour): the beam is first
 reduced by that reflection, ``1 - ((n - 1) / (n + 1))^2``, as the simulator's photons are.
 They depend on the coefficients only through the albedo ``mus / (mus + mua)`` and the optical
 thickness ``(mus + mua) * thickness``, so any consistent length unit serves.
@@ -309,7 +309,7 @@ def thick_slab_reflectance(mus, mua, g, n: float, points: int = DEFAULT_POINTS) 
 
     Total reflectance over all exit directions, per unit incident power, with the Fresnel
     surface of index ``n`` to air and the specular reflection excluded: a layer's reference
-    colour (FORMAT.md). ``mus``, ``mua``, ``g`` are scalars or (C,) arrays; returns (C,).
+    colour (docs/format/scene.md). ``mus``, ``mua``, ``g`` are scalars or (C,) arrays; returns (C,).
     Depends only on the albedo ``mus / (mus + mua)``, ``g`` and ``n``; 0 where ``mus == 0``.
     """
     return slab_reflectance_transmittance(mus, mua, g, n, np.inf, points)[0]

@@ -6,7 +6,7 @@ surface ``z = 0``; directions are ``(y, x, z)`` unit vectors. A scene direction
 from +x toward +y: the projector's beam travels along it, the camera looks along it (so the
 light it records travels the opposite way).
 
-The quantity (FORMAT.md, "What a simulated frame holds") is the reflectance factor toward the
+The quantity (docs/format/scene.md, "What a simulated frame holds") is the reflectance factor toward the
 camera, ``pi L_o(p, w_o) A / P``: ``L_o`` the radiance leaving grid pixel ``p`` toward the camera
 in air (direction ``w_o``, zenith ``th_o`` from the upward normal), averaged over the pixel of
 area ``A = 1``, per unit beam power ``P``.

@@ -2,7 +2,7 @@
 windows, and the relative noise of two independent halves.
 
 The noise figure (issue 12) of two independent estimates ``a`` and ``b`` of the transient
-images ``T_r = E_r - E_{r+1}`` (FORMAT.md's default rings, thickness 1, unit weights) is
+images ``T_r = E_r - E_{r+1}`` (docs/format/dataset.md's default rings, thickness 1, unit weights) is
 
     RMS(T_a - T_b) / sqrt(2) / RMS((T_a + T_b) / 2)
 

@@ -1,6 +1,6 @@
 """Parallel capture: which points can be lit in the same frame.
 
-FORMAT.md attributes the light within ``max_radius`` of a lit point to it, so points lit together
+docs/format/dataset.md attributes the light within ``max_radius`` of a lit point to it, so points lit together
 must be more than ``2 * max_radius`` apart: a lattice of spacing ``floor(2 * max_radius) + 1``,
 shifted over all its offsets, lights every grid point once in spacing^2 frames.
 """

@@ -1,7 +1,7 @@
 """Independent replicates of a simulation: the photons of a run split into ``K`` runs of their own
 seeds, whose mean is the result and whose spread is its noise, noise shared by the lit points
 included (the reference estimator gives every point of a layered scene one kernel, so the spread
-of a ring's members shows none of it). Written as the dataset's replicates (FORMAT.md's frame key
+of a ring's members shows none of it). Written as the dataset's replicates (the frame key
 ``replicate``; :mod:`ringlight.core.dataset.replicates` reads them)."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Bundled sample datasets (napari's File > Open Sample): simulated once by ``tools/make_samples.py``,
-shipped compactly in ``ringlight.resources.samples`` and written out as FORMAT.md datasets into
+shipped compactly in ``ringlight.resources.samples`` and written out as impulse datasets (docs/format) into
 the user cache on first use (a second or two, no simulation).
 
 A sample file (``NAME.npz``) holds a :class:`.transport.Transport` in little space: the windows

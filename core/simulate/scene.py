@@ -1,4 +1,4 @@
-"""Scene descriptions for the Monte Carlo simulator (FORMAT.md "Scene description", v1).
+"""Scene descriptions for the Monte Carlo simulator (docs/format/scene.md, version 1).
 
 A scene is a voxel volume below a flat surface: ``depth`` grid steps deep, one voxel per grid
 step laterally and in depth, each voxel holding one material. The volume extends sideways
@@ -6,7 +6,7 @@ beyond the grid by repeating its edge voxels (a sample is larger than the scanne
 Coefficients are per grid step, or per mm when ``grid.pitch_mm`` is given (converted here).
 The optional ``camera``, ``projector`` (``{"direction": [zenith, azimuth]}`` in degrees, a
 direction of travel: zenith from straight down, azimuth from +x toward +y) and ``measure``
-(``"camera"`` or ``"exitance"``) say what a frame holds (FORMAT.md).
+(``"camera"`` or ``"exitance"``) say what a frame holds (docs/format/scene.md).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ class Scene:
         direction of incidence (0 = straight down; azimuth from +x toward +y).
     measure
         ``"camera"`` (the reflectance factor toward the camera) or ``"exitance"`` (all light
-        leaving a pixel, for comparisons with MCML-style tables); FORMAT.md.
+        leaving a pixel, for comparisons with MCML-style tables); docs/format/scene.md.
     """
 
     name: str
@@ -110,8 +110,10 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     }, {"format", "version", "grid", "depth", "materials", "background"})
     if doc["format"] != SCENE_FORMAT:
         raise SceneError(f"{where}: 'format' is {doc['format']!r}, expected {SCENE_FORMAT!r}")
-    if doc["version"] != SCENE_VERSION:
+    if doc["version"] != SCENE_VERSION or isinstance(doc["version"], bool):  # true == 1 in Python
         raise SceneError(f"{where}: unsupported 'version' {doc['version']!r} (expected {SCENE_VERSION})")
+    if "notes" in doc:
+        fail.string(doc["notes"], "notes")
     grid = fail.mapping(doc["grid"], "grid", {"height", "width", "pitch_mm"}, {"height", "width"})
     height, width = fail.positive_int(grid["height"], "grid.height"), fail.positive_int(grid["width"], "grid.width")
     scale_y = scale_x = 1.0

@@ -5,7 +5,7 @@ that scatter alike (:func:`channel_groups`: one group for grey scenes and every 
 carries a weight per channel, :mod:`.tables`). Impulse frames keep each lit point's light within ``max_radius`` (the part a parallel
 capture attributes to it: frames are crosstalk-free) and are multiplexed on a lattice of spacing
 ``floor(2 * max_radius) + 1`` when that needs fewer frames than one point per frame. Values are
-the scene's measure (FORMAT.md "What a simulated frame holds"): by default the reflectance
+the scene's measure (docs/format/scene.md, "What a simulated frame holds"): by default the reflectance
 factor toward the camera, else the exitance, per unit beam power. The specular reflection at
 the surface is in neither the frames nor the path-length images; the manifest's notes state it,
 and the measure, as a line ``measure: camera`` (or ``exitance``): see :func:`simulated_measure`.
@@ -69,7 +69,7 @@ class Transport:
         ``"camera"`` or ``"exitance"``, the scene's.
     replicates
         Windows (each as ``windows``) of independent runs whose mean ``windows`` is
-        (:mod:`.replicates`), or empty: written as the dataset's replicates (FORMAT.md's frame key
+        (:mod:`.replicates`), or empty: written as the dataset's replicates (the frame key
         ``replicate``), so that its noise, shared by lit points or not, can be measured.
     """
 
@@ -278,13 +278,13 @@ def _reach_fractions(scene: Scene, lit_key: bytes) -> np.ndarray:
 def slab_reflectance(material: Material, n: float) -> np.ndarray:
     """Diffuse reflectance (R, G, B) of a semi-infinite slab of ``material`` under index ``n``
     at normal incidence, per unit incident power, specular excluded: a layer's reference colour
-    (FORMAT.md), exact by adding-doubling (:mod:`.adding_doubling`), not a Monte Carlo estimate."""
+    (docs/format/scene.md), exact by adding-doubling (:mod:`.adding_doubling`), not a Monte Carlo estimate."""
     return thick_slab_reflectance(material.mus, material.mua, material.g, n)
 
 
 def write_transport(transport: Transport, out, *, overwrite: bool = False,
                     progress: Callable[[float], None] | None = None) -> Path:
-    """Write a :class:`Transport` as a FORMAT.md dataset (atomically)."""
+    """Write a :class:`Transport` as an impulse dataset (docs/format/dataset.md), atomically."""
     scene = transport.scene
     height, width = scene.height, scene.width
     radius = transport.window_radius

@@ -1,0 +1,118 @@
+"""Every command and Python block of README.md and docs/ runs as written (issue 39).
+
+A document's fenced blocks marked ``shell`` run in bash and those marked ``python`` in this
+interpreter, in the order they appear, in one fresh folder per document (so a page's first block
+can write a sample there with ``ringlight demo --sample NAME --out NAME`` and the next ones use
+it), with the ``ringlight`` command of this environment and a private user cache. A block must
+exit 0, unless the comment line before it says otherwise:
+
+- ``<!-- snippet: exit N -->``: the block must exit N and print one line on stderr (a refusal the
+  page shows);
+- ``<!-- snippet: skip (REASON) -->``: not run (installs, the test suite, the documentation's
+  build); the reason is required and the skipped blocks are few.
+
+Blocks in other languages (``text``, ``json``, ``toml``) are shown, not run; a command left in an
+unmarked indented block would escape this test, so none may be.
+"""
+
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = [ROOT / "README.md", *sorted(
+    path for path in (ROOT / "docs").rglob("*.md") if "_build" not in path.parts)]
+RUN = {"shell", "python"}
+SHOWN = {"text", "json", "toml"}
+MARKER = re.compile(r"<!-- snippet: (skip \((?P<reason>[^)]+)\)|exit (?P<status>\d+)) -->")
+FENCE = re.compile(r"^(?P<fence>`{3,})(?P<language>\{[\w-]+\}|[\w-]*)\s*$")
+"""A fence at the start of a line; ``{name}`` is a MyST directive (a note, a toctree, a table)."""
+MAX_SKIPPED = 8
+
+
+@dataclass
+class Block:
+    document: Path
+    line: int
+    language: str
+    code: str
+    skip: str | None = None
+    status: int = 0
+
+    def __str__(self):
+        return f"{self.document.relative_to(ROOT)}:{self.line} ({self.language})"
+
+
+def blocks(document: Path) -> list[Block]:
+    """The fenced code blocks of a Markdown document, with the marker before each."""
+    found, lines, index = [], document.read_text("utf-8").splitlines(), 0
+    while index < len(lines):
+        opening = FENCE.match(lines[index])
+        if opening is None:
+            index += 1
+            continue
+        end = next(at for at in range(index + 1, len(lines)) if lines[at].strip() == opening["fence"])
+        previous = next((lines[at] for at in range(index - 1, -1, -1) if lines[at].strip()), "")
+        marker = MARKER.fullmatch(previous.strip())
+        found.append(Block(document, index + 1, opening["language"], "\n".join(lines[index + 1:end]) + "\n",
+                           skip=marker["reason"] if marker and marker["reason"] else None,
+                           status=int(marker["status"]) if marker and marker["status"] else 0))
+        index = end + 1
+    return found
+
+
+ALL_BLOCKS = [block for document in DOCUMENTS for block in blocks(document)]
+
+
+def test_every_block_is_run_or_shown_and_few_are_skipped():
+    unknown = [str(block) for block in ALL_BLOCKS
+               if block.language not in RUN | SHOWN and not block.language.startswith("{")]
+    assert not unknown, f"blocks neither run nor shown (tag them shell, python, text, json or toml): {unknown}"
+    skipped = [f"{block}: {block.skip}" for block in ALL_BLOCKS if block.skip]
+    assert len(skipped) <= MAX_SKIPPED, skipped
+    assert sum(block.language in RUN and not block.skip for block in ALL_BLOCKS) >= 20
+
+
+@pytest.mark.parametrize("document", DOCUMENTS, ids=lambda path: str(path.relative_to(ROOT)))
+def test_no_command_hides_in_an_indented_block(document):
+    """README's old layout: commands in 4-space indented blocks, which no test could find."""
+    inside, hidden = False, []
+    for number, line in enumerate(document.read_text("utf-8").splitlines(), 1):
+        if FENCE.match(line):
+            inside = not inside
+        elif not inside and re.match(r" {4,}(ringlight|python|from ringlight|import )", line):
+            hidden.append(f"{number}: {line.strip()}")
+    assert not hidden, hidden
+
+
+RUNNABLE = [document for document in DOCUMENTS
+            if any(block.language in RUN and not block.skip for block in blocks(document))]
+
+
+@pytest.mark.parametrize("document", RUNNABLE, ids=lambda path: str(path.relative_to(ROOT)))
+def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache):
+    work = tmp_path / "work"
+    work.mkdir()
+    (tmp_path / "tmp").mkdir()
+    environment = {
+        **os.environ,
+        "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+        "RINGLIGHT_CACHE_DIR": str(private_cache),
+        "QT_QPA_PLATFORM": "offscreen",
+        "TMPDIR": str(tmp_path / "tmp"),
+    }
+    environment.pop("RINGLIGHT_LOG", None)
+    for block in blocks(document):
+        if block.language not in RUN or block.skip:
+            continue
+        command = (["bash", "-euo", "pipefail", "-c", block.code] if block.language == "shell"
+                   else [sys.executable, "-c", block.code])
+        result = subprocess.run(command, cwd=work, env=environment, capture_output=True, text=True, timeout=300)
+        assert result.returncode == block.status, f"{block} exited {result.returncode}:\n{block.code}\n{result.stderr[-3000:]}"
+        if block.status:
+            assert len(result.stderr.strip().splitlines()) == 1, f"{block}: not one line:\n{result.stderr}"
