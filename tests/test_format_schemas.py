@@ -26,6 +26,7 @@ from ringlight.core import DatasetError, open_dataset, radius_range, ring_stack,
 from ringlight.core.dataset.manifest import MANIFEST_NAME, parse_manifest
 from ringlight.core.rings.coverage import ring_coverage
 from ringlight.core.simulate.presets import load_scene
+from ringlight.core.simulate.replicates import simulate_replicates
 from ringlight.core.simulate.samples import sample_dataset, sample_names
 from ringlight.core.simulate.scene import SceneError, parse_scene
 from ringlight.core.simulate.transport import simulate_transport, write_transport
@@ -204,6 +205,20 @@ def test_the_sample_key_of_the_2026_11_26_revision_is_in_the_schema():
         assert not DATASET.is_valid({**base, "sample": sample}), sample
 
 
+def test_the_replicate_key_of_the_2026_11_26_revision_is_in_the_schema_and_the_parser():
+    """A frame's ``replicate``: a whole number from 0, accepted and valid; anything else refused by
+    both. That every replicate lights the same points is the reader's check alone."""
+    base = valid_manifest()
+    labelled = {**base, "frames": [{**frame, "replicate": 0} for frame in base["frames"]]
+                + [{**frame, "file": "again/" + frame["file"], "replicate": 3} for frame in base["frames"]]}
+    assert assert_accepted_validates(labelled)
+    for label in (-1, 1.5, "0", True, 2**31):
+        bad = {**base, "frames": [{**base["frames"][0], "replicate": label}, *base["frames"][1:]]}
+        assert not parser_accepts(bad) and not DATASET.is_valid(bad), label
+    uneven = {**base, "frames": [*labelled["frames"][:-1]]}
+    assert DATASET.is_valid(uneven) and not parser_accepts(uneven)
+
+
 # Every dataset, scene and stack the project writes ------------------------------------------------
 
 def manifest_of(folder: Path) -> dict:
@@ -222,6 +237,9 @@ def test_simulator_outputs_validate(tmp_path):
         scene = replace(scene, measure=measure, max_radius=2.0)
         folder = write_transport(simulate_transport(scene, photons=20, seed=1), tmp_path / preset)
         assert assert_accepted_validates(manifest_of(folder)), preset
+    scene = replace(load_scene("layers3", size=(6, 6)), max_radius=2.0)
+    folder = write_transport(simulate_replicates(scene, 8, 2, seed=1), tmp_path / "replicates")
+    assert assert_accepted_validates(manifest_of(folder))
 
 
 def test_a_simulated_capture_validates(tmp_path, capsys):
