@@ -1,7 +1,10 @@
 """Benchmark of the layer inversion's time (not a test: prints figures and ratios to the targets).
 
-On the bundled ``layers3`` sample (48 x 48, all pixels, 8 replicates, simulated at n 1.3): the white
-Monte Carlo databases are made first (their time printed, then cached, as in use); then, timed, a
+First a white run of 2 000 000 photons for layers3's three-layer structure, tallied in cells
+(:mod:`ringlight.core.inversion.white_cells`): its time and peak traced memory against the targets
+(60 s, 300 MB). Then on the bundled ``layers3`` sample (48 x 48, all pixels, 8 replicates, simulated
+at n 1.3): the white Monte Carlo databases are made first (their time printed, then cached, as in
+use: a search's records, and the final fits' cells of ``final_photons``); then, timed, a
 known-structure fit (boundaries 2, 5 and the scene's scattering per layer, n as the dataset states;
 target <= 10 s) and a full search (1 to 4 layers by BIC, boundaries, the scattering, common or with
 a base of its own, and the refractive index from 1, 1.33, 1.4, 1.5; target <= 120 s, timed the
@@ -15,20 +18,26 @@ have the accuracy on other scenes.
 from __future__ import annotations
 
 import time
+import tracemalloc
 
 import numpy as np
 from ringlight.core.colour.chroma import chromaticity
 from ringlight.core.colour.layer_report import truth_layers
 from ringlight.core.dataset.impulse_dataset import open_dataset
+from ringlight.core.inversion.forward import Structure
 from ringlight.core.inversion.layers import database_optics, invert
 from ringlight.core.inversion.measured import measured_profile
 from ringlight.core.inversion.report import profile_radii
 from ringlight.core.inversion.settings import MUS_GRID, N_GRID, SEARCH_BINS, InversionSettings
-from ringlight.core.inversion.white_mc import white_database
+from ringlight.core.inversion.white_cells import cell_database, run_cells
+from ringlight.core.inversion.white_mc import run_white, white_database
 from ringlight.core.simulate.samples import sample_dataset
 
 KNOWN_TARGET_S = 10.0
 SEARCH_TARGET_S = 120.0
+CELLS_PHOTONS = 2_000_000
+CELLS_TARGET_S = 60.0
+CELLS_TARGET_MB = 300.0
 
 
 def timed(measured, settings):
@@ -47,22 +56,44 @@ def report(label, inversion, seconds, target, truth_xy):
           f"chi2/dof {inversion.chi2_per_dof:.2f}; {layers}", flush=True)
 
 
+def cells_run(known: InversionSettings) -> None:
+    """Time and peak traced memory of a CELLS_PHOTONS white run tallied in cells."""
+    optics = database_optics(known, known.mus)
+    run_white(optics, 64)  # compile
+    tracemalloc.start()
+    start = time.perf_counter()
+    cells = run_cells(optics, Structure((0, *known.boundaries)), CELLS_PHOTONS, seed=1)
+    seconds = time.perf_counter() - start
+    peak = tracemalloc.get_traced_memory()[1] / 1e6
+    tracemalloc.stop()
+    held = sum(array.nbytes for array in (cells.cell_class, cells.weight, cells.mean, cells.spread,
+                                          cells.batch_weight)) / 1e6
+    print(f"white run of {cells.photons} photons in cells (three layers): {seconds:.1f} s (target {CELLS_TARGET_S:g} s, "
+          f"ratio {seconds / CELLS_TARGET_S:.2f}); peak traced memory {peak:.0f} MB (target {CELLS_TARGET_MB:g} MB, "
+          f"ratio {peak / CELLS_TARGET_MB:.2f}); {len(cells.weight)} cells holding {held:.0f} MB", flush=True)
+
+
 def main() -> None:
     dataset = open_dataset(sample_dataset("layers3"))
     measured = measured_profile(dataset, np.ones(dataset.grid_shape, bool), profile_radii(dataset))
     truth_xy = chromaticity(truth_layers(dataset)[1], dataset.colorspace)
     known = InversionSettings(3, (2, 5), (0.5, 0.5, 1.5), 1.3, 0.0, 24.0)
     search = InversionSettings(None, None, None, None, 0.0, 24.0)
+    cells_run(known)
     start = time.perf_counter()
-    white_database(database_optics(known, known.mus), known.photons)
+    cell_database(database_optics(known, known.mus), Structure((0, *known.boundaries)), known.final_photons)
+    print(f"the known structure's white run of {known.final_photons} photons in cells: "
+          f"{time.perf_counter() - start:.1f} s (once; cached in the user cache)", flush=True)
+    start = time.perf_counter()
     for n in N_GRID:
         for mus in MUS_GRID:
             white_database(database_optics(search, mus, n), search.photons)
-    print(f"white databases: {1 + len(MUS_GRID) * len(N_GRID)} of {known.photons} photons ({SEARCH_BINS} depth "
+    print(f"white databases: {len(MUS_GRID) * len(N_GRID)} of {search.photons} photons ({SEARCH_BINS} depth "
           f"bins for the search), {time.perf_counter() - start:.1f} s (once; cached in the user cache)", flush=True)
     report("layers3, known structure and index", *timed(measured, known), KNOWN_TARGET_S, truth_xy)
-    # A search also makes the databases of a base that scatters otherwise (cached as it goes): the
-    # first search pays for them once, the second is timed as in use.
+    # A search also makes the databases of a base that scatters otherwise, and the cells of the
+    # structures it fits at the end (cached as it goes): the first search pays for them once, the
+    # second is timed as in use.
     _, seconds = timed(measured, search)
     print(f"first full search, making its base databases: {seconds:.1f} s", flush=True)
     report("layers3, full search (1-4 layers, boundaries, scattering common or the base's own, index)",

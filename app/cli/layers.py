@@ -16,6 +16,7 @@ from ringlight.core.colour.regions import full_region, parse_rectangle, rectangl
 from ringlight.core.dataset.frames import dataset_channels
 from ringlight.core.inversion.settings import (
     DEFAULT_DEPTH,
+    DEFAULT_FINAL_PHOTONS,
     DEFAULT_G,
     DEFAULT_PHOTONS,
     MAX_LAYERS,
@@ -58,7 +59,11 @@ def add_command(subparsers) -> None:
     inverse.add_argument("--depth", type=float, default=DEFAULT_DEPTH,
                          help=f"modelled thickness in grid steps (default {DEFAULT_DEPTH:g}: a thick sample)")
     inverse.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
-                         help=f"photons of each white Monte Carlo database (default {DEFAULT_PHOTONS})")
+                         help=f"photons of each white Monte Carlo database a search compares structures with "
+                              f"(default {DEFAULT_PHOTONS})")
+    inverse.add_argument("--final-photons", type=int, default=DEFAULT_FINAL_PHOTONS,
+                         help="photons of the white run of each structure fitted at the end, tallied in compact "
+                              f"cells (default {DEFAULT_FINAL_PHOTONS})")
     layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
@@ -83,7 +88,7 @@ def parse_radii(text: str) -> list[float]:
 def parse_inversion(args) -> InversionSettings:
     """The inverse method's settings, checked before any dataset is loaded."""
     return settings_from_text(args.layers, args.boundaries or "", args.mus or "", args.n, args.g, args.depth,
-                              args.photons)
+                              args.photons, args.final_photons)
 
 
 def run_layers(args) -> int:

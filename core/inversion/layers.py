@@ -9,8 +9,9 @@ down to :data:`SEARCH_BINS` - 1) is given or searched by chi-square; the number 
 or chosen by BIC. The scattering is given (common or per layer) or chosen from :data:`MUS_GRID`:
 common to every layer, or one for the layers above and another for the base (:func:`_base_search`),
 by BIC. The search compares quick per-channel fits (:mod:`.fit`) on thinned databases; the chosen
-structure and those that fit about as well are fitted again with every photon, per channel and with
-the channels together (:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each
+structure and those that fit about as well are fitted again, each with a white run of its own of
+ten times the photons tallied in cells (:mod:`.white_cells`), per channel and with the channels
+together (:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each
 layer's colour and its two-sigma region in xy: :mod:`.layer_colour`.
 """
 
@@ -33,6 +34,7 @@ from .layer_colour import InvertedLayer, layer_colours, widened
 from .limit import data_limits, limit_reason
 from .measured import MeasuredProfile
 from .settings import MAX_LAYERS, MUS_GRID, N_GRID, SEARCH_BINS, InversionError, InversionSettings
+from .white_cells import CellForward, cell_database
 from .white_mc import SlabOptics, WhiteDatabase, white_database
 
 SEARCH_SHARE = 4
@@ -95,7 +97,7 @@ Progress = Callable[[float, str], None]
 
 class Candidate(NamedTuple):
     """One structure tried in a search: its BIC and chi-square (quick fit), scattering, and the optics
-    of its white database (the database itself is loaded again for the few fitted fully)."""
+    of its white database (the few fitted fully get a white run of their own, :mod:`.white_cells`)."""
 
     bic: float
     chi2: float
@@ -105,13 +107,13 @@ class Candidate(NamedTuple):
 
 
 class Fitted(NamedTuple):
-    """A candidate fitted with every white photon of its ``database``: per channel, and jointly (None
-    when that failed)."""
+    """A candidate fitted with its own white run of the final photons (``forward``, from cells):
+    per channel, and jointly (None when that failed)."""
 
     candidate: Candidate
     fits: list[ChannelFit]
     joint: JointFit | None
-    database: WhiteDatabase
+    forward: CellForward
 
     def misfit(self, together: bool) -> tuple[float, int]:
         """Minus twice the log-likelihood (up to a constant) and residual count of the joint fit
@@ -146,8 +148,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     choices = [(n, mus) for n in settings.indices for mus in mus_choices]
     candidates = []
     # The records each database's quick fits use, by its optics: a search keeps a quarter of each
-    # database's photons and loads the whole database again only for the few it fits fully (it held
-    # every database whole: 3.0 GB of peak RSS searching layers3).
+    # database's photons (it held every database whole: 3.0 GB of peak RSS searching layers3); the
+    # few it fits fully get white runs of their own, tallied in cells.
     searched: dict[SlabOptics, WhiteDatabase] = {}
 
     def keep(database: WhiteDatabase) -> None:
@@ -206,29 +208,31 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     rivals = sorted((c for c in usable if c.structure.layers == best.structure.layers
                      and (c.structure, c.optics) != (best.structure, best.optics)), key=lambda c: c.chi2)
     rivals = [c for c in rivals if c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
-    if settings.boundaries is None:
-        searched.clear()  # thinned: the few fitted fully are loaded whole below
+    searched.clear()  # the structures fitted at the end get white runs of their own
     fitted = []
     for number, candidate in enumerate([best, *rivals]):
-        report((len(choices) + 1 + base_search + number / (len(rivals) + 1)) * share,
+        done = (len(choices) + 1 + base_search + number / (len(rivals) + 1)) * share
+        what = (f"white Monte Carlo of {settings.final_photons} photons for "
+                f"{'the chosen structure' if not number else 'a structure that fits as well'}")
+        report(done, what)
+        cells = cell_database(candidate.optics, candidate.structure, settings.final_photons,
+                              progress=lambda fraction: report(done + 0.5 * fraction * share / (len(rivals) + 1), what))
+        report(done + 0.5 * share / (len(rivals) + 1),
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
-        database = searched.get(candidate.optics)
-        if database is None:  # a search kept a quarter: the whole database, from the cache as a rule
-            database = white_database(candidate.optics, settings.photons)
-        forward = Forward(database, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
+        forward = CellForward(cells, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
         fits = fit_channels(forward, measured.mean, measured.standard_error, floor=measured.floor)
         fitted.append(Fitted(candidate, fits, fit_jointly(forward, measured.mean, measured.standard_error, fits,
                                                           measured.floor, measured.covariance),
-                             database))
+                             forward))
     # The search compared quick fits on thinned databases, each with noise of its own: of the
     # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
     # fits' chi-square when every one has one (it weighs the noise common to the channels as such).
     together = all(fit.joint is not None for fit in fitted)
     chosen = min(fitted, key=lambda fit: _bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
-    (_, _, mus, structure, optics), fits, joint, database = chosen
+    (_, _, mus, structure, optics), fits, joint, forward = chosen
     if all(fit.used <= structure.layers for fit in fits):
         raise InversionError(f"no channel has more rings than layers that stand out of the noise (E >= 3 sigma) "
-                             f"and that the white database's {database.photons} photons reach: use a larger region, "
+                             f"and that the white run's {forward.database.photons} photons reach: use a larger region, "
                              f"fewer layers or more photons")
     layers = layer_colours(fits, structure, optics, colorspace, joint)
     for other in fitted:
@@ -236,8 +240,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             layers = [widened(layer, widening) for layer, widening in zip(layers, layer_colours(
                 other.fits, other.candidate.structure, other.candidate.optics, colorspace, other.joint))]
     fitted_mua = joint.mua if joint is not None else np.array([f.mua for f in fits])
-    limits = data_limits(Forward(database, structure, measured.radii, ring_weights=measured.ring_weights),
-                         fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
+    limits = data_limits(forward, fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
                          colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
                          measured.covariance)
     layers = [replace(layer, allowed_width=width, limit=limit_reason(width)) for layer, width in zip(layers, limits)]
@@ -259,7 +262,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"{' (searched)' if settings.boundaries is None else ''}, mus {_mus_text(mus)}"
              f"{searched_mus if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
-             f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {database.photons} white photons"
+             f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {forward.database.photons} white "
+             f"photons (the search's {settings.photons} each)"
              + (f"; regions also span {len(rivals)} other model(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
                 + (f" (n {', '.join(f'{n:g}' for n in other_indices)} among them)" if other_indices else "")
                 if rivals else "")

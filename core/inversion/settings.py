@@ -22,6 +22,10 @@ DEFAULT_G = 0.0
 """Anisotropy assumed when neither the user nor the dataset gives one."""
 MAX_LAYERS = 4
 DEFAULT_PHOTONS = 20_000
+DEFAULT_FINAL_PHOTONS = 200_000
+"""Photons of the white run each fitted structure gets at the end (:mod:`.white_cells`): ten times
+a search's, tallied in cells (about 25 MB for three layers) instead of records (300 MB)."""
+FINAL_PHOTON_RANGE = (1000, 10_000_000)
 PHOTON_RANGE = (1000, 1_000_000)
 """Photons of a white database a user may ask for: a 20 000-photon database holds 14-43 MB, and a
 search keeps a quarter of dozens of them (0.89 GB of peak RSS searching layers3 at the default)."""
@@ -59,7 +63,9 @@ class InversionSettings:
     depth
         Thickness of the modelled slab, grid steps (light below is lost).
     photons
-        Photons of each white database.
+        Photons of each white database a search compares structures with (records).
+    final_photons
+        Photons of the white run of each structure fitted at the end (tallied in cells).
     """
 
     layers: int | None = None
@@ -69,6 +75,7 @@ class InversionSettings:
     g: float | None = None
     depth: float = DEFAULT_DEPTH
     photons: int = DEFAULT_PHOTONS
+    final_photons: int = DEFAULT_FINAL_PHOTONS
 
     def check(self) -> None:
         """Raise :class:`InversionError` naming the first setting that cannot work."""
@@ -78,6 +85,9 @@ class InversionSettings:
             raise InversionError(f"mus must be one number or a tuple of one per layer, got {self.mus!r}")
         if not PHOTON_RANGE[0] <= self.photons <= PHOTON_RANGE[1]:
             raise InversionError(f"photons must be {PHOTON_RANGE[0]} to {PHOTON_RANGE[1]}, got {self.photons}")
+        if not FINAL_PHOTON_RANGE[0] <= self.final_photons <= FINAL_PHOTON_RANGE[1]:
+            raise InversionError(f"final photons must be {FINAL_PHOTON_RANGE[0]} to {FINAL_PHOTON_RANGE[1]}, "
+                                 f"got {self.final_photons}")
         if self.layers is not None and not 1 <= self.layers <= MAX_LAYERS:
             raise InversionError(f"layers must be 1..{MAX_LAYERS} or auto, got {self.layers}")
         if self.boundaries is not None:
@@ -121,7 +131,8 @@ class InversionSettings:
 
 
 def settings_from_text(layers: str, boundaries: str, mus: str, n: float | None, g: float | None,
-                       depth: float = DEFAULT_DEPTH, photons: int = DEFAULT_PHOTONS) -> InversionSettings:
+                       depth: float = DEFAULT_DEPTH, photons: int = DEFAULT_PHOTONS,
+                       final_photons: int = DEFAULT_FINAL_PHOTONS) -> InversionSettings:
     """Settings from what a user typed (the CLI's options, the Layers tab's fields): ``layers``
     "auto" or a count, ``boundaries`` and ``mus`` comma-separated numbers or empty for the
     defaults, ``n`` and ``g`` None for the dataset's or the search's; checked
@@ -145,6 +156,6 @@ def settings_from_text(layers: str, boundaries: str, mus: str, n: float | None, 
     if mus.strip():
         values = numbers(mus, float, "mus")
         scattering = values[0] if len(values) == 1 else values
-    settings = InversionSettings(count, cuts, scattering, n, g, depth, photons)
+    settings = InversionSettings(count, cuts, scattering, n, g, depth, photons, final_photons)
     settings.check()
     return settings
