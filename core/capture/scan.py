@@ -49,13 +49,13 @@ import numpy as np
 from ..atomic import OutputError, atomic_file, fsync_path, output_folder
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
-from ..dataset.memory import format_bytes
+from ..dataset.memory import format_bytes, memory_budget
 from ..errors import Cancelled, RinglightError
 from ..ownership import Owned, foreign_entry, temporary_of
 from ..staging_locks import sweep_abandoned
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
-from .multiplex import coded_lit, demultiplex
+from .multiplex import block_bytes, coded_lit, demultiplex
 from .projector_check import CHECK_EVERY, CHECK_NAME, ProjectorCheck
 from .scan_plan import (
     BYTES_PER_PIXEL,
@@ -149,6 +149,12 @@ class Scan:
         self.camera_notes = camera_notes
         self.colorspace = colorspace
         self.frames = plan.frames()
+        frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
+        if plan.multiplex and block_bytes(plan.multiplex, frame_bytes) > (budget := memory_budget()):
+            raise ScanError(f"a block of {plan.multiplex} multiplexed captures of {self.mapping.shape[1]} x "
+                            f"{self.mapping.shape[0]} pixels holds {format_bytes(block_bytes(plan.multiplex, frame_bytes))} "
+                            f"at once, more than the {format_bytes(budget)} of memory ringlight may use "
+                            "($RINGLIGHT_MEMORY_BUDGET); choose a smaller --multiplex")
         self.projector_check = ProjectorCheck(self.out / SCAN_FOLDER / CHECK_NAME, self.frames[0], self.mapping,
                                               check_every, len(self.frames), plan.max_radius)
 

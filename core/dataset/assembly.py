@@ -157,6 +157,13 @@ class Assembler:
         unobserved = ~self.observed[row0:row1]
         responses[unobserved] = 0.0
         steady[unobserved] = np.nan
+        beyond = np.abs(steady) > np.finfo(np.float32).max  # NaN compares False
+        if beyond.any():  # float32 would hold -inf (numpy's "overflow encountered in cast", exit 0)
+            y, x, channel = np.argwhere(beyond)[0]
+            dark = f" (dark frame {self.manifest.dark})" if self.manifest.dark is not None else ""
+            raise DatasetError(f"{self.manifest.folder}: the steady state (the sum of all frames) at grid point "
+                               f"[{row0 + y}, {x}] is {steady[y, x, channel]:.3g}, beyond float32's range: check the "
+                               f"frames' values, exposures and dark frame{dark}")
         return responses, steady.astype(np.float32)
 
     def _load(self, batch: _Batch, slot: int, frame, row0: int, row1: int,

@@ -21,7 +21,7 @@ from ..dataset.assembly import warm_up_assembly
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
 from ..dataset.manifest import Manifest
 from ..errors import StackError
-from .geometry import ring_geometry
+from .geometry import ring_geometry, ring_outer_radius
 from .members import ring_members, unit_weight_rings
 
 _RADIUS_DECIMALS = 9
@@ -186,7 +186,9 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
     if not largest + thickness / 2.0 <= MAX_RING_REACH:
         raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
                          f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
-    return ring_geometry(largest, thickness, antialias).outer_radius
+    if antialias:
+        return ring_geometry(largest, thickness, antialias).outer_radius
+    return ring_outer_radius(largest, thickness)  # not the ring itself: 2.3 GB at radius 4000
 
 
 def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
@@ -228,6 +230,11 @@ def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, a
     first, stop, weight_start, weights = [], [], [0], []
     for radius in radii:
         try:
+            # Refused before the ring is built: --thickness 4000 built 1.4 GB of it first.
+            if (least := ring_outer_radius(float(radius), thickness)) > dataset.max_radius:
+                raise StackError(
+                    f"the ring of radius {radius:g} (thickness {thickness:g}) reaches {least:.3f} "
+                    f"grid steps, beyond the dataset's max_radius {dataset.max_radius:g}")
             ring = ring_geometry(float(radius), thickness, antialias)
         except ValueError as error:
             raise StackError(str(error)) from None
