@@ -209,12 +209,15 @@ def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, a
 
 
 def _as_radii(radii) -> np.ndarray:
-    radii = np.round(np.atleast_1d(np.asarray(radii, np.float64)), _RADIUS_DECIMALS)
+    radii = np.atleast_1d(np.asarray(radii, np.float64))
     if radii.ndim != 1 or radii.size == 0:
         raise StackError("a stack needs at least one radius")
     if not np.isfinite(radii).all() or (radii < 0).any():
         raise StackError("ring radii must be finite and >= 0")
-    return radii
+    if radii.max() > MAX_RING_REACH:  # before rounding: 1e308 overflowed in it
+        raise StackError(f"ring radius {radii.max():g} reaches beyond {MAX_RING_REACH:g} grid steps, "
+                         "more than any dataset holds")
+    return np.round(radii, _RADIUS_DECIMALS)
 
 
 def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, antialias: bool):
