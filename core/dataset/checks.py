@@ -12,6 +12,7 @@ from ..errors import DatasetError
 from .exr import check_exr
 from .exr_header import RGB
 from .frames import dataset_channels
+from .file_paths import FileResolver
 from .manifest import Manifest
 
 
@@ -41,10 +42,11 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
     One line per problem, each naming its file; empty when every file passes.
     """
     problems: list[str] = []
+    resolve = FileResolver(manifest.folder, allow_outside)  # each folder resolved once, not once a file
 
     def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
         try:
-            header = check_exr(manifest.file_path(name, allow_outside), channels, shape, what, size_of,
+            header = check_exr(resolve(name), channels, shape, what, size_of,
                                manifest.part if frame else None, manifest.colorspace if frame else None)
         except DatasetError as error:
             problems.append(str(error))
