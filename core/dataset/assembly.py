@@ -48,6 +48,9 @@ from .response_store import StoreWriter
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
 point)."""
+BATCH_FRAMES = 1024
+"""Most frames of a batch: each frame of a batch holds a queued read (a future, its arguments), so
+a batch of a small grid's 100 000 frames held 640 MB of them."""
 WRITE_SHARE = 0.1
 """Share of an in-memory open's progress given to writing its store."""
 
@@ -112,7 +115,8 @@ class Assembler:
         frames = self.manifest.frames
         rows = row1 - row0
         point_bytes = _Batch.point_bytes(len(self.offsets))
-        size = int(np.clip(batch_bytes // 2 // max(rows * self.width * point_bytes, 1), 1, len(frames)))
+        size = int(np.clip(batch_bytes // 2 // max(rows * self.width * point_bytes, 1), 1,
+                           min(len(frames), BATCH_FRAMES)))
         starts = range(0, len(frames), size)
         bad_values, bad_frames, first_bad = 0, 0, None
         done = 0
