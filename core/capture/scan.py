@@ -45,6 +45,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import psutil
 
 from ..atomic import OutputError, atomic_file, fsync_path, output_folder
 from ..dataset.exr import write_exr_channels, write_exr_rgb
@@ -150,7 +151,7 @@ class Scan:
         self.colorspace = colorspace
         self.frames = plan.frames()
         frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
-        if plan.multiplex and block_bytes(plan.multiplex, frame_bytes) > (budget := memory_budget()):
+        if plan.multiplex and block_bytes(plan.multiplex, frame_bytes) > (budget := _block_budget()):
             raise ScanError(f"a block of {plan.multiplex} multiplexed captures of {self.mapping.shape[1]} x "
                             f"{self.mapping.shape[0]} pixels holds {format_bytes(block_bytes(plan.multiplex, frame_bytes))} "
                             f"at once, more than the {format_bytes(budget)} of memory ringlight may use "
@@ -376,6 +377,14 @@ class Scan:
         with atomic_file(self.out / "dataset.json", overwrite=True, make_parents=False, durable=True) as temporary:
             temporary.write_text(json.dumps(manifest), encoding="utf-8")
         return self.out
+
+
+def _block_budget() -> int:
+    """Bytes a multiplexed block may hold: ``$RINGLIGHT_MEMORY_BUDGET`` when set, else half the
+    memory available now (a scan does nothing else meanwhile, unlike an open beside the window)."""
+    if os.environ.get("RINGLIGHT_MEMORY_BUDGET"):
+        return memory_budget()
+    return int(0.5 * psutil.virtual_memory().available)
 
 
 def _frame_name(index: int) -> str:
