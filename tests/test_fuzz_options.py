@@ -122,8 +122,11 @@ def test_hostile_option_values_are_one_line_or_a_result(command, inputs, tmp_pat
 
 
 @pytest.mark.parametrize("radii, thickness, expected", [
-    ("0:4000:1", "1", "the ring of radius 3 (thickness 1) reaches 3.162 grid steps, beyond the dataset's max_radius 3"),
-    ("0:3:1", "4000", "the ring of radius 0 (thickness 4000) reaches 1999.999 grid steps, beyond the dataset's max_radius 3"),
+    # The transient stack's largest ring is its last radius plus dr = 1.
+    ("0:4000:1", "1", "the ring of radius 4001 (thickness 1) reaches 4001.499 grid steps, beyond the dataset's "
+                      "max_radius 3"),
+    ("0:3:1", "4000", "the ring of radius 4 (thickness 4000) reaches 2003.998 grid steps, beyond the dataset's "
+                      "max_radius 3"),
 ])
 def test_a_stack_beyond_max_radius_is_refused_before_its_rings_are_built(inputs, tmp_path, capsys, radii, thickness,
                                                                          expected):
@@ -157,7 +160,8 @@ def test_a_dark_frame_that_overflows_the_steady_state_is_one_line(tmp_path, caps
     write_dataset(tmp_path / "ds", 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=3.0),
                   max_radius=3.0, extra={"dark": "dark.exr"})
     write_rgb(tmp_path / "ds" / "dark.exr", np.full((6, 5, 3), 3e38, np.float32))
-    status, err, _ = run(capsys, ["stack", str(tmp_path / "ds"), "--radii", "0:2:1", "--out", str(tmp_path / "out")])
+    status, err, _ = run(capsys, ["stack", str(tmp_path / "ds"), "--radii", "0:2:1", "--kind", "ring",
+                                  "--out", str(tmp_path / "out")])
     assert status == 2 and len(err) == 1
     assert err[0].startswith(f"ringlight: error: {tmp_path / 'ds'}: the steady state (the sum of all frames) at grid "
                              "point [0, 0] is -")

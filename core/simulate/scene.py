@@ -184,7 +184,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     needed = simulation_bytes(height, width, max_radius, bin_count)
     if needed > MAX_SIMULATION_BYTES:  # before the volume, or anything of the grid's size, is made
         raise SceneError(
-            f"{where}: simulating it would take {needed / 2**30:,.0f} GiB (grid {height} x {width}, max_radius "
+            f"{where}: simulating it would take {_gibibytes(needed)} (grid {height} x {width}, max_radius "
             f"{max_radius:g}, path_length_bins.count {bin_count}), more than {MAX_SIMULATION_BYTES // 2**30} GiB; "
             "make the grid, max_radius or path_length_bins.count smaller")
     volume = np.full((math.ceil(depth), height, width), material_index(doc["background"], "background"), np.uint8)
@@ -250,6 +250,11 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
         max_radius=max_radius, bin_step=fail.positive_number(bins["step"], "path_length_bins.step"),
         bin_count=bin_count, seed=seed, camera=camera, projector=projector, measure=measure,
     )
+
+
+def _gibibytes(count: int) -> str:
+    """``count`` bytes in GiB, for a message (a max_radius of 1e308 asks for more than a float holds)."""
+    return f"{count / 2**30:,.0f} GiB" if count < 2**100 else "over 2^70 GiB"
 
 
 def simulation_bytes(height: int, width: int, max_radius: float, bin_count: int) -> int:
