@@ -232,3 +232,17 @@ def test_a_screenshot_on_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, li
     assert result.returncode == 2
     assert result.stderr.splitlines() == [f"ringlight: error: {out}: cannot write here: File too large"]
     assert sorted(path.name for path in tmp_path.iterdir()) == ["cache", "ds"]
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda tmp: (tmp / "a-file").write_text("x") and tmp / "a-file" / "shot.png", "a-file is a file, not a folder; give another path"),
+    (lambda tmp: tmp / ("a" * 300 + ".png"), "cannot write here: File name too long"),
+])
+def test_a_screenshot_name_that_cannot_exist_is_one_line_before_the_window(tmp_path, capsys, make, expected):
+    """Case 4: NotADirectoryError on the hidden temporary, and OSError "File name too long"."""
+    from ringlight.app.main import main
+
+    path = make(tmp_path)
+    assert main(["--screenshot", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"ringlight: error: {path}: ") and err[0].endswith(expected)
