@@ -95,7 +95,8 @@ def _read_arrays(handle, names: set[str], length: int) -> dict[str, np.ndarray]:
         found = {member.filename.removesuffix(".npy"): member for member in members}
         missing = sorted(names - found.keys())
         if missing:
-            raise DamagedFile(f"it has no {' and no '.join(missing)} (made by another program, or by hand)")
+            raise DamagedFile(f"it has no {' and no '.join(missing)} "
+                              "(written by an older ringlight, another program or by hand)")
         for name in names:
             member = found[name]
             if (member.compress_type != zipfile.ZIP_STORED or member.file_size != member.compress_size

@@ -122,7 +122,7 @@ def test_a_checkpoint_with_wrong_contents_is_refused(cache, change):
     elif change == "scaled":
         arrays = {**arrays, "transients": sums.transients * 3, "windows": sums.windows * 3}
     saved_by_hand(path, **arrays)
-    with pytest.raises(CheckpointError, match=r"it has no check and no key \(made by another program"):
+    with pytest.raises(CheckpointError, match=r"it has no check and no key \(written by an older ringlight"):
         load_checkpoint(path, cache["scene"])
     # Even with the key and a digest recomputed (a forger's file), impossible sums are refused.
     key = "another run" if change == "another run's" else path.stem
