@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 from ringlight.core import Stack, write_stack
-from ringlight.core.atomic import atomic_file
 from ringlight.core.colour.display import DisplaySettings, display_levels, render
 from ringlight.core.colour.image_export import (
     ExportError,
+    write_bytes,
     write_movie,
     write_png,
     write_text,
@@ -41,13 +41,26 @@ def png_work(pixels: np.ndarray, path: Path):
     return work
 
 
+def qimage_png(image, path: Path) -> bytes:
+    """A QImage encoded as PNG in memory (``path`` names it in errors): written by
+    :func:`~ringlight.core.colour.image_export.write_bytes`, a full disk is one line, and the
+    name's extension does not matter."""
+    from PySide6.QtCore import QBuffer, QByteArray, QIODevice
+
+    data = QByteArray()
+    buffer = QBuffer(data)
+    buffer.open(QIODevice.OpenModeFlag.WriteOnly)
+    if not image.save(buffer, "PNG"):
+        raise ExportError(f"{path}: Qt could not encode the PNG")
+    buffer.close()
+    return bytes(data.data())
+
+
 def qimage_work(image, path: Path):
     """Write a QImage (a grabbed panel) as PNG, atomically."""
 
     def work(progress):
-        with atomic_file(path, overwrite=True) as temporary:  # the save dialog asked the user
-            if not image.save(str(temporary), "PNG"):
-                raise ExportError(f"{path}: could not write the PNG")
+        write_bytes(path, qimage_png(image, path), overwrite=True)  # the save dialog asked the user
         progress(1.0)
         return path
     return work

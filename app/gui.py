@@ -10,7 +10,8 @@ import tempfile
 from pathlib import Path
 
 from ringlight.core import RinglightError
-from ringlight.core.atomic import atomic_file, check_output_file
+from ringlight.core.atomic import check_output_file
+from ringlight.core.colour.image_export import write_bytes
 
 APPLICATION = "ringlight"
 
@@ -86,6 +87,7 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
         print(f"ringlight: error: {error}", file=sys.stderr)
         return 2
 
+    from .exports import qimage_png
     from .window import MainWindow
 
     with tempfile.TemporaryDirectory() as folder:
@@ -116,11 +118,11 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
                     return 2
                 window.set_radius(radius)
             QCoreApplication.processEvents()  # pending layout (panels shown on load) before the grab
-            pixmap = window.grab()
-            with atomic_file(out, overwrite=overwrite) as temporary:
-                if not pixmap.save(str(temporary), "PNG"):
-                    print(f"ringlight: error: {out}: could not write the PNG", file=sys.stderr)
-                    return 2
+            try:
+                write_bytes(out, qimage_png(window.grab().toImage(), out), overwrite=overwrite)
+            except RinglightError as error:  # a full disk: nothing is published under the name
+                print(f"ringlight: error: {error}", file=sys.stderr)
+                return 2
         finally:
             window.shutdown()
             window.close()

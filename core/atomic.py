@@ -277,7 +277,10 @@ def atomic_file(final: str | os.PathLike, *, overwrite: bool = False, make_paren
         except OSError as error:
             raise _named(error, final) from error
     finally:
-        temporary.unlink(missing_ok=True)
+        try:
+            temporary.unlink(missing_ok=True)
+        except OSError:  # its folder is gone or not a folder: nothing of ours is left there
+            pass
 
 
 def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: bool = False) -> None:
@@ -286,23 +289,35 @@ def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: 
     and removed in ``final``'s folder where that exists, so that a folder the user cannot write
     (``/proc``, a read-only mount) is refused before the work rather than after it."""
     final = Path(final)
-    if final.is_dir():
-        raise OutputError(f"{final}: is a folder; give a file name")
-    if os.path.lexists(final) and not overwrite:
-        raise OutputError(f"{final}: already exists; refusing to overwrite it "
-                          "(choose another name, or allow overwriting: --force on the command line)")
-    if probe and final.parent.is_dir():
-        temporary = _temporary_file(final)
-        try:
+    try:
+        if final.is_dir():
+            raise OutputError(f"{final}: is a folder; give a file name")
+        if os.path.lexists(final) and not overwrite:
+            raise OutputError(f"{final}: already exists; refusing to overwrite it "
+                              "(choose another name, or allow overwriting: --force on the command line)")
+        above = next((folder for folder in final.parents if os.path.lexists(folder)), None)
+        if above is not None and not above.is_dir():
+            raise OutputError(f"{final}: {above} is a file, not a folder; give another path")
+        if probe and final.parent.is_dir():
+            temporary = _temporary_file(final)
             os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
             os.unlink(temporary)
-        except OSError as error:
-            raise _named(error, final) from error
+    except OSError as error:  # a name too long, a folder not searchable
+        raise _named(error, final) from error
+
+
+NAME_MAX = 255
+"""Bytes in one file name on the usual file systems (ext4, XFS, btrfs, APFS)."""
 
 
 def _temporary_file(final: Path) -> Path:
-    """A fresh hidden name beside ``final`` with its suffix (writers pick a format by extension)."""
-    return final.parent / f".{final.stem}.partial-{secrets.token_hex(6)}{final.suffix}"
+    """A fresh hidden name beside ``final`` with its suffix (writers pick a format by extension).
+    The stem is shortened where the hidden name would pass :data:`NAME_MAX`, so that every name
+    the system accepts can be written (a 250-byte name otherwise failed as "too long")."""
+    marker = f".partial-{secrets.token_hex(6)}{final.suffix}"
+    room = NAME_MAX - 1 - len(marker.encode())
+    stem = final.stem.encode()[:max(room, 1)].decode(errors="ignore")
+    return final.parent / f".{stem}{marker}"
 
 
 def _publish_file(temporary: Path, final: Path, overwrite: bool) -> None:
@@ -341,7 +356,7 @@ def _renamed(error: BaseException, temporary: Path, shown: Path) -> BaseExceptio
     """``error`` raised inside a staging block, with the hidden temporary's name replaced by the
     user's: OSError and library errors that name it become OutputError, ringlight's own errors
     keep their type; anything else is returned unchanged."""
-    if isinstance(error, OSError) and _names(error, temporary):
+    if isinstance(error, OSError) and (_names(error, temporary) or _is_full(error)):
         named = _named(error, shown)
     elif isinstance(error, (RinglightError, RuntimeError)) and str(temporary) in str(error):
         message = str(error).replace(str(temporary), str(shown))
@@ -351,6 +366,16 @@ def _renamed(error: BaseException, temporary: Path, shown: Path) -> BaseExceptio
         return error
     named.__cause__ = error
     return named
+
+
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+"""A full disk, a quota or a file-size limit: what a write says, with no file name."""
+
+
+def _is_full(error: OSError) -> bool:
+    """True for a write refused for space that names no file (``file.write`` raises it without
+    one): inside a staging block it is the output's, so the message names the user's path."""
+    return error.errno in _FULL and not error.filename
 
 
 def _names(error: OSError, temporary: Path) -> bool:

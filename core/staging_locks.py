@@ -16,6 +16,8 @@ import shutil
 import time
 from pathlib import Path
 
+from .ownership import Owned, foreign_entry
+
 try:
     import fcntl
 except ImportError:  # not POSIX: no locks, so abandoned temporaries are never swept
@@ -55,19 +57,22 @@ def _locked(folder: Path) -> int | None:
     return descriptor
 
 
-def sweep_abandoned(final: str | os.PathLike, min_age: float | None = None) -> list[str]:
+def sweep_abandoned(final: str | os.PathLike, min_age: float | None = None,
+                    kinds: tuple[str, ...] = ("partial", "old"), holds: Owned | None = None) -> list[str]:
     """Remove the hidden temporaries that writers of the private folder ``final`` abandoned: the
     real folders (never links or files) beside it named ``.NAME.partial-HEX`` or ``.NAME.old-HEX``
     for its NAME, made or renamed at least ``min_age`` seconds ago (default
     :data:`ABANDONED_AGE`), whose lock no process holds. Only for folders all of whose content is
     ringlight's (:func:`.atomic.atomic_folder`): an output's ``.old-HEX`` is the user's previous
-    output. Returns the names removed; problems (a folder that vanished, one not ours to remove)
-    are skipped."""
+    output. ``kinds`` narrows the names (``("partial",)``: only unfinished new outputs, as a
+    capture's preparation leaves), and ``holds``, when given, is what such a folder may contain:
+    one holding anything else is left alone. Returns the names removed; problems (a folder that
+    vanished, one not ours to remove) are skipped."""
     if fcntl is None:
         return []
     final = Path(os.path.abspath(final))
     min_age = ABANDONED_AGE if min_age is None else min_age
-    pattern = re.compile(re.escape(f".{final.name}.") + r"(partial|old)-[0-9a-f]{12}")
+    pattern = re.compile(re.escape(f".{final.name}.") + f"({'|'.join(kinds)})-[0-9a-f]{{12}}")
     removed = []
     try:
         with os.scandir(final.parent) as entries:
@@ -85,6 +90,8 @@ def sweep_abandoned(final: str | os.PathLike, min_age: float | None = None) -> l
         except OSError:  # gone, not a folder any more, or locked by its writer
             continue
         try:
+            if holds is not None and foreign_entry(folder, holds) is not None:
+                continue
             shutil.rmtree(folder)
             removed.append(name)
         except (OSError, RecursionError):  # RecursionError: a chain of folders deeper than rmtree recurses

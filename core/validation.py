@@ -236,9 +236,15 @@ class Validator:
         return value
 
     def number(self, value: object, key: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(key, "a finite number", value)
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer of hundreds of digits: math.isfinite overflowed on it
+            raise self.fail(key, "a finite number", value) from None
+        if not math.isfinite(number):
+            raise self.fail(key, "a finite number", value)
+        return number
 
     def positive_number(self, value: object, key: str) -> float:
         number = self.number(value, key)

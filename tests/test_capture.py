@@ -418,21 +418,63 @@ def test_a_folder_deleted_during_a_scan_is_not_made_again_and_a_fresh_run_comple
     assert frame_files(fresh) == frame_files(whole)
 
 
-def test_a_fresh_run_clears_an_unpublished_preparation_but_never_a_users_file(tmp_path):
+@pytest.mark.parametrize("users", [
+    {"mapping.exr": b"my own mapping", ".scan/notes.txt": b"my notes"},
+    {".mapping.partial-0123456789ab.exr": b"my hidden file"},
+    {"frames/thesis.tex": b"precious"},
+    {"..scan.partial-0123456789ab/plan.json": b"{}"},
+])
+def test_a_new_scan_never_deletes_or_replaces_a_users_files(tmp_path, users):
+    """Issue 40, case 1: a folder holding a user's mapping.exr and .scan/notes.txt had them taken
+    for an interrupted preparation (notes.txt deleted, mapping.exr replaced), and a user's
+    .mapping.partial-0123456789ab.exr deleted. A new scan writes only into an absent or empty
+    folder; anything else is one line and every byte stays."""
     out = tmp_path / "scan"
-    (out / "frames").mkdir(parents=True)
-    (out / "..scan.partial-0123456789ab").mkdir()
-    (out / "..scan.partial-0123456789ab" / "plan.json").write_text("{}")
-    (out / "mapping.exr").write_bytes(b"half a mapping")
-    (out / ".mapping.partial-abcdef012345.exr").write_bytes(b"torn")
-    run_scan(out, SimulatedRig(analytic_windows()))
+    for name, data in users.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(data)
+    before = {path.relative_to(out).as_posix(): path.read_bytes() for path in out.rglob("*") if path.is_file()}
+    with pytest.raises(ScanError, match=r"scan: exists and is not empty \(it holds .+\); refusing") as refused:
+        run_scan(out, SimulatedRig(analytic_windows()))
+    assert "\n" not in str(refused.value)
+    after = {path.relative_to(out).as_posix(): path.read_bytes() for path in out.rglob("*") if path.is_file()}
+    assert after == before == users
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["scan"]  # no staging folder left beside
+
+
+def test_an_abandoned_preparation_is_swept_and_a_users_look_alike_is_kept(tmp_path, monkeypatch):
+    """A preparation killed outright leaves the output folder as it was and its unlocked staging
+    folder beside it; the next new scan of that folder removes it (once no process holds its lock
+    and it is older than ABANDONED_AGE, here 0), but never a look-alike holding a user's file."""
+    from ringlight.core import staging_locks
+
+    monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
+    abandoned = tmp_path / ".scan.partial-0123456789ab"
+    (abandoned / "frames").mkdir(parents=True)
+    (abandoned / "mapping.exr").write_bytes(b"half a mapping")
+    (abandoned / ".scan").mkdir()
+    (abandoned / ".scan" / "plan.json").write_text("{}")
+    users = tmp_path / ".scan.partial-abcdef012345"
+    users.mkdir()
+    (users / "notes.txt").write_text("mine")
+    (tmp_path / "scan").mkdir()  # empty: a new scan may be published onto it
+    out = run_scan(tmp_path / "scan", SimulatedRig(analytic_windows()))
     assert sorted(path.name for path in out.iterdir()) == [".scan", "dark.exr", "dataset.json", "frames", "mapping.exr"]
-    mine = tmp_path / "mine"
-    (mine / "frames").mkdir(parents=True)
-    (mine / "frames" / "thesis.tex").write_text("precious")
-    with pytest.raises(ScanError, match=r"mine: exists and is not empty \(it holds frames/thesis.tex\)"):
-        run_scan(mine, SimulatedRig(analytic_windows()))
-    assert (mine / "frames" / "thesis.tex").read_text() == "precious"
+    assert sorted(path.name for path in tmp_path.iterdir()) == [".scan.partial-abcdef012345", "scan"]
+    assert (users / "notes.txt").read_text() == "mine"
+
+
+def test_a_resumed_scan_removes_only_the_temporaries_of_its_own_files(tmp_path):
+    out = tmp_path / "scan"
+    stop_after = iter(range(100))
+    with pytest.raises(Cancelled):
+        run_scan(out, SimulatedRig(analytic_windows()), should_stop=lambda: next(stop_after) >= 3)
+    torn = [out / ".dark.partial-0123456789ab.exr", out / "frames/.00004.partial-0123456789ab.exr"]
+    users = [out / ".thesis.partial-0123456789ab.tex", out / "frames/.notes.partial-0123456789ab.txt"]
+    for path in torn + users:
+        path.write_bytes(b"bytes")
+    run_scan(out, SimulatedRig(analytic_windows()), resume=True)
+    assert [path.exists() for path in torn + users] == [False, False, True, True]
 
 
 KILLER = r"""

@@ -80,4 +80,35 @@ def test_a_multiplexed_scan_writes_the_lattice_frames_of_a_plain_scan(tmp_path):
 def test_the_capture_command_refuses_an_order_without_a_code_before_opening_devices(capsys):
     assert main(["capture", "--camera", "simulated", "--projector", "simulated", "--option", "fail_after=0",
                  "--multiplex", "6", "--out", "unused"]) == 2
-    assert "needs order 2^k - 1 >= 3 (3, 7, 15, 31, ...), got 6" in capsys.readouterr().err
+    assert "needs order 2^k - 1 from 3 to 1023 (3, 7, 15, 31, ...), got 6" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("order", [2047, 65535])
+def test_a_code_too_large_is_refused_before_opening_devices_and_any_matrix(capsys, order):
+    """Issue 40, case 7: --multiplex 65535 asked for a 32 GiB matrix after 16.5 GB of captures."""
+    import tracemalloc
+
+    tracemalloc.start()
+    status = main(["capture", "--camera", "simulated", "--projector", "simulated", "--option", "fail_after=0",
+                   "--multiplex", str(order), "--out", "unused"])
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert status == 2 and peak < 64 * 2**20
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"ringlight: error: a Hadamard S-matrix code needs order 2^k - 1 from 3 to 1023 (3, 7, 15, 31, ...), "
+        f"got {order}")
+
+
+def test_a_block_whose_captures_do_not_fit_the_memory_budget_is_refused_before_the_scan(tmp_path, monkeypatch):
+    """A block of 1023 captures of a 48 x 48 camera region holds 1023 x 48 x 48 x 12 x 6 bytes
+    (161.8 MiB) at once: refused under a 128 MiB budget, accepted under 256 MiB."""
+    from ringlight.core.capture.scan import Scan
+    from ringlight.core.capture.scan_plan import ScanError, ScanPlan
+
+    mapping = np.zeros((48, 48, 2), np.float32)
+    plan = ScanPlan((0, 0, 24, 24), 1.0, (0.05,), multiplex=1023)
+    monkeypatch.setenv("RINGLIGHT_MEMORY_BUDGET", "256M")
+    Scan(tmp_path / "fits", plan, mapping)
+    monkeypatch.setenv("RINGLIGHT_MEMORY_BUDGET", "128M")
+    with pytest.raises(ScanError, match=r"a block of 1023 multiplexed captures of 48 x 48 pixels holds 161.8 MiB"):
+        Scan(tmp_path / "too-large", plan, mapping)

@@ -73,3 +73,27 @@ def test_the_command_line_simulates_to_a_noise_target_and_cleans_up(tmp_path, ca
     assert main(["simulate", "layers3", "--out", str(tmp_path / "x"), "--time", "soon"]) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0
     assert main(["simulate", "layers3", "--out", str(tmp_path / "x"), "--noise", "5"]) == 2
+
+
+def test_a_run_to_a_noise_target_on_a_grid_smaller_than_its_rings_stops():
+    """Issue 40, case 9: on a 4 x 4 grid the rings beyond the grid are NaN everywhere, their
+    noise never known: "noise of T_r up to r = 11 at most inf" for good. The noise is measured up
+    to the largest r whose ring r + 1 has a member on the grid: brute force over the offsets."""
+    from ringlight.core.rings.geometry import ring_geometry
+    from ringlight.core.simulate.progressive import noise_radius
+    from ringlight.core.simulate.presets import load_scene
+
+    scene = load_scene("layers3", size=(4, 4))  # max_radius 12
+    defined = [r for r in range(12) if any(abs(dy) < 4 and abs(dx) < 4 for dy, dx in ring_geometry(r + 1.0).offsets)]
+    assert noise_radius(scene) == max(defined) == 3
+    batches = []
+
+    def count(fraction):
+        if fraction >= 1.0:  # a batch ends
+            batches.append(1)
+        if len(batches) > 400:
+            raise Cancelled("did not stop")
+
+    _, status = simulate_until(scene, target=0.25, batch=5, progress=count)
+    assert status.worst <= 0.25 and len(status.noise) == 4 and np.isfinite(status.noise).all()
+    assert 8 <= len(batches) <= 400

@@ -132,5 +132,5 @@ def test_a_cell_database_is_cached_read_back_whole_and_run_again_when_damaged(tm
     assert cell_database(OPTICS, STRUCTURE, 1000).weight.shape == made.weight.shape
     path.unlink()
     os.mkfifo(path)  # read, a FIFO would block for good: one line instead
-    with pytest.raises(DatabaseError, match="not a regular file"):
+    with pytest.raises(DatabaseError, match="not a white Monte Carlo database"):
         cell_database(OPTICS, STRUCTURE, 1000)

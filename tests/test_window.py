@@ -324,6 +324,31 @@ def test_exports_write_files_that_read_back_equal(qtbot, window, dataset, tmp_pa
     assert not list(tmp_path.glob(".*partial*"))  # atomic writes leave no temporary files
 
 
+@pytest.mark.parametrize("export", ["png", "png without an extension", "shown", "csv", "movie", "stack"])
+def test_an_export_on_a_full_disk_says_why_in_one_line_and_publishes_nothing(qtbot, window, dataset, tmp_path,
+                                                                               export):
+    """Issue 40, cases 2 and 3: "Exported" over a 0-byte PNG and a 16 KB MP4 without a frame; an
+    internal-error dialog for a PNG named without an extension and for CSV and stack exports on a
+    full disk. The disk is full (a file-size limit of 0 bytes) while the export's worker writes."""
+    from test_fuzz_writers import disk_full_at
+
+    open_and_wait(qtbot, window, dataset)
+    window.pick(4, 4)
+    name = {"png": "view.png", "png without an extension": "view", "shown": "shown.png", "csv": "profile.csv",
+            "movie": "scrub.mp4", "stack": "stack"}[export]
+    path = tmp_path / "out" / name
+    path.parent.mkdir()
+    start = {"png": window.export_png, "png without an extension": window.export_png, "shown": window.export_shown,
+             "csv": window.export_csv, "movie": window.export_movie, "stack": window.export_stack}[export]
+    with disk_full_at(0), qtbot.waitSignal(window.error_shown, timeout=LOAD_TIMEOUT_MS) as error:
+        start(path)
+    message = error.args[0]
+    assert "internal error" not in message and "Traceback" not in message, message
+    assert str(path) in message and len(message.splitlines()) <= 2, message
+    assert list(path.parent.iterdir()) == []
+    assert not window.statusBar().currentMessage().startswith("Exported")
+
+
 def test_layout_settings_and_recent_files_persist(qtbot, dataset, tmp_path):
     settings = QSettings(str(tmp_path / "persist.ini"), QSettings.Format.IniFormat)
     first = MainWindow(settings)

@@ -85,3 +85,41 @@ def test_atomic_outputs_get_the_users_usual_permissions(tmp_path):
     assert (tmp_path / "folder").stat().st_mode & 0o777 == 0o755
     assert (tmp_path / "file.txt").stat().st_mode & 0o777 == 0o644
     assert sorted(path.name for path in tmp_path.iterdir()) == ["file.txt", "folder"]
+
+
+def test_a_killed_simulations_staging_folder_is_swept_by_the_next_write(tmp_path, monkeypatch):
+    """Issue 40, case 15: a killed ``simulate`` left ``.OUT.partial-HEX`` (160-424 KB) that nothing
+    removed. The next write of that dataset removes a staging folder no process holds (older than
+    ABANDONED_AGE, here 0), never one a writer holds nor a look-alike holding a user's file."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from ringlight.core import staging_locks
+
+    out = tmp_path / "ds"
+    script = (
+        "import os, signal, sys, numpy as np\n"
+        "from ringlight.core import DatasetWriter\n"
+        "with DatasetWriter(sys.argv[1], (4, 4)) as writer:\n"
+        "    writer.add_frame(np.ones((4, 4, 3), np.float32), [[0, 0]])\n"
+        "    os.kill(os.getpid(), signal.SIGKILL)\n")
+    killed = subprocess.run([sys.executable, "-c", script, str(out)], capture_output=True)
+    assert killed.returncode == -signal.SIGKILL
+    abandoned = [path.name for path in tmp_path.iterdir() if path.name.startswith(".ds.partial-")]
+    assert len(abandoned) == 1 and (tmp_path / abandoned[0] / "frames" / "000000.exr").is_file()
+    users = tmp_path / ".ds.partial-abcdef012345"
+    users.mkdir()
+    (users / "notes.txt").write_text("mine")
+    held = tmp_path / ".ds.partial-0123456789ab"
+    held.mkdir()
+    lock = staging_locks.lock_staging(held)
+    try:
+        monkeypatch.setattr(staging_locks, "ABANDONED_AGE", 0.0)
+        with DatasetWriter(out, (4, 4)) as writer:
+            writer.add_frame(np.ones((4, 4, 3), np.float32), [[0, 0]])
+    finally:
+        os.close(lock)
+    assert sorted(path.name for path in tmp_path.iterdir()) == [".ds.partial-0123456789ab",
+                                                                 ".ds.partial-abcdef012345", "ds"]

@@ -61,6 +61,7 @@ def run_capture(args) -> int:
     if not 0 < args.max_radius <= MAX_RING_REACH:  # 1e308 overflowed the lattice spacing after the correspondence
         raise ScanError(f"--max-radius must be > 0 and at most {MAX_RING_REACH:g} grid steps, "
                         f"got {args.max_radius:g}")
+    roi = parse_rectangle(args.roi) if args.roi else None  # a malformed --roi before the correspondence
     shared = parse_options(args.option)
     with progress_bar(f"Opening {args.camera} and {args.projector}") as progress:
         camera = make_device(discovery.cameras(), args.camera, {**shared, **parse_options(args.camera_option)}, progress)
@@ -79,7 +80,7 @@ def run_capture(args) -> int:
             print(f"correspondence: {correspondence.inliers} camera pixels fit a homography, "
                   f"residual {correspondence.residual_rms:.2f} projector pixels rms")
             height, width = projector.size
-            roi = parse_rectangle(args.roi) if args.roi else (0, 0, height, width)
+            roi = roi or (0, 0, height, width)
             planned = plan_scan(camera, projector, correspondence, roi, args.max_radius)
             plan = dataclasses.replace(planned.plan, multiplex=args.multiplex)
             needed, free = estimate_disk(plan, planned.mapping.shape[:2], args.out)

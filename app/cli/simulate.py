@@ -18,6 +18,11 @@ MAX_PHOTONS = 10_000_000
 """Photons per lit point and channel the command accepts: ten million already take hours on a
 24 x 24 grid (a 20-digit count stopped in numba's typing, 10^12 ran for good and ignored Ctrl+C)."""
 
+MIN_NOISE = 1e-3
+"""Smallest --noise target: the noise falls as one over the square root of the photons, so 0.1 %
+takes about a million times the photons of 100 %; a target of 1e-320 could never be reached."""
+
+
 def add_command(subparsers) -> None:
     simulate = subparsers.add_parser(
         "simulate", help="render a scene (preset or JSON) into an impulse dataset by Monte Carlo"
@@ -111,8 +116,8 @@ def run_simulate(args) -> int:
         raise SceneError(f"--photons must be 1 to {MAX_PHOTONS:,} per lit point, got {args.photons}")
     if args.seed is not None and not 0 <= args.seed < 2**32:
         raise SceneError(f"--seed must be 0 to {2**32 - 1}, got {args.seed}")
-    if args.noise is not None and not 0 < args.noise < 1:
-        raise SceneError(f"--noise must be a fraction between 0 and 1, e.g. 0.05, got {args.noise}")
+    if args.noise is not None and not MIN_NOISE <= args.noise < 1:
+        raise SceneError(f"--noise must be a fraction from {MIN_NOISE:g} to below 1, e.g. 0.05, got {args.noise}")
     if args.replicates is not None:
         if not 2 <= args.replicates <= MAX_REPLICATES:
             raise SceneError(f"--replicates must be 2 to {MAX_REPLICATES}, got {args.replicates}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from ringlight.core import (
     StackError,
+    load_manifest,
     needed_radius,
     open_dataset,
     parse_radius_range,
@@ -64,8 +65,14 @@ def run_stack(args) -> int:
         raise StackError("--scheduler reads the dataset's store band by band: it cannot be combined with "
                          + ("--no-cache" if args.no_cache else "--interpolate"))
     check_stack_target(args.out)  # refused before anything is computed
+    manifest = load_manifest(args.dataset)
+    if not args.interpolate and manifest.max_radius is not None and reach > manifest.max_radius + 1e-9:
+        # Refused before the frames are read (a 100 000-frame dataset was opened first, 25 s).
+        largest = float(radii.max()) + (step if args.kind == "transient" else 0.0)
+        raise StackError(f"the ring of radius {largest:g} (thickness {args.thickness:g}) reaches {reach:.3f} grid "
+                         f"steps, beyond the dataset's max_radius {manifest.max_radius:g}")
     with progress_bar("opening the dataset (frames, then its store)") as progress:
-        dataset = open_dataset(args.dataset, radius=reach, use_cache=not args.no_cache, progress=progress,
+        dataset = open_dataset(manifest, radius=reach, use_cache=not args.no_cache, progress=progress,
                                allow_outside=args.allow_outside)
     with progress_bar("computing rings") as progress:
         if args.interpolate:

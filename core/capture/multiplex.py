@@ -21,6 +21,14 @@ import numpy as np
 
 from ..errors import RinglightError
 
+MAX_ORDER = 1023
+"""Largest code order: a block's n captures are held in memory at once (as float64 to
+demultiplex), and the noise gain (n + 1) / (2 sqrt n) is already 16 at this order (a block of
+65 535 asked for a 32 GiB matrix and 16.5 GB of captures)."""
+BLOCK_COPIES = 6
+"""Frame-sized float32 arrays a block holds per capture while it is demultiplexed: the merged
+radiance, the stacked captures, and the float64 captures and recovered frames (two each)."""
+
 
 def s_matrix(order: int) -> np.ndarray:
     """(order, order) int S-matrix from Sylvester's Hadamard matrix of size order + 1, which must
@@ -31,12 +39,18 @@ def s_matrix(order: int) -> np.ndarray:
     [[1, 0, 1], [0, 1, 1], [1, 1, 0]]
     """
     size = order + 1
-    if order < 3 or size & (size - 1):
-        raise RinglightError(f"a Hadamard S-matrix code needs order 2^k - 1 >= 3 (3, 7, 15, 31, ...), got {order}")
+    if order < 3 or size & (size - 1) or order > MAX_ORDER:
+        raise RinglightError(f"a Hadamard S-matrix code needs order 2^k - 1 from 3 to {MAX_ORDER} "
+                             f"(3, 7, 15, 31, ...), got {order}")
     hadamard = np.ones((1, 1), np.int64)
     while hadamard.shape[0] < size:
         hadamard = np.block([[hadamard, hadamard], [hadamard, -hadamard]])
     return ((1 - hadamard[1:, 1:]) // 2).astype(np.int64)
+
+
+def block_bytes(order: int, frame_bytes: int) -> int:
+    """Bytes a block of ``order`` captures of ``frame_bytes`` (float32 RGB) each holds at once."""
+    return max(order, 1) * frame_bytes * BLOCK_COPIES
 
 
 def s_matrix_inverse(order: int) -> np.ndarray:

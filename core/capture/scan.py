@@ -15,11 +15,15 @@ A scan writes into its output folder as it goes::
     OUT/mapping.exr, OUT/dark.exr
     OUT/dataset.json          written last: the folder is a dataset only once the scan is complete
 
-Preparation is atomic: ``OUT/mapping.exr`` and ``OUT/frames/`` are made first, then ``.scan`` is
-built as a hidden ``OUT/..scan.partial-HEX`` and published with one rename. A folder without
-``.scan/plan.json`` therefore holds no scan; what an interrupted preparation left there
-(``mapping.exr``, an empty ``frames/``, hidden temporaries) is ringlight's, and a fresh run
-clears it and starts again. Nothing else in ``OUT`` is ever deleted.
+Preparation follows :mod:`..atomic`'s rule for folder outputs: ``mapping.exr``, ``frames/`` and
+``.scan/plan.json`` are built in a hidden ``.OUT.partial-HEX`` beside ``OUT`` and published with
+one rename, onto an absent or empty ``OUT`` only. A new scan never deletes or replaces anything in
+``OUT``: a folder holding anything (a user's ``mapping.exr``, ``.scan/notes.txt``, a
+``.mapping.partial-0123456789ab.exr``) is refused with one line. An interrupted preparation leaves
+``OUT`` as it was and, at most, its locked staging folder beside it, which the next fresh run
+sweeps once no process holds its lock (:func:`..staging_locks.sweep_abandoned`). A resumed scan
+removes only the hidden temporaries of the files a scan writes (``.00003.partial-HEX.exr`` in
+``frames/``), never another hidden file.
 
 A scan stopped anywhere (cancel, crash, power cut, a camera that stops answering, a full disk)
 resumes from the journal; frames are deterministic functions of the rig and the camera's
@@ -31,7 +35,7 @@ from __future__ import annotations
 import json
 import os
 import queue
-import secrets
+import re
 import shutil
 import threading
 import time
@@ -41,16 +45,18 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import psutil
 
-from ..atomic import OutputError, atomic_file, fsync_path
+from ..atomic import OutputError, atomic_file, fsync_path, output_folder
 from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
-from ..dataset.memory import format_bytes
+from ..dataset.memory import format_bytes, memory_budget
 from ..errors import Cancelled, RinglightError
-from ..ownership import Owned, foreign_entry, is_temporary
+from ..ownership import Owned, foreign_entry, temporary_of
+from ..staging_locks import sweep_abandoned
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
-from .multiplex import coded_lit, demultiplex
+from .multiplex import block_bytes, coded_lit, demultiplex
 from .projector_check import CHECK_EVERY, CHECK_NAME, ProjectorCheck
 from .scan_plan import (
     BYTES_PER_PIXEL,
@@ -63,8 +69,16 @@ from .scan_plan import (
 )
 
 CAPTURE_TIMEOUT_S = 30.0
-_UNPUBLISHED = Owned(frozenset({"mapping.exr", "frames"}), (SCAN_FOLDER,))
-"""What an interrupted preparation may leave in an output folder without a published plan."""
+_PREPARATION = Owned(frozenset({"mapping.exr", "frames"}), (SCAN_FOLDER,))
+"""What a preparation's staging folder holds: an abandoned one holding anything else is not swept."""
+_WRITTEN = {
+    "": re.compile(r"mapping\.exr|dark\.exr|dataset\.json"),
+    "frames": re.compile(r"[0-9]{5}\.exr"),
+    SCAN_FOLDER: re.compile(r"[^/]+"),
+    f"{SCAN_FOLDER}/saturated": re.compile(r"[0-9]{5}\.png"),
+}
+"""Per folder of a scan (relative to ``OUT``), the names of the files a scan writes there: a hidden
+temporary of one of them is a write cut short, removed on resume; any other is left alone."""
 
 
 def capture_with_timeout(camera: Camera, exposure: float, timeout: float = CAPTURE_TIMEOUT_S) -> np.ndarray:
@@ -136,6 +150,12 @@ class Scan:
         self.camera_notes = camera_notes
         self.colorspace = colorspace
         self.frames = plan.frames()
+        frame_bytes = self.mapping.shape[0] * self.mapping.shape[1] * BYTES_PER_PIXEL
+        if plan.multiplex and block_bytes(plan.multiplex, frame_bytes) > (budget := _block_budget()):
+            raise ScanError(f"a block of {plan.multiplex} multiplexed captures of {self.mapping.shape[1]} x "
+                            f"{self.mapping.shape[0]} pixels holds {format_bytes(block_bytes(plan.multiplex, frame_bytes))} "
+                            f"at once, more than the {format_bytes(budget)} of memory ringlight may use "
+                            "($RINGLIGHT_MEMORY_BUDGET); choose a smaller --multiplex")
         self.projector_check = ProjectorCheck(self.out / SCAN_FOLDER / CHECK_NAME, self.frames[0], self.mapping,
                                               check_every, len(self.frames), plan.max_radius)
 
@@ -162,46 +182,46 @@ class Scan:
             self._repair_journal()
             return
         try:
-            self._clear_unpublished()
+            self._check_empty()
+            sweep_abandoned(self.out, kinds=("partial",), holds=_PREPARATION)
             self._publish_scan()
-        except OSError as error:  # OUT is a file, or its folder read-only (OutputError says so itself)
+        except OSError as error:  # OUT's folder read-only (OutputError says so itself)
             raise ScanError(f"{self.out}: cannot prepare the scan: {error.strerror or error}") from error
 
-    def _clear_unpublished(self) -> None:
-        """Remove what an interrupted preparation left; refuse a folder holding anything else."""
+    def _check_empty(self) -> None:
+        """Refuse an ``OUT`` that is not a folder, or holds anything: a new scan replaces nothing."""
         if not self.out.is_dir():
             if os.path.lexists(self.out):
                 raise ScanError(f"{self.out}: exists and is not a folder; refusing to write a scan into it")
             return
-        foreign = foreign_entry(self.out, _UNPUBLISHED)
+        foreign = foreign_entry(self.out, Owned())
         if foreign is not None:
             raise ScanError(f"{self.out}: exists and is not empty (it holds {foreign}); "
                             "refusing to write a scan into it: choose another folder")
-        for entry in list(self.out.iterdir()):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry)
-            else:
-                entry.unlink()
 
     def _publish_scan(self) -> None:
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "frames").mkdir(exist_ok=True)
-        with atomic_file(self.out / "mapping.exr", overwrite=True, make_parents=False, durable=True) as temporary:
-            write_exr_channels(temporary, {"y": self.mapping[..., 0], "x": self.mapping[..., 1]})
-        staging = self.out / f".{SCAN_FOLDER}.partial-{secrets.token_hex(6)}"
-        staging.mkdir()
-        with atomic_file(staging / PLAN_NAME, make_parents=False, durable=True) as temporary:
-            temporary.write_text(self.plan.to_json(self.camera_notes, self.colorspace), encoding="utf-8")
-        os.rename(staging, self.out / SCAN_FOLDER)  # the scan exists from here on, whole
-        fsync_path(self.out)
+        """Build the preparation in a staging folder and rename it onto the absent or empty ``OUT``."""
+        with output_folder(self.out, lambda folder: None, "scan", replace=False) as staging:
+            (staging / "frames").mkdir()
+            with atomic_file(staging / "mapping.exr", make_parents=False, durable=True) as temporary:
+                write_exr_channels(temporary, {"y": self.mapping[..., 0], "x": self.mapping[..., 1]})
+            (staging / SCAN_FOLDER).mkdir()
+            with atomic_file(staging / SCAN_FOLDER / PLAN_NAME, make_parents=False, durable=True) as temporary:
+                temporary.write_text(self.plan.to_json(self.camera_notes, self.colorspace), encoding="utf-8")
+            fsync_path(staging)
+        fsync_path(self.out.parent)  # the scan exists from here on, whole
 
     def _clear_temporaries(self) -> None:
-        """Remove files of writes cut short by a crash (their frames are captured again)."""
-        for folder in (self.out, self.out / "frames", self.out / SCAN_FOLDER, self.out / SCAN_FOLDER / "saturated"):
-            if folder.is_dir():
-                for entry in folder.iterdir():
-                    if is_temporary(entry.name) and not entry.is_dir():
-                        entry.unlink()
+        """Remove the files of writes cut short by a crash (their frames are captured again): the
+        hidden temporaries of the names a scan writes (:data:`_WRITTEN`), nothing else."""
+        for relative, written in _WRITTEN.items():
+            folder = self.out / relative
+            if not folder.is_dir():
+                continue
+            for entry in folder.iterdir():
+                target = temporary_of(entry.name)
+                if target is not None and written.fullmatch(target) and not entry.is_dir():
+                    entry.unlink()
 
     def _repair_journal(self) -> None:
         """Cut a line torn by a crash, so that the next entry starts on a line of its own."""
@@ -357,6 +377,14 @@ class Scan:
         with atomic_file(self.out / "dataset.json", overwrite=True, make_parents=False, durable=True) as temporary:
             temporary.write_text(json.dumps(manifest), encoding="utf-8")
         return self.out
+
+
+def _block_budget() -> int:
+    """Bytes a multiplexed block may hold: ``$RINGLIGHT_MEMORY_BUDGET`` when set, else half the
+    memory available now (a scan does nothing else meanwhile, unlike an open beside the window)."""
+    if os.environ.get("RINGLIGHT_MEMORY_BUDGET"):
+        return memory_budget()
+    return int(0.5 * psutil.virtual_memory().available)
 
 
 def _frame_name(index: int) -> str:

@@ -48,6 +48,9 @@ from .response_store import StoreWriter
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
 point)."""
+BATCH_FRAMES = 1024
+"""Most frames of a batch: each frame of a batch holds a queued read (a future, its arguments), so
+a batch of a small grid's 100 000 frames held 640 MB of them."""
 WRITE_SHARE = 0.1
 """Share of an in-memory open's progress given to writing its store."""
 
@@ -112,7 +115,8 @@ class Assembler:
         frames = self.manifest.frames
         rows = row1 - row0
         point_bytes = _Batch.point_bytes(len(self.offsets))
-        size = int(np.clip(batch_bytes // 2 // max(rows * self.width * point_bytes, 1), 1, len(frames)))
+        size = int(np.clip(batch_bytes // 2 // max(rows * self.width * point_bytes, 1), 1,
+                           min(len(frames), BATCH_FRAMES)))
         starts = range(0, len(frames), size)
         bad_values, bad_frames, first_bad = 0, 0, None
         done = 0
@@ -157,6 +161,13 @@ class Assembler:
         unobserved = ~self.observed[row0:row1]
         responses[unobserved] = 0.0
         steady[unobserved] = np.nan
+        beyond = np.abs(steady) > np.finfo(np.float32).max  # NaN compares False
+        if beyond.any():  # float32 would hold -inf (numpy's "overflow encountered in cast", exit 0)
+            y, x, channel = np.argwhere(beyond)[0]
+            dark = f" (dark frame {self.manifest.dark})" if self.manifest.dark is not None else ""
+            raise DatasetError(f"{self.manifest.folder}: the steady state (the sum of all frames) at grid point "
+                               f"[{row0 + y}, {x}] is {steady[y, x, channel]:.3g}, beyond float32's range: check the "
+                               f"frames' values, exposures and dark frame{dark}")
         return responses, steady.astype(np.float32)
 
     def _load(self, batch: _Batch, slot: int, frame, row0: int, row1: int,

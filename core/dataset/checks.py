@@ -10,7 +10,8 @@ from collections.abc import Callable
 
 from ..errors import DatasetError
 from .exr import check_exr
-from .exr_header import RGB
+from .exr_header import RGB, quiet_library
+from .file_paths import FileResolver
 from .frames import dataset_channels
 from .manifest import Manifest
 
@@ -41,10 +42,11 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
     One line per problem, each naming its file; empty when every file passes.
     """
     problems: list[str] = []
+    resolve = FileResolver(manifest.folder, allow_outside)  # each folder resolved once, not once a file
 
     def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
         try:
-            header = check_exr(manifest.file_path(name, allow_outside), channels, shape, what, size_of,
+            header = check_exr(resolve(name), channels, shape, what, size_of,
                                manifest.part if frame else None, manifest.colorspace if frame else None)
         except DatasetError as error:
             problems.append(str(error))
@@ -64,10 +66,11 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
         check(manifest.dark, channels, frame_shape, "dark frame", size_of)
     truth = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
     total = len(manifest.frames) + len(truth)
-    for done, frame in enumerate(manifest.frames):
-        check(frame.file, channels, frame_shape, "frame", size_of)
-        if progress is not None and done % 256 == 255:
-            progress((done + 1) / total)
+    with quiet_library():  # silenced once for all frames, not redirected and restored once a frame
+        for done, frame in enumerate(manifest.frames):
+            check(frame.file, channels, frame_shape, "frame", size_of)
+            if progress is not None and done % 256 == 255:
+                progress((done + 1) / total)
     for image in truth:
         check(image.file, RGB, (manifest.height, manifest.width), "ground-truth image", "the grid", frame=False)
     if progress is not None:

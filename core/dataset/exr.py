@@ -232,12 +232,31 @@ def write_exr_channels(
     """Write 2-D arrays as the named channels of a ZIP-compressed scanline EXR.
 
     The file is written in place; callers that need atomicity write into a temporary folder.
+    The file is read back and must hold the pixels written: the library reports no failed write
+    (a full disk left a torn file and no error), so a torn file raises
+    :class:`~ringlight.core.atomic.OutputError` naming ``path``.
     """
     dtype = np.float16 if half else np.float32
     pixels = {name: np.ascontiguousarray(plane, dtype=dtype) for name, plane in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, pixels) as exr:
+    with OpenEXR.File(header, dict(pixels)) as exr:  # the library turns the dict's arrays into Channels
         exr.write(str(path))
+    if not _holds(path, pixels):
+        from ..atomic import OutputError
+
+        raise OutputError(f"{path}: the EXR file could not be written whole (is the disk full?)")
+
+
+def _holds(path: str | os.PathLike, pixels: dict[str, np.ndarray]) -> bool:
+    """True when the EXR file at ``path`` decodes to exactly ``pixels`` (bit for bit: NaN too)."""
+    try:
+        with quiet_library(), OpenEXR.File(str(path), separate_channels=True) as exr:
+            found = exr.channels()
+            return found.keys() == pixels.keys() and all(
+                found[name].pixels.dtype == plane.dtype and found[name].pixels.tobytes() == plane.tobytes()
+                for name, plane in pixels.items())
+    except Exception:  # the library's error for a torn file: RuntimeError, or worse
+        return False
 
 
 def write_exr_rgb(path: str | os.PathLike, image: np.ndarray, *, half: bool = False) -> None:

@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import DatasetError
 from .exr import check_exr, read_exr_channels
 from .exr_header import ExrHeader, frame_channels
+from .file_paths import FileResolver
 from .manifest import FrameEntry, Manifest
 
 MIN_COVERAGE = 0.01
@@ -152,6 +153,7 @@ class FrameReader:
     def __init__(self, manifest: Manifest, allow_outside: bool = False):
         self.manifest = manifest
         self.allow_outside = allow_outside
+        self.file_path = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         self.frame_shape, self.size_of = self.grid_shape, "the grid"
@@ -209,7 +211,7 @@ class FrameReader:
 
     def check(self, frame: FrameEntry) -> ExrHeader:
         """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
-        return check_exr(self.manifest.file_path(frame.file, self.allow_outside), self.channels, self.frame_shape,
+        return check_exr(self.file_path(frame.file), self.channels, self.frame_shape,
                          "frame", self.size_of, self.manifest.part, self.manifest.colorspace)
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None,
@@ -223,7 +225,7 @@ class FrameReader:
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
-        path = self.manifest.file_path(frame.file, self.allow_outside)
+        path = self.file_path(frame.file)
         first, stop = rows if rows is not None else (0, self.grid_shape[0])
         image = self._read_file(path, "frame", rows if self.mapping is None else None)
         camera_bad = 0

@@ -17,6 +17,7 @@ import numpy as np
 from ..colourspaces import parse_colourspace
 from ..errors import DatasetError
 from ..validation import Validator, decode_json, read_bounded, short_repr
+from .file_paths import FileResolver
 from .spacing import check_multiplexed_spacing
 
 FORMAT_NAME = "ringlight-impulse"
@@ -161,16 +162,7 @@ class Manifest:
         outside the dataset folder is refused unless ``allow_outside`` (for labs that keep frames
         on another disk and link them in).
         """
-        path = self.folder / name
-        if not allow_outside:
-            try:
-                real, root = path.resolve(), self.folder.resolve()
-            except (OSError, RuntimeError) as error:  # RuntimeError: a symbolic-link loop
-                raise DatasetError(f"{path}: cannot be resolved ({getattr(error, 'strerror', None) or error})") from None
-            if not real.is_relative_to(root):
-                raise DatasetError(f"{path}: resolves to {real}, outside the dataset folder {root}; "
-                                   "allow files outside it explicitly (--allow-outside) to read it")
-        return path
+        return FileResolver(self.folder, allow_outside)(name)
 
     def referenced_files(self) -> list[str]:
         """Every file the manifest names that loading reads (frames, dark, mapping)."""

@@ -22,6 +22,7 @@ from ..atomic import check_output_folder, output_folder
 from ..colourspaces import colourspace_json
 from ..errors import DatasetError
 from ..ownership import Owned
+from ..staging_locks import sweep_abandoned
 from ..validation import read_json
 from .cache import CACHE_FOLDER_NAME
 from .exr import write_exr_channels, write_exr_rgb
@@ -29,6 +30,11 @@ from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, Sample, parse_
 
 RINGLIGHT_SUBFOLDERS = (CACHE_FOLDER_NAME, ".scan")
 """Folders ringlight keeps inside a dataset: the cache and a capture's scan record."""
+
+
+_STAGED = Owned(frozenset({MANIFEST_NAME, "dark.exr", "mapping.exr"}), ("frames", "ground_truth"))
+"""What a :class:`DatasetWriter`'s staging folder holds: an abandoned one holding anything else
+is not swept."""
 
 
 def is_dataset_folder(path: Path) -> bool:
@@ -121,6 +127,9 @@ class DatasetWriter:
         self.staging: Path | None = None
 
     def __enter__(self) -> "DatasetWriter":
+        # What a killed writer of this folder left beside it (a simulation's 160-424 KB, or a
+        # dataset's gigabytes): its staging folders whose lock no process holds.
+        sweep_abandoned(self.path, kinds=("partial",), holds=_STAGED)
         self._exit_stack = ExitStack()
         self.staging = self._exit_stack.enter_context(
             output_folder(self.path, dataset_files, "dataset", replace=self.overwrite))

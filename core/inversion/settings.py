@@ -35,6 +35,10 @@ grow with mus x depth (about 10^5 per photon at this bound over the default dept
 spreads over a small part of a grid step says nothing about the layers' colours (measure at a finer
 grid instead)."""
 DEFAULT_DEPTH = 64.0
+MAX_DEPTH = 1024.0
+"""Deepest modelled slab (grid steps): the white walk has no absorption, so its length grows with
+the depth (``--depth 1000000`` ran for minutes of CPU per database), and light returning from
+far below the rings' reach says nothing about the layers the rings see."""
 
 
 class InversionError(RinglightError):
@@ -108,6 +112,9 @@ class InversionSettings:
                                  f"got {', '.join(f'{m:g}' for m in np.atleast_1d(self.mus))}")
         if not math.isfinite(self.depth) or self.depth < SEARCH_BINS + 1:
             raise InversionError(f"the modelled depth must be at least {SEARCH_BINS + 1} grid steps, got {self.depth:g}")
+        if self.depth > MAX_DEPTH:
+            raise InversionError(f"the modelled depth must be at most {MAX_DEPTH:g} grid steps (a deeper slab only "
+                                 f"lengthens the walks: light from below does not reach the rings), got {self.depth:g}")
         if self.n is not None and not 1.0 <= self.n <= 3.0:
             raise InversionError(f"the refractive index must be in [1, 3], got {self.n:g}")
         if self.g is not None and not -1.0 < self.g < 1.0:

@@ -26,14 +26,14 @@ import hashlib
 import json
 import math
 import time
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from ..atomic import atomic_file
+from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..errors import RinglightError
 from . import white_cache
 from .forward import Structure, embedded_rings, ring_matrix
 from .white_mc import DatabaseError, SlabOptics, run_white
@@ -45,7 +45,7 @@ BATCHES = 16
 """Batches of chunks whose spread gives the run's own variance (itself uncertain by about 18 %)."""
 CHUNK_PHOTONS = 20_000
 """Photons a chunk's records hold at once (about 30 MB of records)."""
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _ARRAYS = ("photons", "cell_class", "weight", "mean", "spread", "batch_weight", "seconds")
 _LEVELS = 64
 """Length bins per layer, 0 included: SHORTEST * RATIO^62 is about 10^4 grid steps."""
@@ -159,29 +159,27 @@ def cell_database(optics: SlabOptics, structure: Structure, photons: int, seed: 
     cells = run_cells(optics, structure, photons, seed, progress)
     if use_cache:
         try:
-            with atomic_file(path, overwrite=True) as temporary:
-                with open(temporary, "wb") as handle:
-                    np.savez(handle, photons=np.int64(cells.photons), cell_class=cells.cell_class,
-                             weight=cells.weight, mean=cells.mean, spread=cells.spread,
-                             batch_weight=cells.batch_weight, seconds=np.float64(cells.seconds))
-        except OSError:
+            save_checked(path, path.stem, {"photons": np.int64(cells.photons), "cell_class": cells.cell_class,
+                                           "weight": cells.weight, "mean": cells.mean, "spread": cells.spread,
+                                           "batch_weight": cells.batch_weight, "seconds": np.float64(cells.seconds)})
+        except (OSError, RinglightError):
             return cells  # an unwritable cache only costs the next run its time
         white_cache.evict(path.parent, path, limit)
     return cells
 
 
 def _cached(path: Path, optics: SlabOptics, structure: Structure) -> CellDatabase | None:
-    """The cells stored at ``path``, or None when there are none or they are not what a run of
-    these optics and structure holds (run again). DatabaseError naming the file for what is not a
+    """The cells stored at ``path`` (:mod:`..checked_arrays`: with their run's key and digest), or
+    None when there are none or they are not what a run of these optics and structure holds
+    (damaged, edited, another run's: run again). DatabaseError naming the file for what is not a
     regular file (read, a FIFO blocked for good)."""
     try:
-        if not path.is_file():
-            if path.exists() or path.is_symlink():
-                raise DatabaseError(f"{path}: not a regular file; remove it to rerun the white Monte Carlo")
-            return None
-        with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in _ARRAYS}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # damaged: run again
+        arrays = load_checked(path, path.stem, _ARRAYS)
+    except NotAFile as error:
+        raise DatabaseError(f"{path}: not a white Monte Carlo database ({error}); remove it to rerun") from None
+    except DamagedFile:
+        return None
+    if arrays is None:
         return None
     layers, cells = structure.layers, len(arrays["weight"])
     shapes = {"photons": (), "cell_class": (cells,), "weight": (cells,), "mean": (cells, layers),

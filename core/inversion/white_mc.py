@@ -36,7 +36,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..atomic import atomic_file
+from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
 from ..errors import RinglightError
 from ..simulate.camera import exit_fresnel, henyey_greenstein
 from ..simulate.phase import scatter_direction
@@ -279,30 +279,53 @@ def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: b
     ``progress`` as :func:`run_white` takes it."""
     path = database_path(optics, photons, seed)
     limit = white_cache.cache_limit() if use_cache else 0  # a bad setting is told before the run
-    if use_cache and (database := _cached(path, optics)) is not None:
+    if use_cache and (database := _cached(path, optics, photons)) is not None:
         white_cache.mark_used(path)
         return database
     database = run_white(optics, photons, seed, progress)
     if use_cache:
         try:
-            with atomic_file(path, overwrite=True) as temporary:
-                with open(temporary, "wb") as handle:
-                    np.savez(handle, photons=database.photons, pixel=database.pixel, value=database.value,
-                             lengths=database.lengths, photon=database.photon, seconds=database.seconds)
-        except OSError:
+            save_checked(path, path.stem, {"photons": np.int64(database.photons), "pixel": database.pixel,
+                                           "value": database.value, "lengths": database.lengths,
+                                           "photon": database.photon, "seconds": np.float64(database.seconds)})
+        except (OSError, RinglightError):
             return database  # an unwritable cache only costs the next run its time
         white_cache.evict(path.parent, path, limit)
     return database
 
 
-def _cached(path: Path, optics: SlabOptics) -> WhiteDatabase | None:
+_ARRAYS = ("photons", "pixel", "value", "lengths", "photon", "seconds")
+
+
+def _cached(path: Path, optics: SlabOptics, photons: int) -> WhiteDatabase | None:
     """The database stored at ``path``; None when there is none (or another process's eviction
-    dropped it meanwhile). Raises DatabaseError naming the file when it cannot be read."""
+    dropped it meanwhile), or when the file is damaged (truncated, a flipped bit, another run's,
+    records no run could make: :mod:`..checked_arrays`), so that it is run again and replaced.
+    Raises DatabaseError naming the file when something other than a regular file is there (a
+    FIFO: read, it blocked for good)."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return WhiteDatabase(optics, int(data["photons"]), data["pixel"], data["value"], data["lengths"],
-                                 data["photon"], float(data["seconds"]))
-    except FileNotFoundError:
+        data = load_checked(path, path.stem, _ARRAYS)
+        return None if data is None else _checked_database(data, optics, photons)
+    except NotAFile as error:
+        raise DatabaseError(f"{path}: not a white Monte Carlo database ({error}); remove it to rerun") from None
+    except DamagedFile:
         return None
-    except (OSError, ValueError, KeyError) as error:
-        raise DatabaseError(f"{path}: unreadable white Monte Carlo database ({error}); delete it to rerun") from None
+
+
+def _checked_database(data: dict[str, np.ndarray], optics: SlabOptics, photons: int) -> WhiteDatabase:
+    """``data`` as a :class:`WhiteDatabase` of ``optics``, or DamagedFile when no run of
+    ``photons`` photons could have recorded it."""
+    traced, pixel, value, lengths, photon, seconds = (data[name] for name in _ARRAYS)
+    records = len(pixel)
+    if (traced.shape != () or int(traced) != -(-photons // BLOCKS) * BLOCKS or seconds.shape != ()
+            or not 0 <= float(seconds) < np.inf):
+        raise DamagedFile("its photon count or time is not this run's")
+    if (pixel.shape != (records,) or value.shape != (records,) or photon.shape != (records,)
+            or lengths.shape != (records, optics.bins) or pixel.dtype != np.int32 or photon.dtype != np.int32
+            or value.dtype != np.float32 or lengths.dtype != np.float32):
+        raise DamagedFile("its records do not fit together")
+    if records and (pixel.min() < 0 or pixel.max() >= (2 * optics.reach + 1) ** 2 or photon.min() < 0
+                    or photon.max() >= int(traced) or not np.isfinite(value).all() or value.min() < 0
+                    or not np.isfinite(lengths).all() or lengths.min() < 0):
+        raise DamagedFile("its records are out of range")
+    return WhiteDatabase(optics, int(traced), pixel, value, lengths, photon, float(seconds))

@@ -22,7 +22,7 @@ from ..dataset.assembly import warm_up_assembly
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
 from ..dataset.manifest import Manifest
 from ..errors import StackError
-from .geometry import ring_geometry
+from .geometry import ring_geometry, ring_outer_radius
 from .members import ring_members, unit_weight_rings
 
 _RADIUS_DECIMALS = 9
@@ -189,7 +189,9 @@ def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: b
     if not largest + thickness / 2.0 <= MAX_RING_REACH:
         raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
                          f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
-    return ring_geometry(largest, thickness, antialias).outer_radius
+    if antialias:
+        return ring_geometry(largest, thickness, antialias).outer_radius
+    return ring_outer_radius(largest, thickness)  # not the ring itself: 2.3 GB at radius 4000
 
 
 def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: float = 1.0,
@@ -245,12 +247,15 @@ def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, a
 
 
 def _as_radii(radii) -> np.ndarray:
-    radii = np.round(np.atleast_1d(np.asarray(radii, np.float64)), _RADIUS_DECIMALS)
+    radii = np.atleast_1d(np.asarray(radii, np.float64))
     if radii.ndim != 1 or radii.size == 0:
         raise StackError("a stack needs at least one radius")
     if not np.isfinite(radii).all() or (radii < 0).any():
         raise StackError("ring radii must be finite and >= 0")
-    return radii
+    if radii.max() > MAX_RING_REACH:  # before rounding: 1e308 overflowed in it
+        raise StackError(f"ring radius {radii.max():g} reaches beyond {MAX_RING_REACH:g} grid steps, "
+                         "more than any dataset holds")
+    return np.round(radii, _RADIUS_DECIMALS)
 
 
 def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, antialias: bool):
@@ -266,6 +271,11 @@ def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, a
     first, stop, weight_start, weights = [], [], [0], []
     for radius in radii:
         try:
+            # Refused before the ring is built: --thickness 4000 built 1.4 GB of it first.
+            if (least := ring_outer_radius(float(radius), thickness)) > dataset.max_radius:
+                raise StackError(
+                    f"the ring of radius {radius:g} (thickness {thickness:g}) reaches {least:.3f} "
+                    f"grid steps, beyond the dataset's max_radius {dataset.max_radius:g}")
             ring = ring_geometry(float(radius), thickness, antialias)
         except ValueError as error:
             raise StackError(str(error)) from None

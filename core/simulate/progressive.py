@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_file
+from ..checked_arrays import DamagedFile, load_checked, save_checked
 from ..dataset.cache import user_cache_root
 from ..errors import RinglightError
+from ..rings.geometry import ring_geometry
 from .convergence import transient_images
 from .scene import Scene
 from .transport import Transport, simulate_transport
@@ -68,8 +69,16 @@ class Sums:
 
 
 def noise_radius(scene: Scene) -> int:
-    """The largest r whose transient T_r = E_r - E_{r+1} lies within the window."""
-    return max(0, math.ceil(scene.max_radius) - 1)
+    """The largest r whose transient T_r = E_r - E_{r+1} lies within the window and is defined
+    at some point of the grid (ring r + 1 has a member on it): on a grid smaller than the window
+    the rings beyond it are NaN everywhere, their noise never known, and a run to a noise target
+    never stopped (a 4 x 4 grid: "noise of T_r up to r = 11 at most inf" for good)."""
+    window = math.ceil(scene.max_radius)
+    for radius in range(max(0, window - 1), 0, -1):
+        if any(max(abs(dy), abs(dx)) <= window and abs(dy) < scene.height and abs(dx) < scene.width
+               for dy, dx in ring_geometry(float(radius + 1)).offsets):
+            return radius
+    return 0
 
 
 def fingerprint(scene: Scene, seed: int, batch: int, estimator: str) -> str:
@@ -88,25 +97,58 @@ def checkpoint_path(key: str) -> Path:
     return user_cache_root() / "simulations" / f"{key}.npz"
 
 
-def load_checkpoint(path: Path) -> Sums | None:
+MAX_BATCHES = 2**31
+"""Most batches a checkpoint may count (2^62 made the photon count overflow)."""
+_ARRAYS = ("windows", "truth", "transients", "squares", "batches", "seconds")
+
+
+def load_checkpoint(path: Path, scene: Scene | None = None) -> Sums | None:
     """The sums saved at ``path``, or None when there is none; raises :class:`CheckpointError`
-    when the file is there but unreadable."""
-    if not path.exists():
-        return None
+    when the file is there but not a checkpoint this run wrote (:mod:`..checked_arrays`: the
+    key is the file's name, the :func:`fingerprint` of the run), or its sums cannot be a run's:
+    shapes other than ``scene``'s, a batch count outside 1..:data:`MAX_BATCHES`, sums not
+    finite, squares below what the sums need (each sum of squares is at least the square of
+    the sum over the batch count)."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return Sums(data["windows"], data["truth"], data["transients"], data["squares"], int(data["batches"]),
-                        float(data["seconds"]))
-    except (OSError, ValueError, KeyError) as error:
+        data = load_checked(path, path.stem, _ARRAYS)
+        if data is None:
+            return None
+        sums = _checked_sums(data, scene)
+    except DamagedFile as error:
         raise CheckpointError(f"{path}: unreadable simulation checkpoint ({error})") from None
+    return sums
+
+
+def _checked_sums(data: dict[str, np.ndarray], scene: Scene | None) -> Sums:
+    """``data`` as :class:`Sums`, or DamagedFile saying what no run could have saved."""
+    windows, truth, transients, squares = (data[name] for name in _ARRAYS[:4])
+    batches, seconds = data["batches"], data["seconds"]
+    if batches.shape != () or batches.dtype.kind not in "iu" or not 1 <= int(batches) <= MAX_BATCHES:
+        raise DamagedFile(f"a batch count of {batches!s} is not 1 to {MAX_BATCHES}")
+    if seconds.shape != () or seconds.dtype.kind != "f" or not 0 <= float(seconds) < math.inf:
+        raise DamagedFile(f"{seconds!s} seconds of simulation")
+    if (windows.ndim != 5 or truth.ndim != 4 or transients.ndim != 4 or squares.shape != transients.shape
+            or not all(array.dtype == np.float64 for array in (windows, truth, transients, squares))
+            or transients.shape[1:] != windows.shape[:2] + windows.shape[4:] or truth.shape[1:] != transients.shape[1:]):
+        raise DamagedFile("its arrays do not fit together")
+    if scene is not None and transients.shape[:3] != (noise_radius(scene) + 1, scene.height, scene.width):
+        raise DamagedFile("its arrays are not of this scene's size")
+    # T_r is NaN where ring r or r + 1 has no member on the grid, in every batch alike.
+    if (not np.isfinite(windows).all() or not np.isfinite(truth).all() or np.isinf(transients).any()
+            or np.isinf(squares).any() or not np.array_equal(np.isnan(transients), np.isnan(squares))):
+        raise DamagedFile("its sums are not finite")
+    count = int(batches)
+    if np.any(squares * count < transients * transients * (1 - 1e-9) - 1e-300):
+        raise DamagedFile("its sums of squares are below their sums' squares")
+    return Sums(windows, truth, transients, squares, count, float(seconds))
 
 
 def save_checkpoint(path: Path, sums: Sums) -> None:
-    """Write ``sums`` to ``path`` atomically (replacing the previous checkpoint)."""
-    with atomic_file(path, overwrite=True) as temporary:
-        with open(temporary, "wb") as handle:
-            np.savez(handle, windows=sums.windows, truth=sums.truth, transients=sums.transients,
-                     squares=sums.squares, batches=sums.batches, seconds=sums.seconds)
+    """Write ``sums`` to ``path`` atomically (replacing the previous checkpoint), with the run's
+    key (the file's name) and a digest (:mod:`..checked_arrays`)."""
+    save_checked(path, path.stem, {"windows": sums.windows, "truth": sums.truth, "transients": sums.transients,
+                                   "squares": sums.squares, "batches": np.int64(sums.batches),
+                                   "seconds": np.float64(sums.seconds)})
 
 
 @dataclass(frozen=True)
@@ -141,7 +183,7 @@ def simulate_until(scene: Scene, target: float | None = None, seconds: float | N
         raise ValueError("simulate_until needs a noise target, a time, or both")
     seed = scene.seed if seed is None else seed
     path = checkpoint_path(fingerprint(scene, seed, batch, estimator))
-    sums = load_checkpoint(path)
+    sums = load_checkpoint(path, scene)
     radius = noise_radius(scene)
     radii = np.arange(radius + 1)
     status = None

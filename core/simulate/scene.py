@@ -26,6 +26,20 @@ MAX_VOXELS = 64 * 2**20
 MEASURES = ("camera", "exitance")
 MAX_ZENITH = 89.0
 """Degrees: a camera or projector farther from straight down is refused (grazing light)."""
+MAX_COEFFICIENT = 1000.0
+"""Largest scattering or absorption coefficient per grid step: a mean free path of a thousandth
+of a grid step, far below what the grid resolves. Beyond it a walk takes steps that no longer
+move it (mus 1e308 spun in the reference kernel for good, ignoring Ctrl+C)."""
+MAX_LAYERS = 256
+"""Most ``layers`` a scene may list (20 000 ran for minutes before a photon was traced)."""
+MAX_SHAPES = 256
+"""Most ``shapes`` a scene may list: each is drawn over the whole volume."""
+MAX_STAR_POINTS = 360
+"""Most tips of a star (the mask costs one pass over the grid per edge: a huge ``points`` took
+46 s of CPU before any photon)."""
+MAX_SIMULATION_BYTES = 16 * 2**30
+"""Most memory a simulation's arrays may take (:func:`simulation_bytes`): a ``max_radius`` or
+``path_length_bins.count`` asking for more (3 PiB, 805 GiB) is refused before any allocation."""
 
 
 class SceneError(RinglightError):
@@ -141,6 +155,12 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
         index[material_name] = len(materials)
         materials.append(Material(material_name, tuple(v * per_step for v in mus),
                                   tuple(v * per_step for v in mua), g))
+    for material in materials:
+        for kind in ("mus", "mua"):
+            if max(getattr(material, kind)) > MAX_COEFFICIENT:
+                raise SceneError(
+                    f"{where}: 'materials.{material.name}.{kind}' is {max(getattr(material, kind)):g} per grid step, "
+                    f"more than {MAX_COEFFICIENT:g} (a mean free path of 1/{MAX_COEFFICIENT:g} grid step)")
     if not materials:
         raise SceneError(f"{where}: 'materials' is empty")
     if len(materials) > 255:
@@ -158,9 +178,23 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             f"{where}: the volume {height} x {width} x {math.ceil(depth)} has {voxels} voxels, more than "
             f"the {MAX_VOXELS} that fit in memory; make the grid smaller or the depth shallower"
         )
+    photons = fail.positive_int(doc.get("photons_per_point", 20000), "photons_per_point")
+    max_radius = fail.positive_number(doc.get("max_radius", 16), "max_radius")
+    bins = fail.mapping(doc.get("path_length_bins", {"step": 1.0, "count": 64}), "path_length_bins",
+                        {"step", "count"}, {"step", "count"})
+    bin_count = fail.positive_int(bins["count"], "path_length_bins.count")
+    needed = simulation_bytes(height, width, max_radius, bin_count)
+    if needed > MAX_SIMULATION_BYTES:  # before the volume, or anything of the grid's size, is made
+        raise SceneError(
+            f"{where}: simulating it would take {_gibibytes(needed)} (grid {height} x {width}, max_radius "
+            f"{max_radius:g}, path_length_bins.count {bin_count}), more than {MAX_SIMULATION_BYTES // 2**30} GiB; "
+            "make the grid, max_radius or path_length_bins.count smaller")
     volume = np.full((math.ceil(depth), height, width), material_index(doc["background"], "background"), np.uint8)
     z = np.arange(volume.shape[0]) + 0.5
     layers = []
+    for key, limit in (("layers", MAX_LAYERS), ("shapes", MAX_SHAPES)):
+        if len(fail.sequence(doc.get(key, []), key)) > limit:
+            raise SceneError(f"{where}: '{key}' lists {len(doc[key])} entries, at most {limit}")
     for i, entry in enumerate(fail.sequence(doc.get("layers", []), "layers")):
         key = f"layers[{i}]"
         item = fail.mapping(entry, key, {"material", "top", "bottom"}, {"material", "top", "bottom"})
@@ -172,7 +206,7 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
     deepest = max((bottom for _, _, bottom in layers), default=depth)
     if deepest < depth:  # the background under the listed layers is the deepest layer
         layers.append((doc["background"], deepest, depth))
-    yy, xx = np.mgrid[:height, :width].astype(np.float64)
+    yy, xx = np.arange(height, dtype=np.float64)[:, None], np.arange(width, dtype=np.float64)[None, :]
     for i, entry in enumerate(fail.sequence(doc.get("shapes", []), "shapes")):
         key = f"shapes[{i}]"
         kind = fail.mapping(entry, key, None, {"type", "material"})["type"]
@@ -184,8 +218,9 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             cy, cx = cy * scale_y, cx * scale_x
             if not (0 <= cy < height and 0 <= cx < width and 0 <= cz < depth):
                 raise SceneError(f"{where}: '{key}' centre [{cy:g}, {cx:g}, {cz:g}] is outside the volume")
-            inside = ((yy - cy) ** 2 + (xx - cx) ** 2)[None] + ((z - cz) ** 2)[:, None, None] <= radius**2
-            volume[inside] = material
+            lateral = (yy - cy) ** 2 + (xx - cx) ** 2  # one (H, W) plane at a time, not (D, H, W)
+            for slab in np.nonzero(np.abs(z - cz) <= radius)[0]:
+                volume[slab][lateral + (z[slab] - cz) ** 2 <= radius**2] = material
         elif kind == "star":
             item = fail.mapping(entry, key, {"type", "material", "center", "top", "bottom", "points", "outer", "inner"},
                                 {"center", "top", "bottom", "points", "outer", "inner"})
@@ -196,17 +231,13 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
             outer, inner = fail.positive_number(item["outer"], f"{key}.outer"), fail.positive_number(item["inner"], f"{key}.inner")
             if not (0 <= cy < height and 0 <= cx < width) or not 0 <= top < bottom <= depth:
                 raise SceneError(f"{where}: '{key}' lies outside the volume")
-            if points < 2 or inner >= outer:
-                raise SceneError(f"{where}: '{key}' needs points >= 2 and inner < outer")
+            if not 2 <= points <= MAX_STAR_POINTS or inner >= outer:
+                raise SceneError(f"{where}: '{key}' needs 2 <= points <= {MAX_STAR_POINTS} and inner < outer")
             mask = star_mask(height, width, cy, cx, points, outer * scale_x, inner * scale_x)
             volume[((z >= top) & (z < bottom))[:, None, None] & mask[None]] = material
         else:
             raise SceneError(f"{where}: '{key}.type' must be \"sphere\" or \"star\", got {kind!r}")
 
-    photons = fail.positive_int(doc.get("photons_per_point", 20000), "photons_per_point")
-    max_radius = fail.positive_number(doc.get("max_radius", 16), "max_radius")
-    bins = fail.mapping(doc.get("path_length_bins", {"step": 1.0, "count": 64}), "path_length_bins",
-                        {"step", "count"}, {"step", "count"})
     seed = doc.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SceneError(f"{where}: 'seed' must be a non-negative integer, got {seed!r}")
@@ -219,9 +250,24 @@ def parse_scene(document: object, where: str = "scene", name: str = "scene",
         name=name, height=height, width=width, pitch_mm=pitch_mm, depth=depth, n=n,
         materials=tuple(materials), volume=volume, layers=tuple(layers), photons_per_point=photons,
         max_radius=max_radius, bin_step=fail.positive_number(bins["step"], "path_length_bins.step"),
-        bin_count=fail.positive_int(bins["count"], "path_length_bins.count"), seed=seed,
-        camera=camera, projector=projector, measure=measure,
+        bin_count=bin_count, seed=seed, camera=camera, projector=projector, measure=measure,
     )
+
+
+def _gibibytes(count: int) -> str:
+    """``count`` bytes in GiB, for a message (a max_radius of 1e308 asks for more than a float holds)."""
+    return f"{count / 2**30:,.0f} GiB" if count < 2**100 else "over 2^70 GiB"
+
+
+def simulation_bytes(height: int, width: int, max_radius: float, bin_count: int) -> int:
+    """Bytes of the float64 arrays a simulation holds at once (Python integers: no overflow):
+    the (H, W, 2R+1, 2R+1, 3) windows with R = ceil(max_radius) and a call's worth of them, and
+    per path-length bin the (H, W, 3) images, 16 blocks of a call's images and 16 of the
+    reference kernel's (2H-1, 2W-1, 3) (:mod:`.transport`, :mod:`.reference`)."""
+    size = 2 * math.ceil(max_radius) + 1
+    points = height * width
+    per_bin = points + 16 * points + 16 * (2 * height - 1) * (2 * width - 1)
+    return 8 * 3 * ((points + 64) * size * size + bin_count * per_bin)
 
 
 def star_mask(height: int, width: int, cy: float, cx: float, points: int, outer: float, inner: float) -> np.ndarray:
@@ -229,7 +275,7 @@ def star_mask(height: int, width: int, cy: float, cx: float, points: int, outer:
     angles = np.pi * np.arange(2 * points) / points - np.pi / 2
     radii = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
     vy, vx = cy + radii * np.sin(angles), cx + radii * np.cos(angles)
-    yy, xx = np.mgrid[:height, :width].astype(np.float64)
+    yy, xx = np.arange(height, dtype=np.float64)[:, None], np.arange(width, dtype=np.float64)[None, :]
     inside = np.zeros((height, width), bool)
     for i in range(len(vy)):
         y0, x0, y1, x1 = vy[i - 1], vx[i - 1], vy[i], vx[i]

@@ -1,0 +1,74 @@
+"""Long manifests (issue 40, case 12): the work per frame after the parse is bounded by counts:
+each folder on the way to the frames is resolved once, not every frame's path; a stack whose
+rings reach beyond the dataset's max_radius is refused before any frame is read."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from reference import write_rgb
+from ringlight.app.main import main
+from ringlight.core import load_manifest
+from ringlight.core.dataset.checks import check_files
+
+
+@pytest.fixture
+def long_dataset(tmp_path):
+    """1 000 frames on a 10 x 10 grid (each point lit in 10 frames), hard links of a few files."""
+    folder = tmp_path / "long"
+    (folder / "frames").mkdir(parents=True)
+    write_rgb(folder / "frames" / "base.exr", np.ones((10, 10, 3), np.float32))
+    frames = []
+    for index in range(1000):
+        name = f"frames/{index:06d}.exr"
+        os.link(folder / "frames" / "base.exr", folder / name)
+        frames.append({"file": name, "lit": [[(index // 10) % 10, index % 10]], "exposure": 1.0})
+    import json
+
+    (folder / "dataset.json").write_text(json.dumps({
+        "format": "ringlight-impulse", "version": 1, "grid": {"height": 10, "width": 10}, "max_radius": 3,
+        "frames": frames}))
+    return folder
+
+
+def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, monkeypatch):
+    """Path.resolve walked every component of every frame's path twice (20 of the 30 s info took
+    over 100 000 frames); now once per folder, and the answers are the same."""
+    resolved = []
+    original = Path.resolve
+
+    def counted(self, *args, **kwargs):
+        resolved.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "resolve", counted)
+    manifest = load_manifest(long_dataset)
+    resolved.clear()
+    assert check_files(manifest) == []
+    assert len(resolved) <= 4  # the dataset folder and frames/, with room for the first frame's channels
+    outside = long_dataset.parent / "elsewhere.exr"
+    write_rgb(outside, np.ones((10, 10, 3), np.float32))
+    (long_dataset / "frames" / "000999.exr").unlink()
+    (long_dataset / "frames" / "000999.exr").symlink_to(outside)
+    problems = check_files(manifest)
+    assert problems == [f"{long_dataset}/frames/000999.exr: resolves to {outside}, outside the dataset folder "
+                        f"{long_dataset}; allow files outside it explicitly (--allow-outside) to read it"]
+
+
+def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys, monkeypatch):
+    """A 100 000-frame dataset was opened (25 s of CPU) before its rings were found too large."""
+    from ringlight.core.dataset.frames import FrameReader
+
+    reads = []
+    original = FrameReader.read
+    monkeypatch.setattr(FrameReader, "read", lambda self, *args, **kwargs: (reads.append(1),
+                                                                           original(self, *args, **kwargs))[1])
+    status = main(["stack", str(long_dataset), "--radii", "0:3:1", "--out", str(tmp_path / "out")])
+    assert status == 2 and reads == []
+    assert capsys.readouterr().err.strip() == ("ringlight: error: the ring of radius 4 (thickness 1) reaches 4.472 "
+                                               "grid steps, beyond the dataset's max_radius 3")
+    status = main(["stack", str(long_dataset), "--radii", "0:2:1", "--kind", "ring", "--out", str(tmp_path / "out")])
+    assert status == 0 and len(reads) >= 1000
