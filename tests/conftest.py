@@ -15,6 +15,7 @@ import time
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 import pytest
+from plain_view import plain_settings
 
 GRACE_S = 5.0
 """How long finished work may take to wind down after a test before it counts as leaked."""
@@ -205,7 +206,7 @@ def window(qtbot, tmp_path):
     from PySide6.QtCore import QSettings
     from ringlight.app.window import MainWindow
 
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     window.resize(1366, 768)
     window.show()
