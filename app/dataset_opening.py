@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QFileDialog
 from ringlight.core.colour.first_view import FirstView
 from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_folder
@@ -18,6 +19,8 @@ from .help_dialogs import EXITANCE_NOTICE
 from .session import LoadedDataset, load_for_viewing
 
 FIRST_VIEW_MESSAGE_MS = 60_000
+DATASET_NAME_PX = 200
+"""Width the dataset's name may take in the status bar; a longer one is elided in its middle."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
@@ -143,8 +146,13 @@ class DatasetOpening:
         height, width = dataset.grid_shape
         radii = self.stacks.pair.radii if self.stacks else np.zeros(1)
         self.setWindowTitle(f"{dataset.path.name} - ringlight")
-        self.dataset_label.setText(
-            f"{dataset.path.name}: grid {width}x{height}, {len(manifest.frames)} frames, "
+        # Short in the status bar (beside the hover readout, at 1366 px), the whole line in its tooltip.
+        name = self.dataset_label.fontMetrics().elidedText(dataset.path.name, Qt.TextElideMode.ElideMiddle,
+                                                           DATASET_NAME_PX)
+        self.dataset_label.setText(f"{name}: {width}x{height}, r {radii[0]:g}..{radii[-1]:g}"
+                                   + ("" if dataset.in_memory else ", out of core"))
+        self.dataset_label.setToolTip(
+            f"{dataset.path}: grid {width}x{height}, {len(manifest.frames)} frames, "
             f"{dataset.missing_count} missing, max_radius {dataset.max_radius:g}, "
             f"r {radii[0]:g}..{radii[-1]:g}" + ("" if dataset.in_memory else ", read from its store (out of core)")
         )

@@ -93,7 +93,7 @@ def brute_transient(impulses, radius, dr, thickness=1.0):
 def test_opening_shows_the_dataset_and_its_first_transient(qtbot, window, dataset, impulses):
     open_and_wait(qtbot, window, dataset)
     assert window.windowTitle() == "dataset - ringlight"
-    status = window.dataset_label.text()
+    status = window.dataset_label.toolTip()
     assert f"grid {WIDTH}x{HEIGHT}" in status and f"{len(impulses)} frames" in status
     assert f"{HEIGHT * WIDTH - len(impulses)} missing" in status and "max_radius 6" in status
     radii = window.stacks.pair.radii

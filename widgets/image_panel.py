@@ -20,6 +20,8 @@ from PySide6.QtWidgets import QWidget
 MEMBER_RGB = (255, 214, 0)
 MISSING_RGB = (150, 150, 150)
 _CIRCLE_POINTS = 241
+TITLE_MARGIN_PX = 8
+"""Room left right of the wrapped title (the text item's own padding)."""
 
 
 MAX_MEMBER_ALPHA = 96
@@ -98,6 +100,8 @@ class ImagePanel(pg.GraphicsView):
             self.view.addItem(item)
         self.title = pg.TextItem(title, color="w", anchor=(0, 0))
         self.title.setParentItem(self.view)
+        # Wrapped at the view's width: a long title ran on under the colour bar, cut off there.
+        self.view.sigResized.connect(lambda _: self.title.setTextWidth(max(self.view.width() - TITLE_MARGIN_PX, 1)))
         self.display_label = pg.TextItem("", color="#ffd600", anchor=(0, 1), fill=pg.mkBrush(0, 0, 0, 170))
         self.display_label.setParentItem(self.view)
         self.display_label.setZValue(40)
