@@ -1,8 +1,10 @@
 """Progress of the command-line tools: a tqdm bar on a terminal, log lines elsewhere.
 
 When stderr is not a terminal (a batch job, a pipe), progress goes to the ``ringlight`` logger at
-INFO level, a line every :data:`LOG_STEP` of the work; ``RINGLIGHT_LOG=info`` shows those lines on
-stderr (:func:`configure_logging`).
+INFO level, a line every :data:`LOG_STEP` of the work and at least one every
+:data:`HEARTBEAT_S` while it runs; those lines go to stderr by default (:func:`configure_logging`;
+``RINGLIGHT_LOG=warning`` silences them). They were shown only with ``RINGLIGHT_LOG=info``, so
+``simulate`` and ``layers --method inverse`` said nothing for minutes in a batch job (issue 39).
 """
 
 from __future__ import annotations
@@ -12,20 +14,23 @@ import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from time import monotonic
 from typing import TextIO
 
 from ringlight.core.phases import reporting_phases
 
 LOG_STEP = 0.1
 """Fraction of the work between two logged progress lines."""
+HEARTBEAT_S = 60.0
+"""Seconds after which a progress line is logged even within a step (slow work still says so)."""
 logger = logging.getLogger("ringlight")
 
 
 def configure_logging() -> None:
     """Send the ``ringlight`` logger to stderr (:func:`stderr_copy`) at the level
-    ``$RINGLIGHT_LOG`` names (default warning), with a time stamp."""
-    level = os.environ.get("RINGLIGHT_LOG", "warning").upper()
-    logger.setLevel(level if level in logging.getLevelNamesMapping() else "WARNING")
+    ``$RINGLIGHT_LOG`` names (default info: the progress lines), with a time stamp."""
+    level = os.environ.get("RINGLIGHT_LOG", "info").upper()
+    logger.setLevel(level if level in logging.getLevelNamesMapping() else "INFO")
     if not any(getattr(handler, "ringlight", False) for handler in logger.handlers):
         handler = logging.StreamHandler(stderr_copy())
         handler.setFormatter(logging.Formatter("%(asctime)s ringlight: %(message)s", "%H:%M:%S"))
@@ -57,11 +62,13 @@ def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
     if not sys.stderr.isatty():
         logged = [-1]
         named = [description]
+        last = [monotonic()]
 
         def log(fraction: float) -> None:
             step = int(fraction / LOG_STEP + 1e-9)
-            if step > logged[0]:
-                logged[0] = step
+            if step > logged[0] or monotonic() - last[0] >= HEARTBEAT_S:
+                logged[0] = max(step, logged[0])
+                last[0] = monotonic()
                 logger.info("%s: %3.0f%%", named[0], 100 * fraction)
 
         def name_phase(name: str) -> None:
