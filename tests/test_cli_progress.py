@@ -29,28 +29,41 @@ def test_progress_lines_reach_stderr_while_the_exr_library_is_silenced():
     assert percentages == [f"{10 * step}%" for step in range(11)], result.stderr
 
 
-def test_progress_lines_reach_stderr_by_default_off_a_terminal():
-    """Issue 39: simulate and layers --method inverse printed nothing for minutes in a batch job
-    (the lines needed RINGLIGHT_LOG=info); RINGLIGHT_LOG=warning still silences them."""
-    environment = {key: value for key, value in os.environ.items() if key != "RINGLIGHT_LOG"}
-    result = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=120,
-                            env=environment, check=True)
-    assert sum("ringlight: opening" in line for line in result.stderr.splitlines()) == 11, result.stderr
-    quiet = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=120,
-                           env={**environment, "RINGLIGHT_LOG": "warning"}, check=True)
-    assert "opening" not in quiet.stderr
-
-
-def test_slow_work_logs_a_line_at_least_every_heartbeat(monkeypatch, caplog):
-    """Within a 10 % step, a line after HEARTBEAT_S of silence (a clock set by the test)."""
+def fake_clock(monkeypatch):
     from ringlight.app.cli import progress as module
 
     clock = [0.0]
     monkeypatch.setattr(module, "monotonic", lambda: clock[0])
-    caplog.set_level("INFO", logger="ringlight")
+    return module, clock
+
+
+def run_steps(module, clock, steps):
+    clock[0] = steps[0][0]  # the work starts at the first step's time
     with module.progress_bar("fitting layers") as progress:
-        for seconds, fraction in ((1, 0.01), (30, 0.02), (61.5, 0.03), (100, 0.04), (130, 0.05)):
+        for seconds, fraction in steps:
             clock[0] = seconds
             progress(fraction)
+
+
+def test_slow_work_logs_a_line_at_least_every_heartbeat(monkeypatch, caplog):
+    """With RINGLIGHT_LOG=info: every 10 %, and within a step a line after HEARTBEAT_S of silence
+    (a clock set by the test)."""
+    module, clock = fake_clock(monkeypatch)
+    caplog.set_level("INFO", logger="ringlight")
+    run_steps(module, clock, ((1, 0.01), (30, 0.02), (61.5, 0.03), (100, 0.04), (130, 0.05), (131, 0.1)))
     lines = [record.getMessage() for record in caplog.records]
-    assert lines == ["fitting layers:   1%", "fitting layers:   3%", "fitting layers:   5%"], lines
+    assert lines == ["fitting layers:   1%", "fitting layers:   3%", "fitting layers:   5%", "fitting layers:  10%"]
+
+
+def test_work_past_a_minute_says_so_without_being_asked(monkeypatch, caplog):
+    """Issue 39: simulate and layers --method inverse printed nothing for minutes in a batch job
+    (progress needed RINGLIGHT_LOG=info). At the default level (warning), work shows its progress
+    once it has run QUIET_S; a short command's stderr stays its result."""
+    module, clock = fake_clock(monkeypatch)
+    caplog.set_level("WARNING", logger="ringlight")
+    run_steps(module, clock, ((1, 0.0), (20, 0.1), (59, 0.2), (61, 0.25), (70, 0.3), (200, 0.35)))
+    lines = [(record.levelname, record.getMessage()) for record in caplog.records]
+    assert lines == [("WARNING", "fitting layers:  30%"), ("WARNING", "fitting layers:  35%")], lines
+    caplog.clear()
+    run_steps(module, clock, ((0, 0.0), (5, 0.5), (9, 1.0)))
+    assert caplog.records == []

@@ -1,10 +1,12 @@
 """Progress of the command-line tools: a tqdm bar on a terminal, log lines elsewhere.
 
-When stderr is not a terminal (a batch job, a pipe), progress goes to the ``ringlight`` logger at
-INFO level, a line every :data:`LOG_STEP` of the work and at least one every
-:data:`HEARTBEAT_S` while it runs; those lines go to stderr by default (:func:`configure_logging`;
-``RINGLIGHT_LOG=warning`` silences them). They were shown only with ``RINGLIGHT_LOG=info``, so
-``simulate`` and ``layers --method inverse`` said nothing for minutes in a batch job (issue 39).
+When stderr is not a terminal (a batch job, a pipe), progress goes to the ``ringlight`` logger, a
+line every :data:`LOG_STEP` of the work and at least one every :data:`HEARTBEAT_S` while it runs
+(:func:`configure_logging` sends the logger to stderr). With ``RINGLIGHT_LOG=info`` every line
+shows from the start, at INFO level; by default (warning) work that runs past :data:`QUIET_S`
+says so from then on, at WARNING level: ``simulate`` and ``layers --method inverse`` said nothing
+for minutes in a batch job (issue 39), while a short command's stderr stays its result or its one
+line of error. ``RINGLIGHT_LOG=error`` silences them all.
 """
 
 from __future__ import annotations
@@ -23,14 +25,16 @@ LOG_STEP = 0.1
 """Fraction of the work between two logged progress lines."""
 HEARTBEAT_S = 60.0
 """Seconds after which a progress line is logged even within a step (slow work still says so)."""
+QUIET_S = 60.0
+"""Seconds of work after which its progress shows without ``RINGLIGHT_LOG=info``."""
 logger = logging.getLogger("ringlight")
 
 
 def configure_logging() -> None:
     """Send the ``ringlight`` logger to stderr (:func:`stderr_copy`) at the level
-    ``$RINGLIGHT_LOG`` names (default info: the progress lines), with a time stamp."""
-    level = os.environ.get("RINGLIGHT_LOG", "info").upper()
-    logger.setLevel(level if level in logging.getLevelNamesMapping() else "INFO")
+    ``$RINGLIGHT_LOG`` names (default warning), with a time stamp."""
+    level = os.environ.get("RINGLIGHT_LOG", "warning").upper()
+    logger.setLevel(level if level in logging.getLevelNamesMapping() else "WARNING")
     if not any(getattr(handler, "ringlight", False) for handler in logger.handlers):
         handler = logging.StreamHandler(stderr_copy())
         handler.setFormatter(logging.Formatter("%(asctime)s ringlight: %(message)s", "%H:%M:%S"))
@@ -62,19 +66,27 @@ def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
     if not sys.stderr.isatty():
         logged = [-1]
         named = [description]
-        last = [monotonic()]
+        started = monotonic()
+        last = [started]
+
+        def say(*message) -> None:
+            """Log at INFO where that shows, else at WARNING once the work ran past QUIET_S."""
+            if logger.isEnabledFor(logging.INFO):
+                logger.info(*message)
+            elif monotonic() - started >= QUIET_S:
+                logger.warning(*message)
 
         def log(fraction: float) -> None:
             step = int(fraction / LOG_STEP + 1e-9)
             if step > logged[0] or monotonic() - last[0] >= HEARTBEAT_S:
                 logged[0] = max(step, logged[0])
                 last[0] = monotonic()
-                logger.info("%s: %3.0f%%", named[0], 100 * fraction)
+                say("%s: %3.0f%%", named[0], 100 * fraction)
 
         def name_phase(name: str) -> None:
             if f"{description}: {name}" != named[0]:
                 named[0] = f"{description}: {name}"
-                logger.info("%s", named[0])
+                say("%s", named[0])
         with reporting_phases(name_phase):
             yield log
         return
