@@ -8,12 +8,13 @@ much later on a loaded machine (issue 39: hundreds of 100-900 ms event-loop gaps
 interpreter and GIL. The measured profile is taken in the worker thread (it reads the dataset,
 which may be gigabytes in its store); only the profile (a few kB) goes to the child, and the
 inversion comes back. The child is started with ``spawn`` (no fork of a process running Qt
-threads) and is terminated on cancel.
+threads), at a lower scheduling priority, and is terminated on cancel.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
 import queue
 from collections.abc import Callable
 
@@ -32,6 +33,9 @@ POLL_S = 0.1
 """How often the worker thread looks for the child's messages and for a cancel."""
 PROGRESS_STEP = 0.005
 """The child reports progress when it moved by this fraction (or named a new phase)."""
+CHILD_NICENESS = 10
+"""Added to the child's niceness (POSIX): on a loaded machine the scheduler serves the window's
+process, which only draws, before the fit, which takes what is left."""
 
 
 class FitProcessError(RinglightError):
@@ -97,6 +101,8 @@ def run_apart(fit: Callable[..., Inversion], arguments: tuple, progress: Callabl
 def _child(fit: Callable[..., Inversion], arguments: tuple, messages) -> None:
     """The child process: run ``fit`` and put its progress, phases and result (or error) on
     ``messages``."""
+    if hasattr(os, "nice"):
+        os.nice(CHILD_NICENESS)  # the window's process goes first when the cores are busy
     last = [-1.0]
 
     def progress(fraction: float, what: str = "") -> None:

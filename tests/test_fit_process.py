@@ -9,18 +9,19 @@ import os
 import time
 
 import pytest
-from ringlight.app.fit_process import FitProcessError, run_apart
+from ringlight.app.fit_process import CHILD_NICENESS, FitProcessError, run_apart
 from ringlight.core import Cancelled
 from ringlight.core.inversion.layers import InversionError
 from ringlight.core.phases import phase, reporting_phases
 
 
 def report_pid(steps, progress):
-    """A stand-in fit: reports ``steps`` fractions and a phase, returns its process id."""
+    """A stand-in fit: reports ``steps`` fractions and a phase, returns its process id and
+    niceness."""
     phase("fitting the stand-in")
     for step in range(1, steps + 1):
         progress(step / steps, "stand-in")
-    return os.getpid()
+    return os.getpid(), os.nice(0)
 
 
 def never_ends(progress):
@@ -40,8 +41,9 @@ def dies(progress):
 def test_the_fit_runs_in_another_process_and_reports_its_progress_and_phases():
     fractions, phases = [], []
     with reporting_phases(phases.append):
-        pid = run_apart(report_pid, (4,), fractions.append)
+        pid, niceness = run_apart(report_pid, (4,), fractions.append)
     assert pid != os.getpid()
+    assert niceness == os.nice(0) + CHILD_NICENESS or niceness == 19  # lower priority (19 at most)
     assert [f for f in fractions if f in (0.25, 0.5, 0.75, 1.0)] == [0.25, 0.5, 0.75, 1.0]
     assert phases == ["fitting the stand-in"]
     assert multiprocessing.active_children() == []
