@@ -19,6 +19,7 @@ from .help_dialogs import EXITANCE_NOTICE
 from .session import LoadedDataset, load_for_viewing
 
 FIRST_VIEW_MESSAGE_MS = 60_000
+"""How long the first view's line stays in the status bar (unless another replaces it)."""
 DATASET_NAME_PX = 200
 """Width the dataset's name may take in the status bar; a longer one is elided in its middle."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
@@ -173,7 +174,6 @@ def first_view_line(first: FirstView, radius: float) -> str:
     if not first.structured:
         return ("T_r is uniform at every radius (layered?): its structure is in depth, the layer colours "
                 "(Analysis > Layers). Try: scrub r, Fit (F)")
-    y, x = first.pick
     return (f"T_r at r = {radius:g}: its structure stands out most here (contrast "
             f"{first.contrast[first.radius_index]:.0%}, levels min-max). Try: scrub r, click a point, "
             "Analysis > Layers")
