@@ -15,7 +15,6 @@ import time
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 import pytest
-from plain_view import plain_settings
 
 GRACE_S = 5.0
 """How long finished work may take to wind down after a test before it counts as leaked."""
@@ -203,7 +202,7 @@ def pytest_configure(config):
 def window(qtbot, tmp_path):
     """The explorer's main window at 1366 x 768, shown and active, its settings in ``tmp_path``
     (Qt is imported here, only by the tests that ask for a window; a module may define its own)."""
-    from PySide6.QtCore import QSettings
+    from plain_view import plain_settings
     from ringlight.app.window import MainWindow
 
     window = MainWindow(plain_settings(tmp_path / "settings.ini"))
