@@ -9,13 +9,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QFileDialog
+from ringlight.core.colour.first_view import FirstView
 from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_folder
 from ringlight.core.simulate.transport import simulated_before_camera_measure
 
 from .help_dialogs import EXITANCE_NOTICE
 from .session import LoadedDataset, load_for_viewing
 
+FIRST_VIEW_MESSAGE_MS = 60_000
+"""How long the first view's line stays in the status bar (unless another replaces it)."""
+DATASET_NAME_PX = 200
+"""Width the dataset's name may take in the status bar; a longer one is elided in its middle."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
 
 
@@ -88,11 +94,27 @@ class DatasetOpening:
         height, width = dataset.grid_shape
         self.image_panel.set_scale_bar(dataset.manifest.pitch_mm, width)
         self._apply_radius_unit()
-        if another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
+        first = loaded.first_view if another and self.structure_view_action.isChecked() else None
+        saved = self.saved_view(dataset.path) if another and first is None else None
+        if first is not None:
+            self.picked = first.pick  # on the structure the first view found
+            if self.display_settings().normalisation in ("per-image", "range"):  # not a choice of the user's
+                self.display_controls.set_settings(self.display_settings().with_changes(
+                    normalisation=first.normalisation))
+        elif saved is not None and saved[1][0] < height and saved[1][1] < width:
+            self.picked = saved[1]  # where it was left
+        elif another or self.picked is None or not (self.picked[0] < height and self.picked[1] < width):
             self.picked = (height // 2, width // 2)  # a new dataset starts at its centre
+        if another:
             self._hovered = None
             self.hover_label.clear()
         self._install_stacks(loaded.stacks)
+        if first is not None:
+            self.scrub_bar.set_index(first.radius_index)
+            if not first.structured:  # a layered material: its structure is in depth, the layer colours
+                self.analysis_tabs.setCurrentWidget(self.layer_panel)
+        elif saved is not None:
+            self.set_radius(saved[0])
         pending, self._pending_request = self._pending_request, None
         if pending is not None and pending != loaded.stacks.pair.request:  # edited while it opened
             self.stack_controls.set_request(pending, dataset.max_radius)
@@ -102,6 +124,9 @@ class DatasetOpening:
         self._update_title()
         if loaded.notice is not None:
             self.statusBar().showMessage(loaded.notice, 15000)
+        elif first is not None:
+            self.statusBar().showMessage(first_view_line(first, float(self.stacks.pair.radii[first.radius_index])),
+                                         FIRST_VIEW_MESSAGE_MS)
         if simulated_before_camera_measure(dataset.manifest):
             self._information("Simulated before camera radiance", EXITANCE_NOTICE.format(path=dataset.path))
         self.dataset_loaded.emit()
@@ -122,8 +147,13 @@ class DatasetOpening:
         height, width = dataset.grid_shape
         radii = self.stacks.pair.radii if self.stacks else np.zeros(1)
         self.setWindowTitle(f"{dataset.path.name} - ringlight")
-        self.dataset_label.setText(
-            f"{dataset.path.name}: grid {width}x{height}, {len(manifest.frames)} frames, "
+        # Short in the status bar (beside the hover readout, at 1366 px), the whole line in its tooltip.
+        name = self.dataset_label.fontMetrics().elidedText(dataset.path.name, Qt.TextElideMode.ElideMiddle,
+                                                           DATASET_NAME_PX)
+        self.dataset_label.setText(f"{name}: {width}x{height}, r {radii[0]:g}..{radii[-1]:g}"
+                                   + ("" if dataset.in_memory else ", out of core"))
+        self.dataset_label.setToolTip(
+            f"{dataset.path}: grid {width}x{height}, {len(manifest.frames)} frames, "
             f"{dataset.missing_count} missing, max_radius {dataset.max_radius:g}, "
             f"r {radii[0]:g}..{radii[-1]:g}" + ("" if dataset.in_memory else ", read from its store (out of core)")
         )
@@ -137,6 +167,16 @@ class DatasetOpening:
         if path is not None:
             event.acceptProposedAction()
             self.open_dataset(path)
+
+
+def first_view_line(first: FirstView, radius: float) -> str:
+    """The status bar's line on a first open: what is shown and what to try."""
+    if not first.structured:
+        return ("T_r is uniform at every radius (layered?): its structure is in depth, the layer colours "
+                "(Analysis > Layers). Try: scrub r, Fit (F)")
+    return (f"T_r at r = {radius:g}: its structure stands out most here (contrast "
+            f"{first.contrast[first.radius_index]:.0%}, levels min-max). Try: scrub r, click a point, "
+            "Analysis > Layers")
 
 
 def _dropped_dataset(mime) -> Path | None:

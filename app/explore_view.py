@@ -243,18 +243,20 @@ class ExploreView:
         self.image_shown.emit()
 
     def show_region_statistics(self) -> None:
-        """Count, mean and std of the shown image over the Layers tab's region (when one is drawn)."""
+        """Count, mean and std of the shown image over the Layers tab's region (when one is drawn),
+        in the Layers tab under the region's controls (hidden without a region)."""
         region = self.layer_tab.region
         if self._shown_image is None or region.shape != self._shown_image.shape[:2] or region.all():
-            self.region_label.setText("")
-            return
-        if self._shown_image.ndim == 2:  # the SNR map
+            text = ""
+        elif self._shown_image.ndim == 2:  # the SNR map
             count, mean, std = region_statistics(self._shown_image[..., None], region)
-            self.region_label.setText(f"region: {count} px, mean SNR {mean[0]:.3g}, std {std[0]:.3g}")
-            return
-        count, mean, std = region_statistics(self._shown_image, region)
-        self.region_label.setText(f"region: {count} px, mean RGB {' '.join(f'{m:.4g}' for m in mean)}, "
-                                  f"std {' '.join(f'{s:.3g}' for s in std)}")
+            text = f"region: {count} px, mean SNR {mean[0]:.3g}, std {std[0]:.3g}"
+        else:
+            count, mean, std = region_statistics(self._shown_image, region)
+            text = (f"region: {count} px, mean RGB {' '.join(f'{m:.4g}' for m in mean)}, "
+                    f"std {' '.join(f'{s:.3g}' for s in std)}")
+        self.region_label.setText(text)
+        self.region_label.setVisible(bool(text))
 
     def _image_title(self) -> str:
         view = self.view()

@@ -10,8 +10,8 @@ import re
 from pathlib import Path
 
 from PySide6.QtCore import Qt, QUrl
-from PySide6.QtGui import QKeySequence
-from PySide6.QtWidgets import QDialog, QDialogButtonBox, QLabel, QMessageBox, QVBoxLayout
+from PySide6.QtGui import QFontDatabase, QKeySequence
+from PySide6.QtWidgets import QDialog, QDialogButtonBox, QLabel, QMessageBox, QPlainTextEdit, QVBoxLayout
 
 from .dataset_info import describe_dataset
 
@@ -86,14 +86,39 @@ class HelpDialogs:
         dialog.open()  # not exec(): the window keeps running behind it
 
     def _information(self, title: str, text: str, columns: bool = False) -> None:
-        """An information box; ``columns``: a fixed-width font, so that lines padded into columns
-        line up."""
+        """An information box; ``columns``: lines padded into columns, in a fixed-width font."""
         if columns:
-            text = f"<pre>{html.escape(text)}</pre>"
+            self._columns_dialog(title, text)
+            return
         box = QMessageBox(QMessageBox.Icon.Information, title, text, QMessageBox.StandardButton.Ok, self)
         box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         box.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         box.open()  # not exec(): the window keeps running behind it
+
+    def _columns_dialog(self, title: str, text: str) -> None:
+        """``text`` in a fixed-width font, as wide as its longest line up to 90 % of the screen,
+        and wrapped beyond it: a message box cut its lines at 800 px (the store's path in Dataset
+        information, at 1366 x 768)."""
+        dialog = QDialog(self)
+        dialog.setWindowTitle(title)
+        dialog.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        view = QPlainTextEdit(text)
+        view.setObjectName("columns-text")
+        view.setReadOnly(True)
+        view.setFont(QFontDatabase.systemFont(QFontDatabase.SystemFont.FixedFont))
+        view.setLineWrapMode(QPlainTextEdit.LineWrapMode.WidgetWidth)
+        metrics = view.fontMetrics()
+        lines = text.splitlines() or [""]
+        screen = (self.screen() or dialog.screen()).availableGeometry()
+        margin = 2 * view.frameWidth() + 2 * int(view.document().documentMargin()) + view.verticalScrollBar().sizeHint().width()
+        width = min(max(metrics.horizontalAdvance(line) for line in lines) + margin, int(0.9 * screen.width()) - 40)
+        view.setMinimumSize(width, min(metrics.lineSpacing() * (len(lines) + 2), int(0.8 * screen.height()) - 80))
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok)
+        buttons.accepted.connect(dialog.accept)
+        layout = QVBoxLayout(dialog)
+        layout.addWidget(view)
+        layout.addWidget(buttons)
+        dialog.open()  # not exec(): the window keeps running behind it
 
 
 def _version() -> str:

@@ -32,12 +32,14 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, polygon_region, rectangle_region
 from ringlight.core.inversion.settings import settings_from_text
-from ringlight.core.inversion.report import DatasetInversion, invert_region, inversion_json
+from ringlight.core.inversion.report import DatasetInversion, inversion_json
 from ringlight.core.rings.noise import StackNoise
 from ringlight.widgets.image_panel import ImagePanel
 from ringlight.widgets.jobs import JobSlot
 from ringlight.widgets.layer_panel import INVERSE, LayerPanel
 from ringlight.widgets.scrub_bar import ScrubBar
+
+from .fit_process import invert_region_apart
 
 
 PENDING = "Trusted flags: estimating the noise of the stack (status bar)."
@@ -246,9 +248,8 @@ class LayerTab(QObject):
             return
         dataset, region, description, key = self.dataset, self.region.copy(), self.region_description, self._key()
 
-        def work(progress):
-            return key, invert_region(dataset, region, description, settings,
-                                      lambda fraction, what: progress(fraction))
+        def work(progress):  # the fit in a child process: the GUI thread keeps the GIL (fit_process)
+            return key, invert_region_apart(dataset, region, description, settings, progress)
         self.panel.show_message("Fitting… (progress in the status bar; Esc cancels)")
         self.fits.start("Fitting layers", work)
 

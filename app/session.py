@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from ringlight.core import ImpulseDataset, RinglightError, load_manifest, open_dataset
+from ringlight.core.colour.first_view import FirstView, first_view
 from ringlight.core.dataset.ground_truth import (
     PathLengthImages,
     read_path_length_images,
@@ -80,6 +81,9 @@ class LoadedDataset:
     stacks: ViewStacks
     notice: str | None = None
     """A line for the user about the open (the stack asked for could not be made), or None."""
+    first_view: FirstView | None = None
+    """Where the stacks show the dataset's structure (:mod:`ringlight.core.colour.first_view`),
+    when it opened without a stack last shown for it (a first open), else None."""
 
 
 def scaled(progress: Progress, low: float, high: float) -> Progress:
@@ -129,10 +133,15 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     refusal = None if request is None else _refusal(dataset, request)
     notice = None if refusal is None else (f"The stack last shown for {dataset.path.name} cannot be made now "
                                            f"({refusal}); showing the default")
+    first_open = request is None
     if request is None or refusal is not None:
         request = default_request(dataset.max_radius)
     stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))
-    return LoadedDataset(dataset, steady_state, truth, stacks, notice)
+    view = None
+    if first_open:
+        transient = stacks.pair.transient
+        view = first_view(transient.images, transient.counts, transient.outer_counts, dataset.colorspace)
+    return LoadedDataset(dataset, steady_state, truth, stacks, notice, view)
 
 
 def _band_preview(manifest, preview: Preview):

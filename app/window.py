@@ -152,8 +152,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self.hover_label = QLabel()
         self.hover_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.statusBar().addWidget(self.hover_label, 1)
-        self.region_label = QLabel()
-        self.statusBar().addPermanentWidget(self.region_label)
+        self.region_label = self.layer_panel.region_statistics_label  # beside the region's controls
         for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
                      self.impulse_jobs):
             self.statusBar().addPermanentWidget(JobIndicator(slot))
@@ -262,9 +261,18 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         if "\n" in message:
             box.setDetailedText(message)
         box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        line = f"{title}: {message.splitlines()[0]}"
+        # The status bar repeats it while the dialog is open, and no longer: it outstayed the
+        # dialog by many actions (issue 39).
+        box.finished.connect(lambda _: self._clear_message(line))
         box.open()
-        self.statusBar().showMessage(f"{title}: {message.splitlines()[0]}", 10000)
+        self.statusBar().showMessage(line, 10000)
         self.error_shown.emit(message)
+
+    def _clear_message(self, line: str) -> None:
+        """Clear the status bar's message if it is still ``line`` (not one shown since)."""
+        if self.statusBar().currentMessage() == line:
+            self.statusBar().clearMessage()
 
     def shutdown(self) -> None:
         """Cancel all work, start no more, and wait for the workers (so no job outlives the window)."""

@@ -68,6 +68,12 @@ class WindowMenus:
                 "only for datasets whose manifest gives grid.pitch_mm)")
         self.radius_mm_action.setCheckable(True)
         self.radius_mm_action.setEnabled(False)
+        self.structure_view_action = self._action(
+            view_menu, "Open datasets at their &structure", lambda _=False: None,
+            tip="A dataset opened for the first time is shown at the radius, point and levels where its "
+                "structure stands out most; off: at radius 0 and the grid's centre")
+        self.structure_view_action.setCheckable(True)
+        self.structure_view_action.setChecked(True)
         self._action(view_menu, "Cancel running work", self.cancel_all, "Esc")
         view_menu.addSeparator()
         for dock in (self.display_dock, self.stack_dock, self.profile_dock, self.line_profile_dock):

@@ -64,14 +64,33 @@ class WindowSettings:
         except (KeyError, TypeError, ValueError):
             return None
 
+    def saved_view(self, path) -> tuple[float, tuple[int, int]] | None:
+        """The radius (grid steps) and picked point last shown for dataset ``path``, if any."""
+        try:
+            saved = json.loads(self.settings.value("dataset_views", "{}"))[_request_key(path)]
+            radius, (y, x) = float(saved["radius"]), saved["pick"]
+            return radius, (int(y), int(x))
+        except (KeyError, TypeError, ValueError):
+            return None
+
     def _remember_request(self) -> None:
+        """Remember the stack request, radius and pick shown for the dataset on screen."""
         if self.stacks is None or self.loaded is None:
             return
-        saved = self._saved_requests()
         key = _request_key(self.loaded.dataset.path)
+        saved = self._saved_requests()
         saved.pop(key, None)
         saved[key] = asdict(self.stacks.pair.request)
         self.settings.setValue("stack_requests", json.dumps(dict(list(saved.items())[-REQUEST_LIMIT:])))
+        try:
+            views = json.loads(self.settings.value("dataset_views", "{}"))
+        except (TypeError, ValueError):
+            views = {}
+        views = views if isinstance(views, dict) else {}
+        views.pop(key, None)
+        if self.picked is not None:
+            views[key] = {"radius": float(self.stacks.pair.radii[self.radius_index()]), "pick": list(self.picked)}
+        self.settings.setValue("dataset_views", json.dumps(dict(list(views.items())[-REQUEST_LIMIT:])))
 
     def _restore_settings(self) -> None:
         geometry = self.settings.value("geometry")
@@ -96,6 +115,7 @@ class WindowSettings:
             self.display_controls.set_view(view)
         self.display_controls.profile_log_box.setChecked(self.settings.value("profile_log_y", "false") == "true")
         self.radius_mm_action.setChecked(self.settings.value("radius_in_mm", "false") == "true")
+        self.structure_view_action.setChecked(self.settings.value("structure_view", "true") == "true")
         self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
         self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
         self._rebuild_recent_menu()
@@ -108,6 +128,7 @@ class WindowSettings:
         self.settings.setValue("colormaps", json.dumps(self.display_controls.colormap_names()))
         self.settings.setValue("profile_log_y", "true" if self.profile_plot.log_y else "false")
         self.settings.setValue("radius_in_mm", "true" if self.radius_mm_action.isChecked() else "false")
+        self.settings.setValue("structure_view", "true" if self.structure_view_action.isChecked() else "false")
         self.settings.setValue("fps", self.scrub_bar.fps_box.value())
         self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
         self._remember_request()

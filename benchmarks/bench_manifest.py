@@ -7,7 +7,12 @@ measures its peak Python memory (tracemalloc, separate run). Issue 11 measured 5
 frames before this work; the target is at least 10 times faster, so at most 5.1 s. Printed: the
 time, the target and their ratio (over 1 means faster than the target).
 
-    python benchmarks/bench_manifest.py [--frames 100000]
+With ``--hostile``, it times instead the raw JSON values the fuzz tests
+(``tests/test_fuzz_input.py``) plant in manifests (deep nesting, 5000-digit numbers, NaN, lone
+surrogates), each in every field of a small manifest: the slowest case, which the tests no longer
+time (issue 39: wall times fail on a loaded machine; the tests bound memory instead).
+
+    python benchmarks/bench_manifest.py [--frames 100000] [--hostile]
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
+from ringlight.core import RinglightError
 from ringlight.core.dataset.manifest import read_manifest
 
 BEFORE_S = 51.0
@@ -45,10 +51,53 @@ def write_manifest(folder: Path, frames: int, multiplexed: bool) -> int:
     return len(text)
 
 
+HOSTILE_RAW = [
+    "NaN", "Infinity", "-Infinity", "1e999", "-1e999", "1e-320", "4.9e-324", "1e39", "-0.0",
+    "9" * 31, "9" * 401, "9" * 5000, "-" + "9" * 40, "[" * 5000 + "]" * 5000,
+    '{"a":' * 3000 + "1" + "}" * 3000, '"\\ud800"', '"\\udc80x"', '"a\\u0000b"',
+]
+"""The raw JSON values of the fuzz tests' ``hostile_raw``."""
+HOSTILE_FIELDS = ['"version": 1', '"height": 4', '"width": 3', '"exposure": 1.0', '"lit": [[0, 0]]',
+                  '"file": "frames/00000.exr"']
+"""Fields of the small manifest each raw value replaces the value of."""
+
+
+def time_hostile() -> None:
+    """Print the time of ``read_manifest`` on every hostile value in every field (best of 3)."""
+    frames = [{"file": f"frames/{i:05d}.exr", "lit": [[i // 3, i % 3]], "exposure": 1.0} for i in range(12)]
+    text = json.dumps({"format": "ringlight-impulse", "version": 1, "grid": {"height": 4, "width": 3},
+                       "frames": frames})
+    cases = []
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        for field in HOSTILE_FIELDS:
+            for raw in HOSTILE_RAW:
+                (folder / "dataset.json").write_text(text.replace(field, field.split(":")[0] + ": " + raw, 1))
+                times = []
+                for _ in range(3):
+                    started = time.perf_counter()
+                    try:
+                        read_manifest(folder)
+                        outcome = "read"
+                    except RinglightError:
+                        outcome = "refused"
+                    times.append(time.perf_counter() - started)
+                cases.append((min(times), field.split(":")[0], raw[:24], outcome))
+    cases.sort(reverse=True)
+    print(f"{len(cases)} hostile manifests; slowest {cases[0][0] * 1000:.1f} ms, median "
+          f"{cases[len(cases) // 2][0] * 1000:.2f} ms")
+    for seconds, field, raw, outcome in cases[:5]:
+        print(f"  {seconds * 1000:8.2f} ms  {field} = {raw!r} ({outcome})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100_000)
+    parser.add_argument("--hostile", action="store_true", help="time the fuzz tests' hostile values instead")
     args = parser.parse_args()
+    if args.hostile:
+        time_hostile()
+        return
     for multiplexed in (False, True):
         with tempfile.TemporaryDirectory() as folder:
             folder = Path(folder)

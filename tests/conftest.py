@@ -202,10 +202,10 @@ def pytest_configure(config):
 def window(qtbot, tmp_path):
     """The explorer's main window at 1366 x 768, shown and active, its settings in ``tmp_path``
     (Qt is imported here, only by the tests that ask for a window; a module may define its own)."""
-    from PySide6.QtCore import QSettings
+    from plain_view import plain_settings
     from ringlight.app.window import MainWindow
 
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     window.resize(1366, 768)
     window.show()

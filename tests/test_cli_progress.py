@@ -27,3 +27,43 @@ def test_progress_lines_reach_stderr_while_the_exr_library_is_silenced():
                             env={**os.environ, "RINGLIGHT_LOG": "info"}, check=True)
     percentages = [line.rsplit(" ", 1)[-1] for line in result.stderr.splitlines() if "ringlight: opening" in line]
     assert percentages == [f"{10 * step}%" for step in range(11)], result.stderr
+
+
+def fake_clock(monkeypatch):
+    from ringlight.app.cli import progress as module
+
+    clock = [0.0]
+    monkeypatch.setattr(module, "monotonic", lambda: clock[0])
+    return module, clock
+
+
+def run_steps(module, clock, steps):
+    clock[0] = steps[0][0]  # the work starts at the first step's time
+    with module.progress_bar("fitting layers") as progress:
+        for seconds, fraction in steps:
+            clock[0] = seconds
+            progress(fraction)
+
+
+def test_slow_work_logs_a_line_at_least_every_heartbeat(monkeypatch, caplog):
+    """With RINGLIGHT_LOG=info: every 10 %, and within a step a line after HEARTBEAT_S of silence
+    (a clock set by the test)."""
+    module, clock = fake_clock(monkeypatch)
+    caplog.set_level("INFO", logger="ringlight")
+    run_steps(module, clock, ((1, 0.01), (30, 0.02), (61.5, 0.03), (100, 0.04), (130, 0.05), (131, 0.1)))
+    lines = [record.getMessage() for record in caplog.records]
+    assert lines == ["fitting layers:   1%", "fitting layers:   3%", "fitting layers:   5%", "fitting layers:  10%"]
+
+
+def test_work_past_a_minute_says_so_without_being_asked(monkeypatch, caplog):
+    """Issue 39: simulate and layers --method inverse printed nothing for minutes in a batch job
+    (progress needed RINGLIGHT_LOG=info). At the default level (warning), work shows its progress
+    once it has run QUIET_S; a short command's stderr stays its result."""
+    module, clock = fake_clock(monkeypatch)
+    caplog.set_level("WARNING", logger="ringlight")
+    run_steps(module, clock, ((1, 0.0), (20, 0.1), (59, 0.2), (61, 0.25), (70, 0.3), (200, 0.35)))
+    lines = [(record.levelname, record.getMessage()) for record in caplog.records]
+    assert lines == [("WARNING", "fitting layers:  30%"), ("WARNING", "fitting layers:  35%")], lines
+    caplog.clear()
+    run_steps(module, clock, ((0, 0.0), (5, 0.5), (9, 1.0)))
+    assert caplog.records == []

@@ -10,6 +10,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QPointF
 import pytest
+from plain_view import plain_settings
 from reference import brute_ring_image, random_impulses, write_dataset, write_truth_dataset
 from ringlight.core.colourspaces import colour_module
 from ringlight.widgets.image_panel import MAX_MEMBER_ALPHA
@@ -161,7 +162,7 @@ def test_colour_map_choices_survive_a_restart(qtbot, window, tmp_path):
     window.display_controls.set_colormap_name("channel", "inferno")
     window.display_controls.set_colormap_name("snr", "cividis")
     window.save_settings()
-    again = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    again = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(again)
     try:
         assert again.display_controls.colormap_names() == {"channel": "inferno", "signed": "RdBu", "snr": "cividis"}

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import OpenEXR
 import pytest
+from plain_view import plain_settings
 from exr_corpus import ACES_AP0, complete_mipmap, tiles, write_deep
 from reference import brute_ring_image, edit_manifest, random_impulses, write_dataset
 from ringlight.app.main import main
@@ -208,7 +209,7 @@ def test_the_layers_tab_says_a_monochrome_dataset_has_no_colours(qtbot, tmp_path
 
     write_dataset(tmp_path / "mono", HEIGHT, WIDTH, grey_impulses)
     rewrite_frames(tmp_path / "mono", lambda path, image: write_header(path, {"Y": image[..., 0]}))
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     try:
         with qtbot.waitSignal(window.dataset_loaded, timeout=60_000):

@@ -13,6 +13,7 @@ import pyqtgraph as pg
 import pytest
 from PySide6.QtCore import QSettings
 from PySide6.QtGui import QKeySequence
+from plain_view import plain_settings
 from reference import brute_ring_image, random_impulses, write_dataset
 from ringlight.app.window import MainWindow
 from ringlight.core import open_dataset
@@ -57,7 +58,7 @@ def dataset(tmp_path, impulses):
 
 @pytest.fixture
 def window(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     window.resize(1200, 800)
     window.show()

@@ -10,7 +10,7 @@ from ringlight.core import Cancelled, open_dataset, read_manifest, ring_stack
 from ringlight.core.simulate.camera import optics, specular_reflectance
 from ringlight.core.simulate.lattice import lattice_frames
 from ringlight.core.simulate.photon import reflectance_run, trace_events
-from ringlight.core.simulate.presets import load_scene, preset_names
+from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError, parse_scene
 from ringlight.core.simulate.tables import single_channel_tables, walk_tables
 from ringlight.core.simulate.transport import (
@@ -215,6 +215,24 @@ def test_simulate_cli_lists_presets_and_refuses_bad_arguments(tmp_path, capsys):
     assert "--size 'big' must be HxW" in capsys.readouterr().err
     assert main(["simulate", "nosuch", "--out", str(tmp_path / "x")]) == 2
     assert "neither a preset" in capsys.readouterr().err
+
+
+def test_simulate_list_keeps_its_columns_for_long_names(tmp_path, capsys, monkeypatch):
+    """Issue 39: "layers-reversed" (15 characters) ran into its notes in a 12-character column.
+    Every preset's notes start in one column, after at least two spaces, and wrapped lines stay
+    under it within the terminal's width."""
+    monkeypatch.setenv("COLUMNS", "90")
+    assert main(["simulate", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    names = preset_names()
+    column = max(len(name) for name in names) + 2
+    starts = [line for line in lines if not line.startswith(" ")]
+    assert [line.split()[0] for line in starts] == names
+    for line in lines:
+        assert len(line) <= 90, line
+        assert line[column - 2:column] == "  " and line[column] != " ", line
+    for name, line in zip(names, starts):
+        assert line[column:].startswith(preset_notes(name)[:20])
 
 
 def test_the_seed_actually_used_is_recorded_in_the_dataset(tmp_path):

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from PySide6.QtCore import QMimeData, QPoint, QPointF, QSettings, Qt, QUrl
 from PySide6.QtGui import QDropEvent
+from plain_view import plain_settings
 from reference import (
     brute_ring_image,
     random_impulses,
@@ -50,7 +51,7 @@ def dataset(tmp_path, impulses, truth_images):
 
 @pytest.fixture
 def window(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     window.resize(1200, 800)
     window.show()
@@ -92,7 +93,7 @@ def brute_transient(impulses, radius, dr, thickness=1.0):
 def test_opening_shows_the_dataset_and_its_first_transient(qtbot, window, dataset, impulses):
     open_and_wait(qtbot, window, dataset)
     assert window.windowTitle() == "dataset - ringlight"
-    status = window.dataset_label.text()
+    status = window.dataset_label.toolTip()
     assert f"grid {WIDTH}x{HEIGHT}" in status and f"{len(impulses)} frames" in status
     assert f"{HEIGHT * WIDTH - len(impulses)} missing" in status and "max_radius 6" in status
     radii = window.stacks.pair.radii

@@ -6,12 +6,13 @@ import pytest
 
 pytest.importorskip("PySide6")
 from PySide6.QtCore import QRectF, QSettings, Qt  # noqa: E402
+from plain_view import plain_settings  # noqa: E402
 from reference import random_impulses, write_dataset, write_rgb  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402
 
 
 def test_every_panel_fits_a_1366_by_768_screen(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     try:
         hint = window.minimumSizeHint()

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from PySide6.QtCore import QSettings
+from plain_view import plain_settings
 from reference import random_impulses, write_dataset
 from ringlight.app.window import MainWindow
 from ringlight.core.rings.stack_request import StackRequest, largest_stop
@@ -14,7 +15,7 @@ TIMEOUT_MS = 120_000
 
 @pytest.fixture
 def window(qtbot, tmp_path):
-    window = MainWindow(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    window = MainWindow(plain_settings(tmp_path / "settings.ini"))
     qtbot.addWidget(window)
     window.show()
     qtbot.waitExposed(window)

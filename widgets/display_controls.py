@@ -46,6 +46,7 @@ luminance on a diverging map, which keeps negative transients visible) and its l
 
 _NORMALISATION_LABELS = {
     "per-image": "Per image (robust max)",
+    "range": "Per image (robust min-max)",
     "global": "Global over stack",
     "log": "Log",
     "manual": "Manual levels",

@@ -20,6 +20,8 @@ from PySide6.QtWidgets import QWidget
 MEMBER_RGB = (255, 214, 0)
 MISSING_RGB = (150, 150, 150)
 _CIRCLE_POINTS = 241
+TITLE_MARGIN_PX = 8
+"""Room left right of the wrapped title (the text item's own padding)."""
 
 
 MAX_MEMBER_ALPHA = 96
@@ -98,6 +100,8 @@ class ImagePanel(pg.GraphicsView):
             self.view.addItem(item)
         self.title = pg.TextItem(title, color="w", anchor=(0, 0))
         self.title.setParentItem(self.view)
+        # Wrapped at the view's width: a long title ran on under the colour bar, cut off there.
+        self.view.sigResized.connect(lambda _: self.title.setTextWidth(max(self.view.width() - TITLE_MARGIN_PX, 1)))
         self.display_label = pg.TextItem("", color="#ffd600", anchor=(0, 1), fill=pg.mkBrush(0, 0, 0, 170))
         self.display_label.setParentItem(self.view)
         self.display_label.setZValue(40)
@@ -168,6 +172,7 @@ class ImagePanel(pg.GraphicsView):
         initially the middle half of the grid; edits emit ``region_changed``."""
         if self.region_roi is not None:
             self.view.removeItem(self.region_roi)
+            _delete_menus(self.region_roi)
             self.region_roi = None
         self._region_mode = mode
         if mode != "all" and self._shape is not None:
@@ -324,3 +329,20 @@ class ImagePanel(pg.GraphicsView):
 def _circle(cx: float, cy: float, radius: float) -> tuple[np.ndarray, np.ndarray]:
     angle = np.linspace(0, 2 * np.pi, _CIRCLE_POINTS)
     return cx + radius * np.cos(angle), cy + radius * np.sin(angle)
+
+
+def _delete_menus(roi: pg.ROI) -> None:
+    """Delete the QMenus of a removed ``roi`` (its own, once shown, and its handles') at the event
+    loop's next turn.
+
+    pyqtgraph builds a parentless QMenu for every handle: a top-level widget owned by a Python
+    object in reference cycles (ROI <-> handle), which the cyclic garbage collector frees at
+    whatever allocation it runs in, once while ``QApplication.topLevelWidgets()`` converted its
+    C++ list to Python: the menu was deleted under it (a SIGSEGV in issue 39's GUI walk, right
+    after Region went back to "All pixels"). ``deleteLater`` deletes them between events instead,
+    where no such list is being built; the collector then frees only Python objects.
+    """
+    for item in (roi, *roi.getHandles()):
+        menu = getattr(item, "menu", None)
+        if menu is not None:
+            menu.deleteLater()

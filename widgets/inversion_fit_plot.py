@@ -10,6 +10,8 @@ from PySide6.QtWidgets import QWidget
 CHANNEL_PENS = ("#ff5a5a", "#5ad65a", "#6a8cff")
 KEY = "dots: measured (open: not fitted)<br>lines: model &middot; bars: 2 sigma"
 """Two short lines: a plot's title holds the plot at least as wide as itself."""
+EMPTY_RADIUS = 12.0
+"""Radius (grid steps) the empty plot's axis reaches, that of the bundled samples' max_radius."""
 
 
 class InversionFitPlot(pg.GraphicsLayoutWidget):
@@ -34,14 +36,23 @@ class InversionFitPlot(pg.GraphicsLayoutWidget):
         self.residuals.addLine(y=0, pen=pg.mkPen("#888888"))
         for level in (-2, 2):
             self.residuals.addLine(y=level, pen=pg.mkPen("#555555", style=pg.QtCore.Qt.PenStyle.DashLine))
+        # Radii and residuals in plain numbers: an empty plot's 0..1 range read "r (grid steps)
+        # (x0.001)" with ticks 200..800.
+        self.residuals.getAxis("bottom").enableAutoSIPrefix(False)
+        self.residuals.getAxis("left").enableAutoSIPrefix(False)
         self.ci.layout.setRowStretchFactor(0, 3)
         self.ci.layout.setRowStretchFactor(1, 2)
         self._items: list = []
+        self.clear_fit()
 
     def clear_fit(self) -> None:
+        """Remove the fit; the axes show the ranges of a typical one (r 0..EMPTY_RADIUS, E(r)
+        1e-4..1, residuals -3..3) until the next."""
         for plot, item in self._items:
             plot.removeItem(item)
         self._items = []
+        self.profile.setRange(xRange=(0, EMPTY_RADIUS), yRange=(-4, 0), padding=0.02)  # log10 of E(r)
+        self.residuals.setYRange(-3, 3, padding=0.02)
 
     def show_fit(self, radii, measured, model, sigma, used) -> None:
         """Points for the rings fitted (open circles beyond them), error bars of two sigma, model lines."""
@@ -71,3 +82,5 @@ class InversionFitPlot(pg.GraphicsLayoutWidget):
                                         symbolSize=6, symbolBrush=colour, symbolPen=None)
             self._items += [(self.profile, bars), (self.profile, points), (self.profile, beyond),
                             (self.profile, line), (self.residuals, marks)]
+        for plot in (self.profile, self.residuals):
+            plot.enableAutoRange()

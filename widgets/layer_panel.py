@@ -9,6 +9,7 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QHBoxLayout,
+    QHeaderView,
     QLabel,
     QLineEdit,
     QPushButton,
@@ -125,6 +126,11 @@ class LayerPanel(QWidget):
         self.picked_label = QLabel("Picked radii: none")
         self.message_label = QLabel()
         self.message_label.setWordWrap(True)
+        self.region_statistics_label = QLabel()  # wrapped here: one status-bar line could not hold it at 1366 px
+        self.region_statistics_label.setWordWrap(True)
+        self.region_statistics_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.region_statistics_label.setToolTip("Pixel count, mean and standard deviation of the shown image "
+                                                "over the region")
         self.diagram = ChromaticityDiagram()
         self.diagram.radius_clicked.connect(self.radius_clicked)
         self.fit_plot = InversionFitPlot()
@@ -133,6 +139,8 @@ class LayerPanel(QWidget):
         self.table.setHorizontalHeaderLabels(_COLUMNS)
         self._trust_rule = ""
         self.table.verticalHeader().setVisible(False)
+        # Columns as wide as their header and cells (100 px each cut "depth" and "xy error" at 1366 px).
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         self.table.setMaximumHeight(150)
         exports = QHBoxLayout()
         for key, label in (("json", "Export JSON…"), ("csv", "Export CSV…"), ("png", "Diagram PNG…")):
@@ -166,6 +174,7 @@ class LayerPanel(QWidget):
         self.inverse_rows.setVisible(False)
         layout = QVBoxLayout(self)
         layout.addLayout(choices)
+        layout.addWidget(self.region_statistics_label)
         layout.addWidget(self.picking_row)
         layout.addWidget(self.inverse_rows)
         layout.addWidget(self.picked_label)

@@ -1,8 +1,12 @@
 """Progress of the command-line tools: a tqdm bar on a terminal, log lines elsewhere.
 
-When stderr is not a terminal (a batch job, a pipe), progress goes to the ``ringlight`` logger at
-INFO level, a line every :data:`LOG_STEP` of the work; ``RINGLIGHT_LOG=info`` shows those lines on
-stderr (:func:`configure_logging`).
+When stderr is not a terminal (a batch job, a pipe), progress goes to the ``ringlight`` logger, a
+line every :data:`LOG_STEP` of the work and at least one every :data:`HEARTBEAT_S` while it runs
+(:func:`configure_logging` sends the logger to stderr). With ``RINGLIGHT_LOG=info`` every line
+shows from the start, at INFO level; by default (warning) work that runs past :data:`QUIET_S`
+says so from then on, at WARNING level: ``simulate`` and ``layers --method inverse`` said nothing
+for minutes in a batch job (issue 39), while a short command's stderr stays its result or its one
+line of error. ``RINGLIGHT_LOG=error`` silences them all.
 """
 
 from __future__ import annotations
@@ -12,12 +16,17 @@ import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from time import monotonic
 from typing import TextIO
 
 from ringlight.core.phases import reporting_phases
 
 LOG_STEP = 0.1
 """Fraction of the work between two logged progress lines."""
+HEARTBEAT_S = 60.0
+"""Seconds after which a progress line is logged even within a step (slow work still says so)."""
+QUIET_S = 60.0
+"""Seconds of work after which its progress shows without ``RINGLIGHT_LOG=info``."""
 logger = logging.getLogger("ringlight")
 
 
@@ -57,17 +66,27 @@ def progress_bar(description: str) -> Iterator[Callable[[float], None]]:
     if not sys.stderr.isatty():
         logged = [-1]
         named = [description]
+        started = monotonic()
+        last = [started]
+
+        def say(*message) -> None:
+            """Log at INFO where that shows, else at WARNING once the work ran past QUIET_S."""
+            if logger.isEnabledFor(logging.INFO):
+                logger.info(*message)
+            elif monotonic() - started >= QUIET_S:
+                logger.warning(*message)
 
         def log(fraction: float) -> None:
             step = int(fraction / LOG_STEP + 1e-9)
-            if step > logged[0]:
-                logged[0] = step
-                logger.info("%s: %3.0f%%", named[0], 100 * fraction)
+            if step > logged[0] or monotonic() - last[0] >= HEARTBEAT_S:
+                logged[0] = max(step, logged[0])
+                last[0] = monotonic()
+                say("%s: %3.0f%%", named[0], 100 * fraction)
 
         def name_phase(name: str) -> None:
             if f"{description}: {name}" != named[0]:
                 named[0] = f"{description}: {name}"
-                logger.info("%s", named[0])
+                say("%s", named[0])
         with reporting_phases(name_phase):
             yield log
         return

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
+import textwrap
 
 from ringlight.core.dataset.writer import check_dataset_target
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
@@ -105,10 +107,23 @@ def run_progressive(scene, args, seconds):
     return transport
 
 
+def preset_table(presets: list[tuple[str, str]], width: int) -> list[str]:
+    """``simulate --list``'s lines: each preset's name in a column as wide as the longest name,
+    its notes beside it, wrapped to ``width`` characters under themselves (a fixed 12-character
+    column ran "layers-reversed" into its notes)."""
+    column = max(len(name) for name, _ in presets) + 2
+    lines = []
+    for name, notes in presets:
+        wrapped = textwrap.wrap(notes, max(width - column, 20)) or [""]
+        lines.append(f"{name:<{column}}{wrapped[0]}")
+        lines += [" " * column + line for line in wrapped[1:]]
+    return lines
+
+
 def run_simulate(args) -> int:
     if args.list:
-        for name in preset_names():
-            print(f"{name:12s} {preset_notes(name)}")
+        print("\n".join(preset_table([(name, preset_notes(name)) for name in preset_names()],
+                                      shutil.get_terminal_size().columns)))
         return 0
     if not args.scene or not args.out:
         raise SceneError("simulate needs a SCENE (preset or JSON file) and --out DIR (or --list)")

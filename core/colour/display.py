@@ -3,7 +3,9 @@
 Pipeline for one (H, W, 3) linear image in a dataset's colourspace::
 
     levels (low, high)   from the normalisation: per-image or global robust maximum (a
-                         percentile of finite values, the paper's display), log, or manual
+                         percentile of finite values, the paper's display), per-image robust
+                         minimum to maximum ("range": a nearly uniform image's structure), log,
+                         or manual
     value * 2**exposure  exposure in stops
     colour mode          linear -> sRGB primaries (colour-science matrix) -> (v - low) / (high - low)
                          -> sRGB encoding (colour-science's inverse EOTF, as a 4096-entry table)
@@ -31,7 +33,7 @@ import numpy as np
 
 from ..colourspaces import colour_module
 
-NORMALISATIONS = ("per-image", "global", "log", "manual")
+NORMALISATIONS = ("per-image", "range", "global", "log", "manual")
 CHANNELS = ("rgb", "R", "G", "B", "Y")
 """What an image view shows: colour, one channel, or luminance Y (the colourspace's)."""
 UNDEFINED_RGB = (72, 72, 80)
@@ -106,18 +108,34 @@ def robust_maximum(values: np.ndarray, percentile: float, signed: bool = False) 
     return float(np.percentile(flat, percentile))
 
 
+def robust_range(values: np.ndarray, percentile: float) -> tuple[float, float]:
+    """The ``100 - percentile`` and ``percentile`` percentiles of the finite entries of
+    ``values`` (any shape; all channels count), or (0, 0) when none is finite."""
+    flat = np.asarray(values, np.float32).ravel()
+    flat = flat[np.isfinite(flat)]
+    if flat.size == 0:
+        return (0.0, 0.0)
+    low, high = np.percentile(flat, [100.0 - percentile, percentile])
+    return (float(low), float(high))
+
+
 def display_levels(values: np.ndarray, settings: DisplaySettings, colorspace: str = "sRGB") -> tuple[float, float]:
     """(low, high) for ``values`` (..., 3) linear RGB in ``colorspace`` (one image, or a whole
     stack for ``"global"``), over the values shown (:func:`shown_values`).
 
-    Linear modes give (0, robust max), or (-m, m) when diverging; log gives
-    (max / 10**decades, max); manual gives the user's levels. A zero maximum becomes 1 so that
-    an all-black image stays black instead of dividing by zero.
+    Linear modes give (0, robust max), or (-m, m) when diverging; ``"range"`` gives the
+    (100 - percentile, percentile) percentiles (as ``"per-image"`` when diverging, or where
+    they are equal); log gives (max / 10**decades, max); manual gives the user's levels. A zero
+    maximum becomes 1 so that an all-black image stays black instead of dividing by zero.
     """
     if settings.normalisation == "manual":
         return (float(settings.manual_levels[0]), float(settings.manual_levels[1]))
     if settings.scalar:
         values = shown_values(values, settings, colorspace)
+    if settings.normalisation == "range" and not settings.diverging:
+        low, high = robust_range(values, settings.percentile)
+        if high > low:
+            return (low, high)
     high = robust_maximum(values, settings.percentile, signed=settings.diverging)
     if not high > 0:
         high = 1.0
