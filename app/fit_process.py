@@ -20,12 +20,8 @@ from collections.abc import Callable
 
 import numpy as np
 from ringlight.core import Cancelled, ImpulseDataset, RinglightError
-from ringlight.core.colour.chroma import chromaticity
-from ringlight.core.colour.layer_report import truth_layers
-from ringlight.core.inversion.layer_colour import region_contains
 from ringlight.core.inversion.layers import Inversion, invert
-from ringlight.core.inversion.measured import measured_profile
-from ringlight.core.inversion.report import DatasetInversion, profile_radii
+from ringlight.core.inversion.report import DatasetInversion, invert_region
 from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.phases import phase, reporting_phases
 
@@ -49,17 +45,8 @@ def invert_region_apart(dataset: ImpulseDataset, region: np.ndarray, region_desc
     ``progress(fraction)`` is called in the calling thread; an exception from it (``Cancelled``)
     terminates the child and propagates.
     """
-    settings.check()
-    phase("measuring the region's profile")
-    measured = measured_profile(dataset, region, profile_radii(dataset))
-    inversion = run_apart(invert, (measured, settings, dataset.colorspace), progress)
-    names, truth_rgb = truth_layers(dataset)
-    truth_xy = chromaticity(truth_rgb, dataset.colorspace) if truth_rgb is not None else None
-    errors = inside = None
-    if truth_xy is not None and len(truth_xy) == len(inversion.layers):
-        errors = [float(np.hypot(*(layer.xy - xy))) for layer, xy in zip(inversion.layers, truth_xy)]
-        inside = [region_contains(layer.region, xy) for layer, xy in zip(inversion.layers, truth_xy)]
-    return DatasetInversion(inversion, region_description, names, truth_xy, errors, inside)
+    return invert_region(dataset, region, region_description, settings,
+                         fit=lambda *arguments: run_apart(invert, arguments[:3], progress))
 
 
 def run_apart(fit: Callable[..., Inversion], arguments: tuple, progress: Callable[[float], None]) -> Inversion:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -13,6 +14,7 @@ from ..colour.layer_report import finite_or_none, truth_layers
 from ..dataset.impulse_dataset import ImpulseDataset
 from .layer_colour import region_contains
 from .limit import TOLERANCE_XY
+from ..phases import phase
 from .layers import REACH, Inversion, Progress, invert
 from .settings import InversionSettings
 from .measured import measured_profile
@@ -47,12 +49,17 @@ def profile_radii(dataset: ImpulseDataset) -> np.ndarray:
 
 
 def invert_region(dataset: ImpulseDataset, region: np.ndarray, region_description: str,
-                  settings: InversionSettings, progress: Progress | None = None) -> DatasetInversion:
-    """Measure ``region``'s profile and invert it (see :func:`ringlight.core.inversion.layers.invert`)."""
+                  settings: InversionSettings, progress: Progress | None = None,
+                  fit: Callable[..., Inversion] = invert) -> DatasetInversion:
+    """Measure ``region``'s profile and invert it (see :func:`ringlight.core.inversion.layers.invert`),
+    with the index and anisotropy the dataset states where ``settings`` give none. ``fit``, called
+    as :func:`~ringlight.core.inversion.layers.invert` is (profile, settings, colourspace,
+    progress), runs the fit: the window's runs it in a process of its own."""
     settings.check()
+    phase("measuring the region's profile")
     measured = measured_profile(dataset, region, profile_radii(dataset))
     sample = dataset.manifest.sample
-    inversion = invert(measured, settings.for_dataset(sample), dataset.colorspace, progress)
+    inversion = fit(measured, settings.for_dataset(sample), dataset.colorspace, progress)
     stated = [f"{name} {value:g}" for name, value, given in (("n", sample.n, settings.n), ("g", sample.g, settings.g))
               if value is not None and given is None]
     if stated:
