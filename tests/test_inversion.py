@@ -20,6 +20,7 @@ from ringlight.core.inversion.layers import database_optics, invert
 from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
 from ringlight.core.inversion.report import invert_region, profile_radii
 from ringlight.core.inversion.settings import InversionSettings
+from ringlight.core.inversion.white_cells import CellForward, cell_database, pixel_classes
 from ringlight.core.inversion.white_mc import SlabOptics, run_white, white_database
 from ringlight.core.rings.geometry import ring_geometry
 from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
@@ -113,12 +114,14 @@ def test_layers3_sample_top_and_middle_recovered_base_honestly_undetermined(laye
     inversion = result.inversion
     assert inversion.warning is None and inversion.chi2 < 2 * inversion.dof
     top, middle, base = inversion.layers
-    # Measured here: top 0.007, middle 0.037 xy with the channels fitted together (0.041 and 0.040
-    # one by one: the simulator's noise common to the channels turned the colours). The thin,
-    # weakly scattering top layers' albedo is close to 1, so a 1 % profile pins their colour only
-    # to a few hundredths.
+    # Measured here: top 0.034, middle 0.055 xy, inside regions 0.06 and 0.13 wide, where the data
+    # (8 replicates) allow about 0.07 each: the thin, weakly scattering top layers' albedo is close
+    # to 1, so the profile pins their colour only to a few hundredths (0.007 and 0.037 with the
+    # 20 000-photon records of the white run alone, by the luck of their noise: 0.017 and 0.049 with
+    # 200 000 photons of records).
     assert top.determined and middle.determined and "channels fitted together" in inversion.notes
-    assert result.errors[0] < 0.02 and result.errors[1] < 0.05
+    assert result.errors[0] < 0.05 and result.errors[1] < 0.08
+    assert result.errors[0] < top.region_width and result.errors[1] < middle.region_width
     # The base's green is absorbed by the magenta layer above: no bound from the data.
     assert not base.determined and "G" in base.reason
     assert all(result.inside), result.errors
@@ -372,7 +375,8 @@ def test_a_capture_of_large_max_radius_is_fitted_on_the_rings_a_white_database_h
     inversion = result.inversion
     assert inversion.warning is None and inversion.used.max() <= 14
     assert all(result.inside), result.errors
-    assert result.errors[0] < 0.02, result.errors  # measured 0.005 at 32 x 32
+    # measured 0.041 (0.020 with a final white run of 20 000 photons) in a region 0.10 wide
+    assert result.errors[0] < min(0.05, inversion.layers[0].region_width), result.errors
     # A profile measured further out than a database keeps is refused with one line, not a traceback.
     wider = measured_profile(dataset, np.ones(dataset.grid_shape, bool), np.arange(15.0))
     with pytest.raises(InversionError, match="beyond the 13 pixels"):
@@ -430,13 +434,20 @@ def test_rings_no_white_photon_reaches_and_an_underflowing_model_do_not_stop_a_f
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
     dataset = open_dataset(layers3_sample)
     radii = profile_radii(dataset)
-    settings = InversionSettings(boundaries=(2, 5), mus=100.0, n=1.3, g=0.0, depth=24.0, photons=1000)
+    settings = InversionSettings(boundaries=(2, 5), mus=100.0, n=1.3, g=0.0, depth=24.0, photons=1000,
+                                 final_photons=1000)
     database = white_database(database_optics(settings, 100.0), 1000)
     rings = ring_matrix(radii, database.optics.reach)
     reached = [bool((rings[row, database.pixel] > 0).any()) for row in range(len(radii))]
     expected = reached.index(False) if False in reached else len(radii)
     forward = Forward(database, Structure((0, 2, 5)), radii)
     assert forward.reached == expected < len(radii)
+    # The final fit's own white run, in cells: the rings holding a pixel of a class some cell has.
+    cells = cell_database(database_optics(settings, 100.0), Structure((0, 2, 5)), 1000)
+    lit = np.isin(pixel_classes(database.optics.reach), cells.cell_class)
+    reached = [bool((rings[row] * lit > 0).any()) for row in range(len(radii))]
+    expected = reached.index(False) if False in reached else len(radii)
+    assert CellForward(cells, Structure((0, 2, 5)), radii).reached == expected < len(radii)
     inversion = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", settings).inversion
     assert inversion.used.max() <= expected
     assert "does not fit" in inversion.warning and not any(layer.determined for layer in inversion.layers)

@@ -21,9 +21,9 @@ from ringlight.core.inversion import fit as fit_module
 from ringlight.core.inversion.fit import JOINT_CHI2, PROFILE_TOLERANCE, RELATIVE_FLOOR
 from ringlight.core.inversion.forward import Forward, Structure
 from ringlight.core.inversion.joint import ELLIPSE_CHI2
-from ringlight.core.inversion.layer_colour import region_contains
+from ringlight.core.inversion.layer_colour import joined, region_contains
 from ringlight.core.inversion.layers import invert
-from ringlight.core.inversion.limit import allowed_width, log_absorption_covariance
+from ringlight.core.inversion.limit import allowed_width, data_limits, log_absorption_covariance
 from ringlight.core.inversion.measured import MeasuredProfile
 from ringlight.core.inversion.settings import N_GRID, InversionSettings, settings_from_text
 from ringlight.core.inversion.white_mc import SlabOptics, run_white
@@ -213,3 +213,21 @@ def test_the_cli_fits_at_the_datasets_index_and_reports_what_the_data_allow(tmp_
         if width > 0.02:
             assert layer["beyond_tolerance_because"].startswith("the data allow no narrower than")
             assert f"layer {index + 1}: not determined to 0.02 xy" in printed
+
+
+def test_a_region_joins_the_ellipse_the_data_allow_and_is_never_narrower_than_it():
+    """The data's own two-sigma ellipse of a layer (delta method at the Fisher covariance) is as
+    wide as its allowed width (a 32-gon inscribed in the ellipse: within cos(pi / 32)), and a
+    region joined with it is at least that wide, while a point-like region grows to it."""
+    forward = _forward()
+    mua = np.array([[0.3, 0.02], [0.05, 0.05], [0.01, 0.2]])
+    measured = np.stack([forward.profile(row) for row in mua], axis=1)
+    xy = np.array([[0.45, 0.35], [0.25, 0.3]])
+    limits = data_limits(forward, mua, measured, 0.004 * measured, np.array([8, 8, 8]), "sRGB", xy=xy)
+    for k, limit in enumerate(limits):
+        assert len(limit.ellipse) and np.isfinite(limit.width)
+        width = np.ptp(limit.ellipse, axis=0).max()
+        assert limit.width * math.cos(math.pi / 32) - 1e-12 <= width <= limit.width * (1 + 1e-9)
+        np.testing.assert_allclose(limit.ellipse.mean(axis=0), xy[k], atol=1e-12)
+        tiny = xy[k] + np.array([[0.0, 0.0], [1e-4, 0.0], [0.0, 1e-4]])
+        assert np.ptp(joined(tiny, limit.ellipse), axis=0).max() >= width * (1 - 1e-6)  # hulls are float32

@@ -15,6 +15,7 @@ from ringlight.core import (
 )
 from ringlight.core.rings.coverage import coverage_warning, ring_coverage
 from ringlight.core.rings.interpolate import interpolated_stack
+from ringlight.core.rings.stacks import check_reach_within
 from ringlight.core.rings.stack_io import check_stack_target
 
 from .progress import progress_bar
@@ -66,11 +67,10 @@ def run_stack(args) -> int:
                          + ("--no-cache" if args.no_cache else "--interpolate"))
     check_stack_target(args.out)  # refused before anything is computed
     manifest = load_manifest(args.dataset)
-    if not args.interpolate and manifest.max_radius is not None and reach > manifest.max_radius + 1e-9:
+    if not args.interpolate and manifest.max_radius is not None:
         # Refused before the frames are read (a 100 000-frame dataset was opened first, 25 s).
-        largest = float(radii.max()) + (step if args.kind == "transient" else 0.0)
-        raise StackError(f"the ring of radius {largest:g} (thickness {args.thickness:g}) reaches {reach:.3f} grid "
-                         f"steps, beyond the dataset's max_radius {manifest.max_radius:g}")
+        check_reach_within(manifest.folder, manifest.max_radius, radii, step if args.kind == "transient" else 0.0,
+                           args.thickness, args.antialias)
     with progress_bar("opening the dataset (frames, then its store)") as progress:
         dataset = open_dataset(manifest, radius=reach, use_cache=not args.no_cache, progress=progress,
                                allow_outside=args.allow_outside)

@@ -135,6 +135,11 @@ def widened(layer: InvertedLayer, other: InvertedLayer) -> InvertedLayer:
     return replace(layer, region=region, mua_interval=interval, determined=determined, reason=reason)
 
 
+def joined(region: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The convex hull of ``region`` (K, 2) and ``points`` (N, 2); ``region`` itself without points."""
+    return _hull(np.vstack([region, points])) if len(points) else region
+
+
 def region_contains(region: np.ndarray, xy) -> bool:
     """Whether the polygon ``region`` (K, 2) contains ``xy`` (on the edge counts)."""
     if len(region) < 3:

@@ -30,7 +30,7 @@ from scipy.stats import chi2 as chi2_distribution
 from .fit import JOINT_CHI2, ChannelFit, fit_channels
 from .forward import Forward, Structure, weights_reach
 from .joint import JointFit, fit_jointly
-from .layer_colour import InvertedLayer, layer_colours, widened
+from .layer_colour import InvertedLayer, joined, layer_colours, widened
 from .limit import data_limits, limit_reason
 from .measured import MeasuredProfile
 from .settings import MAX_LAYERS, MUS_GRID, N_GRID, SEARCH_BINS, InversionError, InversionSettings
@@ -242,8 +242,10 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     fitted_mua = joint.mua if joint is not None else np.array([f.mua for f in fits])
     limits = data_limits(forward, fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
                          colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
-                         measured.covariance)
-    layers = [replace(layer, allowed_width=width, limit=limit_reason(width)) for layer, width in zip(layers, limits)]
+                         measured.covariance, np.array([layer.xy for layer in layers]))
+    # A region is never narrower than what the data alone allow (where that is quadratic).
+    layers = [replace(layer, region=joined(layer.region, limit.ellipse), allowed_width=limit.width,
+                      limit=limit_reason(limit.width)) for layer, limit in zip(layers, limits)]
     if joint is not None:
         chi2, dof, model, sigma = joint.chi2, joint.dof, joint.model, joint.sigma
     else:

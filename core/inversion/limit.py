@@ -12,7 +12,10 @@ floor, correlated between channels as the joint fit found); its image in xy by t
 :data:`.joint.ELLIPSE_CHI2`, whose larger extent in x or y is the allowed width. A region much
 wider than it is the model's (the white run's noise, rivals); a region close to it is what this
 profile can say, and a layer whose allowed width exceeds :data:`TOLERANCE_XY` cannot be pinned
-closer by any fit of this profile.
+closer by any fit of this profile. Where the quadratic approximation holds, a layer's region also
+joins this ellipse (:mod:`.layers`): a region is never narrower than what the data alone allow
+(on a held-out slab of data noise far below the white run's, a base layer's region came out
+0.11 wide where the data allow 0.18, with its truth 0.088 away).
 
 Being a local, quadratic measure, it is optimistic where an absorption is weakly determined (the
 chi-square is far from quadratic there). It holds as far as the data's noise is known. A dataset
@@ -25,13 +28,14 @@ per ring), and the relative floor stands in for it.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from .fit import RELATIVE_FLOOR
 from .forward import SMALLEST_E, Forward
-from .joint import ELLIPSE_CHI2
-from .layer_colour import chromaticity_gradient
+from .joint import ELLIPSE_CHI2, chromaticity_ellipse
+from .layer_colour import QUADRATIC_SPREAD, chromaticity_gradient
 from .white_mc import SlabOptics
 
 TOLERANCE_XY = 0.02
@@ -88,20 +92,36 @@ def allowed_width(covariance: np.ndarray, mus: float, mua: np.ndarray, optics: S
     return float(2.0 * math.sqrt(ELLIPSE_CHI2 * max(spread[0, 0], spread[1, 1], 0.0)))
 
 
+class DataLimit(NamedTuple):
+    """What the data allow a layer: its :func:`allowed_width`, and the two-sigma ellipse in xy
+    ((K, 2), around the layer's colour ``xy``) where the quadratic approximation holds (every
+    channel's Fisher standard deviation of ``log mua`` at most
+    :data:`.layer_colour.QUADRATIC_SPREAD`), else empty."""
+
+    width: float
+    ellipse: np.ndarray
+
+
 def data_limits(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray, used: np.ndarray,
                 colorspace: str, correlation: float = 0.0, floor: float = RELATIVE_FLOOR,
-                data_covariance: np.ndarray | None = None) -> list[float]:
-    """Each layer's :func:`allowed_width` at the fit ``mua`` (C, L) of ``forward``'s structure, the
-    data's noise as :func:`log_absorption_covariance` takes it (the joint fit's floor correlation)."""
+                data_covariance: np.ndarray | None = None, xy: np.ndarray | None = None) -> list[DataLimit]:
+    """Each layer's :class:`DataLimit` at the fit ``mua`` (C, L) of ``forward``'s structure, the
+    data's noise as :func:`log_absorption_covariance` takes it (the joint fit's floor correlation);
+    ``xy`` (L, 2), the layers' colours, centres the ellipses (none without)."""
     covariance = log_absorption_covariance(forward, mua, measured, error, used, correlation, floor, data_covariance)
     channels, layers = mua.shape
     optics = forward.database.optics
-    widths = []
+    limits = []
     for k in range(layers):
         index = np.arange(channels) * layers + k
-        widths.append(allowed_width(covariance[np.ix_(index, index)], float(optics.mus[forward.structure.starts[k]]),
-                                    mua[:, k], optics, colorspace))
-    return widths
+        block = covariance[np.ix_(index, index)]
+        mus = float(optics.mus[forward.structure.starts[k]])
+        ellipse = np.zeros((0, 2))
+        if (xy is not None and np.all(np.isfinite(block)) and np.all(np.isfinite(mua[:, k]))
+                and np.all(np.sqrt(np.diagonal(block)) <= QUADRATIC_SPREAD)):
+            ellipse = chromaticity_ellipse(xy[k], chromaticity_gradient(mus, mua[:, k], optics, colorspace), block)
+        limits.append(DataLimit(allowed_width(block, mus, mua[:, k], optics, colorspace), ellipse))
+    return limits
 
 
 def limit_reason(width: float) -> str:

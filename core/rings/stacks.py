@@ -199,8 +199,14 @@ def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: fl
     """Raise StackError, naming the dataset and the radii that would work, when a ring of
     ``radii`` (or, for a transient ``step`` > 0, of ``radii + step``) reaches beyond the
     dataset's ``max_radius`` (grid steps)."""
+    check_reach_within(dataset.manifest.folder, dataset.max_radius, radii, step, thickness, antialias)
+
+
+def check_reach_within(folder, max_radius: float, radii, step: float = 0.0, thickness: float = 1.0,
+                       antialias: bool = False) -> None:
+    """:func:`check_reach` for the dataset in ``folder`` of ``max_radius``, before it is opened."""
     radii = _as_radii(radii)
-    limit = dataset.max_radius + 1e-9
+    limit = max_radius + 1e-9
     if needed_radius(radii, thickness, step, antialias) <= limit:
         return
 
@@ -224,8 +230,8 @@ def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: fl
     else:
         suggestion = f"no {kind} of those requested work"
     raise StackError(
-        f"{dataset.manifest.folder}: the ring of radius {beyond + step:g} (thickness {thickness:g}) reaches "
-        f"{reach(beyond):.3f} grid steps, beyond the dataset's max_radius {dataset.max_radius:g}; {suggestion}"
+        f"{folder}: the ring of radius {beyond + step:g} (thickness {thickness:g}) reaches "
+        f"{reach(beyond):.3f} grid steps, beyond the dataset's max_radius {max_radius:g}; {suggestion}"
     )
 
 
