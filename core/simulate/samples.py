@@ -6,7 +6,7 @@ A sample file (``NAME.npz``) holds a :class:`.transport.Transport` in little spa
 inside the disc of ``max_radius`` only (the frames hold nothing else), as float16 ratios to a
 float32 scale per offset and channel (relative precision 5e-4, far below the noise), or, for a
 layered scene where every lit point sees the same response, that one response (and, when the
-sample was simulated in independent replicates, :mod:`.replicates`, each replicate's response:
+sample was simulated in independent replicates, :mod:`ringlight.core.simulate.replicates`, each replicate's response:
 the dataset then holds them as its replicates, and its noise is measured); the path-length images
 in float32; the scene is the preset at the stored size. Its ``noise`` array is the estimated
 relative noise of T_r per radius that ``make_samples`` printed.

@@ -69,7 +69,7 @@ class Transport:
         ``"camera"`` or ``"exitance"``, the scene's.
     replicates
         Windows (each as ``windows``) of independent runs whose mean ``windows`` is
-        (:mod:`.replicates`), or empty: written as the dataset's replicates (the frame key
+        (:mod:`ringlight.core.simulate.replicates`), or empty: written as the dataset's replicates (the frame key
         ``replicate``), so that its noise, shared by lit points or not, can be measured.
     """
 
