@@ -122,18 +122,20 @@ def test_hostile_option_values_are_one_line_or_a_result(command, inputs, tmp_pat
 
 
 @pytest.mark.parametrize("radii, thickness, expected", [
-    # The transient stack's largest ring is its last radius plus dr = 1.
-    ("0:4000:1", "1", "the ring of radius 4001 (thickness 1) reaches 4001.499 grid steps, beyond the dataset's "
-                      "max_radius 3"),
-    ("0:3:1", "4000", "the ring of radius 4 (thickness 4000) reaches 2003.998 grid steps, beyond the dataset's "
-                      "max_radius 3"),
+    # A transient at r uses the ring r + 1 (dr = 1): the first that reaches beyond max_radius 3 is
+    # named, with the radii that work. Ring 3's members (|d| < 3.5) include (3, 1), 3.162 away;
+    # every ring of thickness 4000 reaches about 2000.
+    ("0:4000:1", "1", "the ring of radius 3 (thickness 1) reaches 3.162 grid steps, beyond the dataset's "
+                      "max_radius 3; transient radii (dr 1) up to 1 work (radii 0:1:1)"),
+    ("0:3:1", "4000", "the ring of radius 1 (thickness 4000) reaches 2000.998 grid steps, beyond the dataset's "
+                      "max_radius 3; no transient radii (dr 1) of those requested work"),
 ])
 def test_a_stack_beyond_max_radius_is_refused_before_its_rings_are_built(inputs, tmp_path, capsys, radii, thickness,
                                                                          expected):
     """Case 13: 2.3 GB and 1.4 GB of rings were built before the one-line refusal."""
     status, err, peak = run(capsys, ["stack", str(inputs / "ds"), "--radii", radii, "--thickness", thickness,
                                      "--out", str(tmp_path / "out")])
-    assert status == 2 and err[-1] == f"ringlight: error: {expected}"
+    assert status == 2 and err[-1] == f"ringlight: error: {inputs / 'ds'}: {expected}"
     assert peak < 64 * 2**20, f"{peak / 2**20:.0f} MiB"
     assert not (tmp_path / "out").exists()
 

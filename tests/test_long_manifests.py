@@ -68,7 +68,8 @@ def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys
                                                                            original(self, *args, **kwargs))[1])
     status = main(["stack", str(long_dataset), "--radii", "0:3:1", "--out", str(tmp_path / "out")])
     assert status == 2 and reads == []
-    assert capsys.readouterr().err.strip() == ("ringlight: error: the ring of radius 4 (thickness 1) reaches 4.472 "
-                                               "grid steps, beyond the dataset's max_radius 3")
+    assert capsys.readouterr().err.strip() == (f"ringlight: error: {long_dataset}: the ring of radius 3 (thickness 1) "
+                                               "reaches 3.162 grid steps, beyond the dataset's max_radius 3; transient "
+                                               "radii (dr 1) up to 1 work (radii 0:1:1)")
     status = main(["stack", str(long_dataset), "--radii", "0:2:1", "--kind", "ring", "--out", str(tmp_path / "out")])
     assert status == 0 and len(reads) >= 1000
