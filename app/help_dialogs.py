@@ -11,7 +11,15 @@ from pathlib import Path
 
 from PySide6.QtCore import Qt, QUrl
 from PySide6.QtGui import QFontDatabase, QKeySequence
-from PySide6.QtWidgets import QDialog, QDialogButtonBox, QLabel, QMessageBox, QPlainTextEdit, QVBoxLayout
+from PySide6.QtWidgets import (
+    QDialog,
+    QDialogButtonBox,
+    QLabel,
+    QMessageBox,
+    QPlainTextEdit,
+    QVBoxLayout,
+    QWidget,
+)
 
 from .dataset_info import describe_dataset
 
@@ -78,12 +86,7 @@ class HelpDialogs:
         label.setTextInteractionFlags(Qt.TextInteractionFlag.TextBrowserInteraction)
         label.setWordWrap(True)
         label.setMinimumWidth(460)
-        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok)
-        buttons.accepted.connect(dialog.accept)
-        layout = QVBoxLayout(dialog)
-        layout.addWidget(label)
-        layout.addWidget(buttons)
-        dialog.open()  # not exec(): the window keeps running behind it
+        _show_with_ok(dialog, label)
 
     def _information(self, title: str, text: str, columns: bool = False) -> None:
         """An information box; ``columns``: lines padded into columns, in a fixed-width font."""
@@ -113,12 +116,18 @@ class HelpDialogs:
         margin = 2 * view.frameWidth() + 2 * int(view.document().documentMargin()) + view.verticalScrollBar().sizeHint().width()
         width = min(max(metrics.horizontalAdvance(line) for line in lines) + margin, int(0.9 * screen.width()) - 40)
         view.setMinimumSize(width, min(metrics.lineSpacing() * (len(lines) + 2), int(0.8 * screen.height()) - 80))
-        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok)
-        buttons.accepted.connect(dialog.accept)
-        layout = QVBoxLayout(dialog)
-        layout.addWidget(view)
-        layout.addWidget(buttons)
-        dialog.open()  # not exec(): the window keeps running behind it
+        _show_with_ok(dialog, view)
+
+
+def _show_with_ok(dialog: QDialog, content: QWidget) -> None:
+    """Lay ``content`` out in ``dialog`` above an OK button and show it without blocking (not
+    exec(): the window keeps running behind it)."""
+    buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok)
+    buttons.accepted.connect(dialog.accept)
+    layout = QVBoxLayout(dialog)
+    layout.addWidget(content)
+    layout.addWidget(buttons)
+    dialog.open()
 
 
 def _version() -> str:

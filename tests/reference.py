@@ -113,6 +113,17 @@ def brute_ring_image(impulses, height, width, radius, thickness=1.0, weight=None
     return out
 
 
+def assert_slopes_are_central_differences(forward, mua, step: float = 1e-6, rtol: float = 1e-5) -> None:
+    """A forward model's ``profile(mua, derivatives=True)`` slopes (R, L) against central
+    differences of its own profile, layer by layer."""
+    _, slopes = forward.profile(mua, derivatives=True)
+    for k in range(len(mua)):
+        shift = np.zeros(len(mua))
+        shift[k] = step
+        numeric = (forward.profile(mua + shift) - forward.profile(mua - shift)) / (2 * step)
+        np.testing.assert_allclose(slopes[:, k], numeric, rtol=rtol)
+
+
 def supersampled_annulus_weight(radius, thickness, samples=64):
     """Pixel coverage of the annulus by supersampling (an independent check of exact areas);
     each offset's weight is computed once (brute-force images ask for it at every pixel)."""

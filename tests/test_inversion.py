@@ -29,7 +29,7 @@ from ringlight.core.simulate.photon import trace_events
 from ringlight.core.simulate.samples import sample_dataset
 from ringlight.core.simulate.tables import walk_tables
 
-from reference import write_dataset
+from reference import assert_slopes_are_central_differences, write_dataset
 
 RADII = np.arange(0.0, 10.0)
 REACH = 13
@@ -82,13 +82,7 @@ def test_white_forward_model_equals_the_direct_simulator_within_three_standard_e
 def test_white_derivatives_match_finite_differences():
     optics = SlabOptics((1.0,) * 5, 0.0, 1.3, 16.0, REACH)
     forward = Forward(run_white(optics, 2_000, seed=1), Structure((0, 2)), RADII)
-    mua = np.array([0.1, 0.03])
-    _, slopes = forward.profile(mua, derivatives=True)
-    for k in range(2):
-        step = np.zeros(2)
-        step[k] = 1e-6
-        numeric = (forward.profile(mua + step) - forward.profile(mua - step)) / 2e-6
-        np.testing.assert_allclose(slopes[:, k], numeric, rtol=1e-5)
+    assert_slopes_are_central_differences(forward, np.array([0.1, 0.03]))
 
 
 @pytest.fixture(scope="module")

@@ -20,6 +20,7 @@ from ringlight.core.inversion.white_cells import (
 )
 from ringlight.core.inversion.white_mc import DatabaseError, SlabOptics, run_white
 
+from reference import assert_slopes_are_central_differences
 from test_inversion import MUA, MUS, RADII, TOPS, direct_profile
 
 # layers3's slab: two weakly scattering layers over a base that scatters three times as much.
@@ -82,14 +83,7 @@ def test_cells_hold_a_fraction_of_their_records(cells, records):
 
 
 def test_cell_derivatives_match_finite_differences(cells):
-    forward = CellForward(cells, STRUCTURE, RADII)
-    mua = np.array([0.05, 0.2, 0.01])
-    _, slopes = forward.profile(mua, derivatives=True)
-    for k in range(3):
-        step = np.zeros(3)
-        step[k] = 1e-6
-        numeric = (forward.profile(mua + step) - forward.profile(mua - step)) / 2e-6
-        np.testing.assert_allclose(slopes[:, k], numeric, rtol=1e-5)
+    assert_slopes_are_central_differences(CellForward(cells, STRUCTURE, RADII), np.array([0.05, 0.2, 0.01]))
 
 
 def test_the_batches_variance_matches_the_records_per_photon_variance():
