@@ -22,14 +22,8 @@ from .dataset.writer import DatasetWriter
 from .errors import Cancelled, DatasetError, RinglightError, StackError
 from .rings.geometry import RingGeometry, annulus_pixel_area, ring_geometry
 from .rings.stack_io import read_stack, write_stack
-from .rings.stacks import (
-    Stack,
-    needed_radius,
-    parse_radius_range,
-    radius_range,
-    ring_stack,
-    transient_stack,
-)
+from .rings.radii import needed_radius, parse_radius_range, radius_range
+from .rings.stacks import Stack, ring_stack, transient_stack
 
 __all__ = [
     "Cancelled", "DatasetError", "DatasetWriter", "ImpulseDataset", "Manifest", "RingGeometry",

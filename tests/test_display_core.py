@@ -35,7 +35,7 @@ from ringlight.core.dataset.ground_truth import (
     scaled_difference,
 )
 from ringlight.core.rings.profiles import pixel_profile, profile_rings
-from ringlight.core.rings.stacks import needed_radius
+from ringlight.core.rings.radii import needed_radius
 from ringlight.core.rings.stack_request import (
     StackRequest,
     compute_stacks,

@@ -15,7 +15,8 @@ import pytest
 from ringlight.app.main import main
 from ringlight.core.colour.chroma import chromaticity
 from ringlight.core.dataset.impulse_dataset import open_dataset
-from ringlight.core.dataset.manifest import Sample, read_manifest
+from ringlight.core.dataset.manifest import read_manifest
+from ringlight.core.dataset.sample import Sample
 from ringlight.core.errors import DatasetError
 from ringlight.core.inversion import fit as fit_module
 from ringlight.core.inversion.fit import JOINT_CHI2, PROFILE_TOLERANCE, RELATIVE_FLOOR

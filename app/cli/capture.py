@@ -19,7 +19,7 @@ from ringlight.core.capture.workflow import (
     run_scan,
 )
 from ringlight.core.colour.regions import parse_rectangle
-from ringlight.core.rings.stacks import MAX_RING_REACH
+from ringlight.core.rings.radii import MAX_RING_REACH
 
 from .progress import progress_bar
 

@@ -15,7 +15,7 @@ from ringlight.core import (
 )
 from ringlight.core.rings.coverage import coverage_warning, ring_coverage
 from ringlight.core.rings.interpolate import interpolated_stack
-from ringlight.core.rings.stacks import check_reach_within
+from ringlight.core.rings.radii import check_reach_within
 from ringlight.core.rings.stack_io import check_stack_target
 
 from .progress import progress_bar

@@ -18,6 +18,7 @@ from ..colourspaces import parse_colourspace
 from ..errors import DatasetError
 from ..validation import Validator, decode_json, read_bounded, short_repr
 from .file_paths import FileResolver
+from .sample import Sample, parse_sample
 from .spacing import check_multiplexed_spacing
 
 FORMAT_NAME = "ringlight-impulse"
@@ -34,10 +35,6 @@ MAX_REPLICATE = 2**31 - 1
 _TRUTH_KEYS = {"path_length_images", "layers"}
 _PATH_IMAGE_KEYS = {"file", "min", "max"}
 _LAYER_KEYS = {"name", "depth", "rgb"}
-_SAMPLE_KEYS = {"n", "g"}
-INDEX_RANGE = (1.0, 3.0)
-"""Refractive indices a manifest's ``sample.n`` may state (air to the densest glasses)."""
-
 MAX_GRID_POINTS = 2**26
 """Largest grid (H x W) a manifest may declare: 8192 x 8192, far beyond any projector."""
 MAX_RADIUS_LIMIT = 1024.0
@@ -83,17 +80,6 @@ class Layer:
 class GroundTruth:
     path_length_images: tuple[PathLengthImage, ...] = ()
     layers: tuple[Layer, ...] = ()
-
-
-@dataclass(frozen=True)
-class Sample:
-    """What is known of the surface (the manifest's optional ``sample`` key): refractive index ``n``
-    in [1, 3] and Henyey-Greenstein anisotropy ``g`` in (-1, 1); None where not stated. The
-    simulator writes its scene's; a user may state them for a real capture; tools (the layer
-    inversion) take them as defaults."""
-
-    n: float | None = None
-    g: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,7 +233,7 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
         raise DatasetError(f"{where}: 'max_radius' {max_radius:g} is over {MAX_RADIUS_LIMIT:g} grid steps")
     dark = check.relative_file(doc["dark"], "dark") if "dark" in doc else None
     notes = check.string(doc["notes"], "notes") if "notes" in doc else None
-    sample = _parse_sample(check, doc["sample"]) if "sample" in doc else Sample()
+    sample = parse_sample(check, doc["sample"]) if "sample" in doc else Sample()
 
     checked = frames is not None
     if not checked:
@@ -270,18 +256,6 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
     return manifest
 
 
-def _parse_sample(check: Validator, value: object) -> Sample:
-    """The ``sample`` key: ``{"n": ..., "g": ...}``, each optional."""
-    doc = check.mapping(value, "sample", _SAMPLE_KEYS, set())
-    n = check.number(doc["n"], "sample.n") if "n" in doc else None
-    if n is not None and not INDEX_RANGE[0] <= n <= INDEX_RANGE[1]:
-        raise check.fail("sample.n", f"a refractive index in [{INDEX_RANGE[0]:g}, {INDEX_RANGE[1]:g}]", doc["n"])
-    g = check.number(doc["g"], "sample.g") if "g" in doc else None
-    if g is not None and not -1.0 < g < 1.0:
-        raise check.fail("sample.g", "an anisotropy in (-1, 1)", doc["g"])
-    return Sample(n, g)
-
-
 def _check_replicates(where: Path, manifest: Manifest) -> None:
     """Every replicate must light the same points (else a point's noise has no replicate spread)."""
     lit = {}
@@ -295,12 +269,6 @@ def _check_replicates(where: Path, manifest: Manifest) -> None:
             raise DatasetError(f"{where}: replicate {label} lights {len(points)} points and replicate {labels[0]} "
                                f"{len(first)}{'' if len(points) != len(first) else ' others'}: every replicate must "
                                "light the same points")
-
-
-def sample_json(sample: Sample) -> dict | None:
-    """The ``sample`` key of ``sample`` as a manifest writes it; None when nothing is stated."""
-    stated = {key: value for key, value in (("n", sample.n), ("g", sample.g)) if value is not None}
-    return stated or None
 
 
 def _parse_channels(check: Validator, value: object) -> tuple[str, ...]:

@@ -47,8 +47,8 @@ from .manifest import (
     Manifest,
     locate_manifest,
     parse_manifest,
-    sample_json,
 )
+from .sample import sample_json
 
 COPY_NAME = "manifest.npz"
 COPY_VERSION = 2

@@ -26,7 +26,8 @@ from ..staging_locks import sweep_abandoned
 from ..validation import read_json
 from .cache import CACHE_FOLDER_NAME
 from .exr import write_exr_channels, write_exr_rgb
-from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, Sample, parse_manifest, sample_json
+from .manifest import FORMAT_NAME, FORMAT_VERSION, MANIFEST_NAME, parse_manifest
+from .sample import Sample, sample_json
 
 RINGLIGHT_SUBFOLDERS = (CACHE_FOLDER_NAME, ".scan")
 """Folders ringlight keeps inside a dataset: the cache and a capture's scan record."""

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..dataset.manifest import Sample
+from ..dataset.sample import Sample
 from ..errors import RinglightError
 
 SEARCH_BINS = 9

@@ -42,9 +42,9 @@ from ..colourspaces import colour_module
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..errors import StackError
 from .replicate_noise import replicate_spread
+from .radii import RADIUS_DECIMALS
 from .stacks import ring_weight_matrix
 
-_RADIUS_DECIMALS = 9
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,10 +99,10 @@ def stack_noise(dataset: ImpulseDataset, radii, step: float = 1.0, thickness: fl
     counts members from the lit mask instead of reading flags). ``progress`` may raise
     ``Cancelled``.
     """
-    radii = np.round(np.atleast_1d(np.asarray(radii, np.float64)), _RADIUS_DECIMALS)
+    radii = np.round(np.atleast_1d(np.asarray(radii, np.float64)), RADIUS_DECIMALS)
     if not math.isfinite(step) or step <= 0:
         raise StackError(f"transient step dr must be > 0, got {step}")
-    outer = np.round(radii + step, _RADIUS_DECIMALS)
+    outer = np.round(radii + step, RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
     luma = luminance_weights(dataset.colorspace)
     inner, outer = np.searchsorted(unique, radii), np.searchsorted(unique, outer)

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..errors import StackError
-from .stacks import Stack, check_ring_shape, needed_radius, radius_range, ring_and_transient_stacks
+from .radii import check_ring_shape, needed_radius, radius_range
+from .stacks import Stack, ring_and_transient_stacks
 
 
 @dataclass(frozen=True)

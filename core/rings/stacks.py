@@ -24,14 +24,7 @@ from ..dataset.manifest import Manifest
 from ..errors import StackError
 from .geometry import ring_geometry, ring_outer_radius
 from .members import ring_members, unit_weight_rings
-
-_RADIUS_DECIMALS = 9
-MAX_RADII = 10_000
-"""Radii a range may hold (a step of 1e-9 asked for 37 GiB of radii before a single image)."""
-MAX_RING_REACH = 4096.0
-"""Largest ring reach (grid steps) a stack may ask for: far beyond any max_radius a dataset can hold
-(the response array grows with its square), and a thickness of 10^5 built a 149 GiB grid of
-offsets before the dataset's max_radius was compared."""
+from .radii import RADIUS_DECIMALS, as_radii, check_reach
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,40 +57,6 @@ class Stack:
     step: float | None = None
 
 
-def radius_range(start: float, stop: float, step: float) -> np.ndarray:
-    """Radii ``start, start + step, ...`` up to and including ``stop`` (within 1e-9).
-
-    Examples
-    --------
-    >>> radius_range(0, 2, 0.5).tolist()
-    [0.0, 0.5, 1.0, 1.5, 2.0]
-    """
-    if not all(math.isfinite(v) for v in (start, stop, step)):
-        raise StackError(f"radii {start}:{stop}:{step} must be finite numbers")
-    if step <= 0:
-        raise StackError(f"radius step must be > 0, got {step}")
-    if start < 0 or stop < start:
-        raise StackError(f"radii need 0 <= start <= stop, got {start}:{stop}")
-    span = (stop - start) / step
-    if not span < MAX_RADII:  # infinity too
-        raise StackError(f"radii {start:g}:{stop:g}:{step:g} are more than {MAX_RADII}: use a larger step "
-                         "or a shorter range")
-    count = int(math.floor(span + 1e-9)) + 1
-    return np.round(start + step * np.arange(count), _RADIUS_DECIMALS)
-
-
-def parse_radius_range(text: str) -> np.ndarray:
-    """Parse ``"START:STOP:STEP"`` (STOP inclusive) into radii; see :func:`radius_range`."""
-    parts = text.split(":")
-    try:
-        if len(parts) != 3:
-            raise ValueError
-        start, stop, step = (float(part) for part in parts)
-    except ValueError:
-        raise StackError(f"radii {text!r} must be START:STOP:STEP, e.g. 1:20:1") from None
-    return radius_range(start, stop, step)
-
-
 def ring_stack(
     dataset: ImpulseDataset,
     radii,
@@ -114,7 +73,7 @@ def ring_stack(
 
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
-    radii = _as_radii(radii)
+    radii = as_radii(radii)
     check_reach(dataset, radii, 0.0, thickness, antialias)
     images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler)
     return Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images, counts)
@@ -148,11 +107,11 @@ def ring_and_transient_stacks(
 ) -> tuple[Stack, Stack]:
     """E_r and T_r = E_r - E_{r+step} for the same ``radii``, sharing every ring: the ring
     light stack's images are views into the computed rings whenever the radii allow it."""
-    radii = _as_radii(radii)
+    radii = as_radii(radii)
     if not math.isfinite(step) or step <= 0:
         raise StackError(f"transient step dr must be > 0, got {step}")
     check_reach(dataset, radii, step, thickness, antialias)
-    outer = np.round(radii + step, _RADIUS_DECIMALS)
+    outer = np.round(radii + step, RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
     images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler)
     inner = _as_selection(np.searchsorted(unique, radii))
@@ -172,69 +131,6 @@ def _as_selection(index: np.ndarray) -> slice | np.ndarray:
     return index
 
 
-def check_ring_shape(thickness: float, dr: float = 0.0, transient: bool = False) -> None:
-    """Raise StackError unless ``thickness`` is finite and > 0 and the transient step ``dr`` is
-    finite and >= 0 (> 0 for a ``transient`` stack; 0 adds nothing to a ring light stack's reach)."""
-    if not (math.isfinite(dr) and (dr > 0 if transient else dr >= 0)):
-        raise StackError(f"transient step dr must be > 0, got {dr}")
-    if not (math.isfinite(thickness) and thickness > 0):
-        raise StackError(f"ring thickness must be > 0, got {thickness}")
-
-
-def needed_radius(radii, thickness: float = 1.0, step: float = 0.0, antialias: bool = False) -> float:
-    """Largest member distance (grid steps) of the rings a stack over ``radii`` uses: the
-    ``radius`` to open a dataset without ``max_radius`` at."""
-    check_ring_shape(thickness, step)
-    largest = float(_as_radii(radii).max()) + step
-    if not largest + thickness / 2.0 <= MAX_RING_REACH:
-        raise StackError(f"rings to radius {largest:g} of thickness {thickness:g} reach beyond "
-                         f"{MAX_RING_REACH:g} grid steps, more than any dataset holds")
-    if antialias:
-        return ring_geometry(largest, thickness, antialias).outer_radius
-    return ring_outer_radius(largest, thickness)  # not the ring itself: 2.3 GB at radius 4000
-
-
-def check_reach(dataset: ImpulseDataset, radii, step: float = 0.0, thickness: float = 1.0,
-                antialias: bool = False) -> None:
-    """Raise StackError, naming the dataset and the radii that would work, when a ring of
-    ``radii`` (or, for a transient ``step`` > 0, of ``radii + step``) reaches beyond the
-    dataset's ``max_radius`` (grid steps)."""
-    check_reach_within(dataset.manifest.folder, dataset.max_radius, radii, step, thickness, antialias)
-
-
-def check_reach_within(folder, max_radius: float, radii, step: float = 0.0, thickness: float = 1.0,
-                       antialias: bool = False) -> None:
-    """:func:`check_reach` for the dataset in ``folder`` of ``max_radius``, before it is opened."""
-    radii = _as_radii(radii)
-    limit = max_radius + 1e-9
-    if needed_radius(radii, thickness, step, antialias) <= limit:
-        return
-
-    def reach(radius: float) -> float:
-        return needed_radius([radius], thickness, step, antialias)
-
-    # The reach grows with the radius: bisect the sorted radii for the last one that fits
-    # (a few ring geometries, where testing each of up to 10 000 radii could take minutes).
-    ordered = np.unique(radii)
-    low, high = -1, len(ordered) - 1  # ordered[high] does not fit; ordered[low] does (or none)
-    while high - low > 1:
-        middle = (low + high) // 2
-        low, high = (middle, high) if reach(ordered[middle]) <= limit else (low, middle)
-    beyond = float(ordered[high])
-    kind = f"transient radii (dr {step:g})" if step > 0 else "ring radii"
-    if low >= 0:
-        best = float(ordered[low])
-        spacing = float(radii[1] - radii[0]) if len(radii) > 1 else 0.0
-        regular = spacing > 0 and np.allclose(np.diff(radii), spacing)
-        suggestion = f"{kind} up to {best:g} work" + (f" (radii {radii[0]:g}:{best:g}:{spacing:g})" if regular else "")
-    else:
-        suggestion = f"no {kind} of those requested work"
-    raise StackError(
-        f"{folder}: the ring of radius {beyond + step:g} (thickness {thickness:g}) reaches "
-        f"{reach(beyond):.3f} grid steps, beyond the dataset's max_radius {max_radius:g}; {suggestion}"
-    )
-
-
 def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, antialias: bool = False) -> np.ndarray:
     """Ring weights over the dataset's offset axis: (len(radii), K) float64.
 
@@ -244,24 +140,12 @@ def ring_weight_matrix(dataset: ImpulseDataset, radii, thickness: float = 1.0, a
         w = matrix * dataset.validity_rows(y, y + 1)[0, x]   # drop missing and outside lit points
         E = (w @ dataset.point(y, x)) / w.sum(1)        # (n, 3): E_r(p) for every radius
     """
-    radii = _as_radii(radii)
+    radii = as_radii(radii)
     first, stop, weight_start, weights = _ring_tables(dataset, radii, thickness, antialias)
     matrix = np.zeros((len(radii), len(dataset.offsets)))
     for row in range(len(radii)):
         matrix[row, first[row]:stop[row]] = weights[weight_start[row]:weight_start[row + 1]]
     return matrix
-
-
-def _as_radii(radii) -> np.ndarray:
-    radii = np.atleast_1d(np.asarray(radii, np.float64))
-    if radii.ndim != 1 or radii.size == 0:
-        raise StackError("a stack needs at least one radius")
-    if not np.isfinite(radii).all() or (radii < 0).any():
-        raise StackError("ring radii must be finite and >= 0")
-    if radii.max() > MAX_RING_REACH:  # before rounding: 1e308 overflowed in it
-        raise StackError(f"ring radius {radii.max():g} reaches beyond {MAX_RING_REACH:g} grid steps, "
-                         "more than any dataset holds")
-    return np.round(radii, _RADIUS_DECIMALS)
 
 
 def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, antialias: bool):

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset.impulse_dataset import ProgressCallback, disc_offsets
-from ..dataset.manifest import Manifest, Sample
+from ..dataset.manifest import Manifest
+from ..dataset.sample import Sample
 from ..dataset.writer import DatasetWriter
 from . import photon
 from .adding_doubling import thick_slab_reflectance
