@@ -47,6 +47,8 @@ CHUNK_PHOTONS = 20_000
 """Photons a chunk's records hold at once (about 30 MB of records)."""
 FORMAT_VERSION = 2
 _ARRAYS = ("photons", "cell_class", "weight", "mean", "spread", "batch_weight", "seconds")
+GROWTH = 1.25
+"""Factor by which the tally's arrays grow when full."""
 _LEVELS = 64
 """Length bins per layer, 0 included: SHORTEST * RATIO^62 is about 10^4 grid steps."""
 
@@ -105,7 +107,8 @@ def run_cells(optics: SlabOptics, structure: Structure, photons: int, seed: int 
     chunks = BATCHES * max(1, -(-photons // (CHUNK_PHOTONS * BATCHES)))
     per_chunk = -(-photons // chunks)
     classes = pixel_classes(optics.reach)
-    cells = _Tally(1 + layers + layers * layers)
+    pairs = np.triu_indices(layers)
+    cells = _Tally(1 + layers + len(pairs[0]))
     traced = 0
     for chunk in range(chunks):
         records = run_white(optics, per_chunk, seed + (chunk << 32))
@@ -118,23 +121,26 @@ def run_cells(optics: SlabOptics, structure: Structure, photons: int, seed: int 
         unique, inverse = np.unique(key, return_inverse=True)
         value = records.value.astype(np.float64)
         del records
-        moments = np.empty((len(unique), 1 + layers + layers * layers))
+        moments = np.empty((len(unique), cells.columns))
         moments[:, 0] = np.bincount(inverse, value, len(unique))
         for k in range(layers):
             moments[:, 1 + k] = np.bincount(inverse, value * lengths[:, k], len(unique))
-            for j in range(layers):
-                moments[:, 1 + layers + k * layers + j] = np.bincount(
-                    inverse, value * lengths[:, k] * lengths[:, j], len(unique))
+        for column, (k, j) in enumerate(zip(*pairs), start=1 + layers):
+            moments[:, column] = np.bincount(inverse, value * lengths[:, k] * lengths[:, j], len(unique))
         cells.add(unique, moments, chunk % BATCHES)
         if progress is not None:
             progress((chunk + 1) / chunks)
     keys, sums, batch_weight = cells.arrays()
-    weight = sums[:, 0]
+    del cells
+    weight = sums[:, 0].copy()
     mean = sums[:, 1:1 + layers] / weight[:, None]
-    second = sums[:, 1 + layers:].reshape(-1, layers, layers) / weight[:, None, None]
-    spread = second - mean[:, :, None] * mean[:, None, :]
+    spread = np.empty((len(weight), layers, layers))
+    for column, (k, j) in enumerate(zip(*pairs), start=1 + layers):
+        spread[:, k, j] = sums[:, column] / weight - mean[:, k] * mean[:, j]
+        spread[:, j, k] = spread[:, k, j]
+    del sums
     return CellDatabase(optics, tuple(structure.starts), traced, keys // _LEVELS ** layers, weight, mean, spread,
-                        batch_weight, time.perf_counter() - start)
+                        np.ascontiguousarray(batch_weight.T), time.perf_counter() - start)
 
 
 def cells_path(optics: SlabOptics, structure: Structure, photons: int, seed: int) -> Path:
@@ -207,15 +213,17 @@ def _length_bin(length: np.ndarray) -> np.ndarray:
 
 
 class _Tally:
-    """Cells as they fill: keys, moment sums (``columns`` per cell) and each batch's weight, in
-    arrays that grow by half when full (no sorted copy of everything per chunk); ``order`` sorts
-    the keys, so a chunk's cells are found by binary search."""
+    """Cells as they fill: keys, moment sums (``columns`` per cell: the weight, then the weighted
+    sums of each layer's length and of each product of two, ``k <= j``) and each batch's weight, a
+    row per cell, in arrays that grow in place (``ndarray.resize``: a reallocation, not a second
+    copy beside the first); ``order`` sorts the keys, so a chunk's cells are found by binary search."""
 
     def __init__(self, columns: int):
+        self.columns = columns
         self.size = 0
         self.keys = np.zeros(0, np.int64)
         self.sums = np.zeros((0, columns))
-        self.batches = np.zeros((BATCHES, 0), np.float32)
+        self.batches = np.zeros((0, BATCHES), np.float32)
         self.order = np.zeros(0, np.int64)
 
     def add(self, keys: np.ndarray, sums: np.ndarray, batch: int) -> None:
@@ -224,11 +232,12 @@ class _Tally:
             ordered = self.keys[self.order]
             place = np.minimum(np.searchsorted(ordered, keys), self.size - 1)
             found = ordered[place] == keys
+            del ordered
         else:
             place, found = np.zeros(len(keys), np.int64), np.zeros(len(keys), bool)
         rows = self.order[place[found]]
         self.sums[rows] += sums[found]
-        self.batches[batch, rows] += sums[found, 0]
+        self.batches[rows, batch] += sums[found, 0]
         new = ~found
         count = int(new.sum())
         if self.size + count > len(self.keys):
@@ -236,23 +245,20 @@ class _Tally:
         end = self.size + count
         self.keys[self.size:end] = keys[new]
         self.sums[self.size:end] = sums[new]
-        self.batches[:, self.size:end] = 0.0
-        self.batches[batch, self.size:end] = sums[new, 0]
+        self.batches[self.size:end] = 0.0
+        self.batches[self.size:end, batch] = sums[new, 0]
         self.size = end
         self.order = np.argsort(self.keys[:end], kind="stable")
 
     def _grow(self, needed: int) -> None:
-        capacity = max(needed, int(1.5 * len(self.keys)), 1024)
-        keys, sums, batches = self.keys, self.sums, self.batches
-        self.keys = np.zeros(capacity, np.int64)
-        self.sums = np.zeros((capacity, sums.shape[1]))
-        self.batches = np.zeros((BATCHES, capacity), np.float32)
-        self.keys[:self.size], self.sums[:self.size], self.batches[:, :self.size] = (
-            keys[:self.size], sums[:self.size], batches[:, :self.size])
+        capacity = max(needed, int(GROWTH * len(self.keys)), 1024)
+        for array in (self.keys, self.sums, self.batches):
+            array.resize((capacity, *array.shape[1:]), refcheck=False)  # new rows are zero
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(keys, sums, batch weights)`` of the cells filled, trimmed."""
-        return self.keys[:self.size].copy(), self.sums[:self.size].copy(), self.batches[:, :self.size].copy()
+        """``(keys, sums, batch weights)`` of the cells filled: views trimmed to them, batches
+        ``(cells, BATCHES)``."""
+        return self.keys[:self.size], self.sums[:self.size], self.batches[:self.size]
 
 
 class CellForward:
