@@ -189,8 +189,27 @@ def test_an_intervals_end_is_found_to_0_005_in_log_absorption_and_errs_wide():
     jacobian = lambda theta: np.array([[1.0 / scale]])
     low, high = math.log(1e-5), math.log(10.0)
     for bound, sign in ((high, 1.0), (low, -1.0)):
-        end = fit_module._profile_end(residuals, jacobian, np.array([centre]), 0, centre, bound, 0.0, low, high)
+        profile = fit_module._Profile(residuals, jacobian, np.array([centre]), 0, low, high)
+        end = fit_module._profile_end(profile, centre, bound, 0.0)
         exact = centre + sign * scale * math.sqrt(JOINT_CHI2)
+        assert 0.0 <= sign * (end - exact) <= 2 * PROFILE_TOLERANCE
+
+
+def test_a_profiled_end_follows_the_valley_of_a_correlated_pair_to_its_analytic_end():
+    """Two layers whose chi-square is the quadratic form (theta - c)^T A (theta - c) with strongly
+    correlated parameters: the profile chi-square of theta_0 (theta_1 refitted, each refit started
+    at the previous one's fit) is (theta_0 - c_0)^2 / Sigma_00 with Sigma = A^-1, so its interval
+    ends at c_0 -+ sqrt(JOINT_CHI2 Sigma_00) (theta_1 moves 4.8 along the valley, within its bounds)."""
+    centre = np.log([0.05, 0.01])
+    root = np.array([[1.0, 0.0], [1.0, 0.5]])  # A = root^T root: Sigma [[1, -2], [-2, 8]], correlation -0.71
+    residuals = lambda theta: root @ (theta - centre)
+    jacobian = lambda theta: root
+    low, high = math.log(1e-5), math.log(10.0)
+    sigma = np.linalg.inv(root.T @ root)
+    for bound, sign in ((high, 1.0), (low, -1.0)):
+        profile = fit_module._Profile(residuals, jacobian, centre.copy(), 0, low, high)
+        end = fit_module._profile_end(profile, centre[0], bound, 0.0)
+        exact = centre[0] + sign * math.sqrt(JOINT_CHI2 * sigma[0, 0])
         assert 0.0 <= sign * (end - exact) <= 2 * PROFILE_TOLERANCE
 
 
