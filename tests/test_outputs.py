@@ -100,6 +100,21 @@ def test_the_current_folder_is_refused_with_one_line_and_nothing_left(tmp_path, 
     assert read_stack(empty / "stack")[1].shape == (1, 3, 4, 3)
 
 
+def test_a_stack_whose_images_differ_in_size_is_one_line_naming_the_image(tmp_path):
+    """An edited stack folder whose second image is another size: read_stack names that file and
+    both sizes (numpy's stack raised a ValueError before)."""
+    from ringlight.core.dataset.exr import write_exr_rgb
+    from ringlight.core.errors import DatasetError
+    write_stack(make_stack(2), tmp_path / "stack")
+    name = json.loads((tmp_path / "stack" / "stack.json").read_text())["images"][1]
+    (tmp_path / "stack" / name).unlink()
+    write_exr_rgb(tmp_path / "stack" / name, np.zeros((5, 6, 3), np.float32))
+    with pytest.raises(DatasetError) as refused:
+        read_stack(tmp_path / "stack")
+    assert str(refused.value).startswith(f"{tmp_path / 'stack' / name}: 6 x 5 pixels, where the stack's first image")
+    assert str(refused.value).endswith("has 4 x 3")
+
+
 def test_a_dangling_link_is_refused_and_a_link_to_a_stack_keeps_pointing_at_it(tmp_path):
     link = tmp_path / "link"
     link.symlink_to(tmp_path / "missing" / "target")

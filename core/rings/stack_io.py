@@ -92,5 +92,11 @@ def read_stack(folder) -> tuple[dict, np.ndarray]:
     if not isinstance(names, list) or not names or not all(
             isinstance(name, str) and name and "/" not in name and name not in (".", "..") for name in names):
         raise DatasetError(f"{path}: 'images' must be a non-empty list of file names in the stack folder")
-    images = np.stack([read_exr_rgb(folder / name) for name in names])
-    return manifest, images
+    images = []
+    for name in names:
+        image = read_exr_rgb(folder / name)
+        if images and image.shape != images[0].shape:
+            raise DatasetError(f"{folder / name}: {image.shape[1]} x {image.shape[0]} pixels, where the stack's "
+                               f"first image, {names[0]}, has {images[0].shape[1]} x {images[0].shape[0]}")
+        images.append(image)
+    return manifest, np.stack(images)
