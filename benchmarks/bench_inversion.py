@@ -13,11 +13,12 @@ width and the width the data allow. ``tools/evaluate_inversion.py`` and ``tools/
 have the accuracy on other scenes. Each time comes with the process's CPU seconds (every thread's):
 where other work shares the machine the wall time stretches and the CPU time says what the work cost.
 
-    python benchmarks/bench_inversion.py
+    python benchmarks/bench_inversion.py [--parts cells known search]
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 import tracemalloc
 
@@ -39,6 +40,7 @@ SEARCH_TARGET_S = 120.0
 CELLS_PHOTONS = 2_000_000
 CELLS_TARGET_S = 60.0
 CELLS_TARGET_MB = 300.0
+PARTS = ("cells", "known", "search")
 
 
 def timed(measured, settings):
@@ -78,12 +80,17 @@ def cells_run(known: InversionSettings) -> None:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
+                        help="what to time (default: all; the known-structure fit always runs; the search takes longest)")
+    parts = parser.parse_args().parts
     dataset = open_dataset(sample_dataset("layers3"))
     measured = measured_profile(dataset, np.ones(dataset.grid_shape, bool), profile_radii(dataset))
     truth_xy = chromaticity(truth_layers(dataset)[1], dataset.colorspace)
     known = InversionSettings(3, (2, 5), (0.5, 0.5, 1.5), 1.3, 0.0, 24.0)
     search = InversionSettings(None, None, None, None, 0.0, 24.0)
-    cells_run(known)
+    if "cells" in parts:
+        cells_run(known)
     start = time.perf_counter()
     cell_database(database_optics(known, known.mus), Structure((0, *known.boundaries)), known.final_photons)
     print(f"the known structure's white run of {known.final_photons} photons in cells: "
@@ -95,6 +102,8 @@ def main() -> None:
     print(f"white databases: {len(MUS_GRID) * len(N_GRID)} of {search.photons} photons ({SEARCH_BINS} depth "
           f"bins for the search), {time.perf_counter() - start:.1f} s (once; cached in the user cache)", flush=True)
     report("layers3, known structure and index", *timed(measured, known), KNOWN_TARGET_S, truth_xy)
+    if "search" not in parts:
+        return
     # A search also makes the databases of a base that scatters otherwise, and the cells of the
     # structures it fits at the end (cached as it goes): the first search pays for them once, the
     # second is timed as in use.
