@@ -118,6 +118,22 @@ def test_the_index_is_found_from_the_data_and_the_truth_lies_in_every_region(tru
     assert assumed.warning is not None or assumed_error > np.hypot(*(searched.layers[0].xy - truths[0]))
 
 
+def test_a_scattering_between_the_grids_values_is_refined_to_it(shared_cache, monkeypatch):
+    """A homogeneous slab of scattering 0.7 per grid step (between MUS_GRID's 0.5 and 1) by the
+    direct simulator, its scattering searched: the search refines it between the grid's values to
+    within 2^(1/8) of 0.7 (REFINE_STEPS), and the colour lies in its region, within 0.01 of the truth
+    (adding-doubling's thick-slab colour)."""
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    mua = [[0.02, 0.08, 0.25]]
+    mean, error = direct_profile([0.7], mua, [0], 0.0, 1.0, 24.0, 40_000, seed=5)
+    inversion = invert(MeasuredProfile(RADII, mean, error, 1), InversionSettings(1, (), None, 1.0, 0.0, 24.0,
+                                                                                 photons=20_000, final_photons=20_000))
+    layer = inversion.layers[0]
+    assert abs(math.log(layer.mus / 0.7)) <= math.log(2) / 8 + 1e-9, inversion.notes
+    truth = chromaticity(thick_slab_reflectance(np.full(3, 0.7), np.array(mua[0]), 0.0, 1.0), "sRGB")
+    assert region_contains(layer.region, truth) and np.hypot(*(layer.xy - truth)) < 0.01
+
+
 def _forward():
     optics = SlabOptics((1.0,) * 5, 0.0, 1.3, 16.0, 13)
     return Forward(run_white(optics, 8000, seed=4), Structure((0, 2)), np.arange(0.0, 8.0))

@@ -40,6 +40,11 @@ from .white_mc import SlabOptics, WhiteDatabase, white_database
 SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
+REFINE_STEPS = (2 ** 0.5, 2 ** 0.25)
+"""Factors by which the chosen scattering is refined, in turn, between :data:`MUS_GRID`'s values
+(to within 2^(1/8), 9 %)."""
+REFINE_MOVES = 4
+"""Moves of the refinement's local search at most, per step."""
 PLAUSIBLE_CHI2 = JOINT_CHI2
 """Structures (and scatterings, and indices) whose search chi-square is within this of the chosen
 one's are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
@@ -170,10 +175,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
                                         structure, optics))
 
-    structures = list(_structures(settings, database_optics(settings, mus_choices[0], choices[0][0]).bins,
-                                  rings - 1))
+    bins = database_optics(settings, mus_choices[0], choices[0][0]).bins
+    structures = list(_structures(settings, bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
-    share = 1.0 / (len(choices) + 2 + base_search)
+    refine = settings.mus is None
+    share = 1.0 / (len(choices) + 2 + base_search + refine)
     for index, (n, mus) in enumerate(choices):
         optics = database_optics(settings, mus, n)
         what = f"white Monte Carlo for {_optics_text(optics, mus)}"
@@ -199,6 +205,9 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         count = max(leading.structure.layers, 2)
         _base_search(settings, leading.optics.n, [structure for structure in structures if structure.layers == count],
                      candidates, try_structures, lambda fraction: (len(choices) + 1 + fraction) * share)
+    if refine and (leading := _best(candidates)):
+        _refine_scattering(settings, leading, bins, candidates, try_structures,
+                           lambda fraction: (len(choices) + 1 + base_search + fraction) * share)
     best = _best(candidates)
     if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
@@ -211,7 +220,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     searched.clear()  # the structures fitted at the end get white runs of their own
     fitted = []
     for number, candidate in enumerate([best, *rivals]):
-        done = (len(choices) + 1 + base_search + number / (len(rivals) + 1)) * share
+        done = (len(choices) + 1 + base_search + refine + number / (len(rivals) + 1)) * share
         what = (f"white Monte Carlo of {settings.final_photons} photons for "
                 f"{'the chosen structure' if not number else 'a structure that fits as well'}")
         report(done, what)
@@ -257,7 +266,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                    f"(check n, g, the scattering, the layer count and whether the region is laterally uniform)")
         layers = [replace(layer, determined=False, reason="the model does not fit the profile (chi-square), so its "
                           "uncertainty regions do not hold") for layer in layers]
-    searched_mus = f" (chosen from {', '.join(map(str, MUS_GRID))}, common or with a base of its own)"
+    searched_mus = (f" (chosen from {', '.join(map(str, MUS_GRID))}, common or with a base of its own, and refined "
+                    "between them)")
     searched_n = f" (chosen from {', '.join(f'{n:g}' for n in N_GRID)} by chi-square)"
     other_indices = sorted({fit.candidate.optics.n for fit in fitted} - {optics.n})
     notes = (f"{structure.layers} layer(s), boundaries {list(structure.starts[1:]) or 'none'}"
@@ -318,6 +328,64 @@ def _base_search(settings: InversionSettings, n: float, structures: list[Structu
     rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
     try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
                    f"fitting every structure with mus {common:g} over a base of {base:g}")
+
+
+def _refine_scattering(settings: InversionSettings, leading: Candidate, bins: int, candidates: list[Candidate],
+                       try_structures, fraction_done: Callable[[float], float]) -> None:
+    """Refine the ``leading`` candidate's scattering between the values of :data:`MUS_GRID`
+    (factors of 2 apart) together with its boundaries, by a local search: at each step of
+    :data:`REFINE_STEPS`, the moves are its common scattering and (when it has one) its base's that
+    factor lower or higher, and each searched boundary one depth bin up or down (within ``bins``); the best
+    move that fits better is taken, at most :data:`REFINE_MOVES` times a step. A sample whose
+    scattering lies between grid values otherwise fits a nearby value, often with a boundary moved
+    to make up for it (layers3, base 1.5 and boundaries 2, 5: fitted at base 1 with 2, 4, the middle
+    layer 0.067 off in xy and its truth outside its region)."""
+    n = leading.optics.n
+    current = leading
+    tried = {(c.structure, c.mus) for c in candidates}
+    for number, step in enumerate(REFINE_STEPS):
+        for _ in range(REFINE_MOVES):
+            trials = [trial for trial in _moves(settings, current, step, bins, n) if (trial[0], trial[2]) not in tried]
+            tried.update((trial[0], trial[2]) for trial in trials)
+            if not trials:
+                break
+            start = len(candidates)
+            try_structures(trials, fraction_done(number / len(REFINE_STEPS)),
+                           f"refining the scattering and boundaries (factor {step:.3g})")
+            moved = min([current, *candidates[start:]], key=lambda c: c.bic)
+            if moved is current:
+                break
+            current = moved
+
+
+def _moves(settings: InversionSettings, current: Candidate, step: float, bins: int, n: float):
+    """``(structure, optics, mus)`` of each move of :func:`_refine_scattering` from ``current``."""
+    structure = current.structure
+    common, base = (current.mus[0], current.mus[-1]) if isinstance(current.mus, tuple) else (current.mus,) * 2
+    own_base = isinstance(current.mus, tuple)
+    pairs = [(_rounded(common * factor), _rounded(base * factor) if not own_base else base)
+             for factor in (1 / step, step)]
+    if own_base:
+        pairs += [(common, _rounded(base * factor)) for factor in (1 / step, step)]
+    structures = [structure]
+    cuts = list(structure.starts[1:]) if settings.boundaries is None else []  # given boundaries stay
+    for k in range(len(cuts)):
+        for shift in (-1, 1):
+            moved = cuts[:k] + [cuts[k] + shift] + cuts[k + 1:]
+            if all(0 < a < b for a, b in zip([0, *moved], moved)) and moved[-1] < bins:
+                structures.append(Structure((0, *moved)))
+    moves = [(structure, first, last) for first, last in pairs]
+    moves += [(other, common, base) for other in structures[1:]]
+    for other, first, last in moves:
+        if first == last or other.layers == 1:
+            yield other, database_optics(settings, first, n), first
+        else:
+            yield other, _base_optics(settings, first, last, other.starts[-1], n), (first,) * (other.layers - 1) + (last,)
+
+
+def _rounded(mus: float) -> float:
+    """``mus`` to 4 significant digits (as reports print it)."""
+    return float(f"{mus:.4g}")
 
 
 def _mus_text(mus) -> str:
