@@ -471,8 +471,10 @@ def test_a_search_holds_a_quarter_of_each_white_database_not_every_database_whol
     mean, error = direct_profile([1.0, 1.0], mua, [0, 3], 0.0, 1.4, 24.0, 10_000, seed=5)
     tracemalloc.start()
     try:
+        # Final white runs of 20 000 photons: the peak measured is then the search's, not the
+        # final runs' chunks (which hold a chunk's records, 1/16 of the run, whatever the search did).
         inversion = invert(MeasuredProfile(RADII, mean, error, 1),
-                           InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=1000))
+                           InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=1000, final_photons=20_000))
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()

@@ -161,13 +161,15 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         searched[database.optics] = (_thinned(database, SEARCH_SHARE) if settings.boundaries is None
                                      else database)
 
-    def try_structures(trials, first: float, what: str) -> None:
-        """Quick fits of ``trials``, (structure, optics, mus) each, added to the candidates; each
-        database is made (or loaded) when first needed."""
+    def try_structures(trials, first: float, what: str, span: float | None = None) -> None:
+        """Quick fits of ``trials``, (structure, optics, mus) each, added to the candidates, the
+        progress going from ``first`` over ``span`` (default: a share); each database is made (or
+        loaded) when first needed."""
+        span = share if span is None else span
         for number, (structure, optics, mus) in enumerate(trials):
-            report(first + share * number / len(trials), what)
+            report(first + span * number / len(trials), what)
             if optics not in searched:
-                report(first + share * number / len(trials), f"white Monte Carlo for {_optics_text(optics, mus)}")
+                report(first + span * number / len(trials), f"white Monte Carlo for {_optics_text(optics, mus)}")
                 keep(white_database(optics, settings.photons))
             forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False, floor=measured.floor)
@@ -178,7 +180,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     bins = database_optics(settings, mus_choices[0], choices[0][0]).bins
     structures = list(_structures(settings, bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
-    refine = settings.mus is None
+    refine = len(REFINE_STEPS) if settings.mus is None else 0  # a share for each step
     share = 1.0 / (len(choices) + 2 + base_search + refine)
     for index, (n, mus) in enumerate(choices):
         optics = database_optics(settings, mus, n)
@@ -201,13 +203,16 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                        f"fitting every structure for {_optics_text(optics, mus)}")
     if base_search and (leading := _best(candidates)):
         # A base of its own scattering is tried for the layer count and index that fitted best (two
-        # layers at least).
+        # layers at least), on databases of its own: those of the phases before are let go (a
+        # phase that needs one again reads it from the cache).
+        searched.clear()
         count = max(leading.structure.layers, 2)
         _base_search(settings, leading.optics.n, [structure for structure in structures if structure.layers == count],
                      candidates, try_structures, lambda fraction: (len(choices) + 1 + fraction) * share)
     if refine and (leading := _best(candidates)):
-        _refine_scattering(settings, leading, bins, candidates, try_structures,
-                           lambda fraction: (len(choices) + 1 + base_search + fraction) * share)
+        searched.clear()
+        _refine_scattering(settings, leading, bins, candidates, try_structures, (len(choices) + 1 + base_search) * share,
+                           share)
     best = _best(candidates)
     if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
@@ -320,23 +325,25 @@ def _base_search(settings: InversionSettings, n: float, structures: list[Structu
     first = len(candidates)
     try_structures([trial(structure, common, base) for common in MUS_GRID for base in MUS_GRID if base != common
                     for structure in scouts], fraction_done(0.0),
-                   "fitting structures with a base that scatters otherwise")
+                   "fitting structures with a base that scatters otherwise", fraction_done(0.5) - fraction_done(0.0))
     chosen = _best(candidates[first:])
     if chosen is None:
         return
     common, base = chosen.mus[0], chosen.mus[-1]
     rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
     try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
-                   f"fitting every structure with mus {common:g} over a base of {base:g}")
+                   f"fitting every structure with mus {common:g} over a base of {base:g}",
+                   fraction_done(1.0) - fraction_done(0.5))
 
 
 def _refine_scattering(settings: InversionSettings, leading: Candidate, bins: int, candidates: list[Candidate],
-                       try_structures, fraction_done: Callable[[float], float]) -> None:
+                       try_structures, first: float, share: float) -> None:
     """Refine the ``leading`` candidate's scattering between the values of :data:`MUS_GRID`
     (factors of 2 apart) together with its boundaries, by a local search: at each step of
     :data:`REFINE_STEPS`, the moves are its common scattering and (when it has one) its base's that
     factor lower or higher, and each searched boundary one depth bin up or down (within ``bins``); the best
-    move that fits better is taken, at most :data:`REFINE_MOVES` times a step. A sample whose
+    move that fits better is taken, at most :data:`REFINE_MOVES` times a step (progress from
+    ``first``, a ``share`` a step). A sample whose
     scattering lies between grid values otherwise fits a nearby value, often with a boundary moved
     to make up for it (layers3, base 1.5 and boundaries 2, 5: fitted at base 1 with 2, 4, the middle
     layer 0.067 off in xy and its truth outside its region)."""
@@ -344,14 +351,14 @@ def _refine_scattering(settings: InversionSettings, leading: Candidate, bins: in
     current = leading
     tried = {(c.structure, c.mus) for c in candidates}
     for number, step in enumerate(REFINE_STEPS):
-        for _ in range(REFINE_MOVES):
+        for move in range(REFINE_MOVES):
             trials = [trial for trial in _moves(settings, current, step, bins, n) if (trial[0], trial[2]) not in tried]
             tried.update((trial[0], trial[2]) for trial in trials)
             if not trials:
                 break
             start = len(candidates)
-            try_structures(trials, fraction_done(number / len(REFINE_STEPS)),
-                           f"refining the scattering and boundaries (factor {step:.3g})")
+            try_structures(trials, first + (number + move / REFINE_MOVES) * share,
+                           f"refining the scattering and boundaries (factor {step:.3g})", share / REFINE_MOVES)
             moved = min([current, *candidates[start:]], key=lambda c: c.bic)
             if moved is current:
                 break
