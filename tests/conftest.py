@@ -8,6 +8,7 @@ test module has imported it, so tests that never touch Qt do not import it.
 import gc
 import re
 import os
+import shutil
 import sys
 import threading
 import time
@@ -26,6 +27,43 @@ def private_cache(tmp_path_factory, monkeypatch):
     folder = tmp_path_factory.mktemp("user-cache")
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(folder))
     return folder
+
+
+@pytest.fixture(scope="session")
+def sample_originals(tmp_path_factory):
+    """``sample_originals(name)``: bundled sample ``name`` written as a dataset once per test process
+    (layers3 and skin1 hold 5000 frames, 60 MB: several seconds each), for :func:`place_sample`."""
+    from ringlight.core.simulate.samples import sample_dataset
+
+    folder, written = tmp_path_factory.mktemp("sample-originals"), {}
+
+    def original(name: str):
+        if name not in written:
+            with pytest.MonkeyPatch.context() as patch:
+                patch.setenv("RINGLIGHT_CACHE_DIR", str(folder))
+                written[name] = sample_dataset(name)
+        return written[name]
+
+    return original
+
+
+@pytest.fixture(scope="session")
+def place_sample(sample_originals):
+    """``place_sample(name)``: put bundled sample ``name`` into the user cache now in effect (the
+    folder ``sample_dataset(name)`` returns) as its first use would write it: a copy of the files
+    of :func:`sample_originals` (real copies: a hard link would change the shared files' ctime,
+    which is part of every store's key). Returns the folder. For tests of what a sample holds, not
+    of how it is written (those are tests/test_samples.py's and the demo command's)."""
+    from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
+    from ringlight.core.simulate.samples import sample_folder
+
+    def place(name: str):
+        target = sample_folder(name)
+        if not target.exists():
+            shutil.copytree(sample_originals(name), target, ignore=shutil.ignore_patterns(CACHE_FOLDER_NAME))
+        return target
+
+    return place
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -162,13 +162,14 @@ def test_a_damaged_chunk_read_out_of_core_by_the_command_line_prints_one_line(tm
     assert result.stderr.count("\n") == 1 and "damaged cache chunk" in result.stderr, result.stderr
 
 
-def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that_work(tmp_path, capsys):
+def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that_work(tmp_path, capsys, place_sample):
     """README's old command (0:20:1) on a bundled sample (max_radius 12): one line naming the
     dataset and the range that works. A transient at r uses the ring r + 1, whose members
     (|d| < r + 1.5) must all lie within 12 grid steps: at r = 11 the offset (12, 3), 12.37 steps
     away, is a member, so r = 10 is the last (brute force below)."""
     from ringlight.core.simulate.samples import sample_dataset
 
+    place_sample("red-bead")  # as sample_dataset writes it, written once for the whole run
     folder = sample_dataset("red-bead")
     span = np.arange(-14, 15)
     distance = np.hypot(*np.meshgrid(span, span))
@@ -181,13 +182,14 @@ def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that
     assert main(["stack", str(folder), "--radii", f"0:{best}:1", "--out", str(tmp_path / "o")]) == 0
 
 
-def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys):
+def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys, place_sample):
     """``ringlight demo --out DIR``: the same dataset as the user cache's copy, bit for bit in
     its responses; a second run is refused with one line unless --overwrite."""
     from ringlight.core.simulate.samples import sample_dataset
 
     assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 0
     assert f"dataset      {tmp_path / 'layers3'}" in capsys.readouterr().out
+    place_sample("layers3")  # the user cache's copy, as sample_dataset writes it (once for the whole run)
     ours, cached = open_dataset(tmp_path / "layers3"), open_dataset(sample_dataset("layers3"))
     assert np.array_equal(ours.responses, cached.responses)
     assert main(["demo", "--sample", "layers3", "--out", str(tmp_path / "layers3")]) == 2

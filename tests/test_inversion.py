@@ -4,6 +4,7 @@ direct simulator, recovery of known layers with honest uncertainty, and misfit d
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from importlib.resources import files
 
 import numpy as np
@@ -92,9 +93,10 @@ def shared_cache(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def layers3_sample(shared_cache):
+def layers3_sample(shared_cache, place_sample):
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+        place_sample("layers3")  # written once for the whole run
         return sample_dataset("layers3")
 
 
@@ -210,7 +212,10 @@ def test_the_noise_weighted_pass_leaves_a_false_minimum(shared_cache, monkeypatc
 def test_a_wrong_scattering_coefficient_is_caught_by_chi_square(layers3_sample, shared_cache, monkeypatch):
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
     dataset = open_dataset(layers3_sample)
-    wrong = InversionSettings(boundaries=(2, 5), mus=1.0, n=1.3, g=0.0, depth=24.0, photons=20_000)
+    # Final white runs of 20 000 photons (the default's tenth): their larger noise only lowers the
+    # chi-square of the wrong model, so what is caught here is caught at the default too.
+    wrong = InversionSettings(boundaries=(2, 5), mus=1.0, n=1.3, g=0.0, depth=24.0, photons=20_000,
+                              final_photons=20_000)
     inversion = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", wrong).inversion
     assert inversion.chi2 > 20 * inversion.dof
     assert "does not fit" in inversion.warning
@@ -288,8 +293,9 @@ def test_cli_inverse_writes_json_with_uncertainty_and_refuses_bad_settings_befor
         layers3_sample, shared_cache, monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
     out = tmp_path / "layers.json"
+    # What the command writes, not the fit's precision: final white runs of 20 000 photons.
     assert main(["layers", str(layers3_sample), "--method", "inverse", "--boundaries", "2,5", "--mus", "0.5,0.5,1.5",
-                 "--n", "1.3", "--depth", "24", "--json", str(out)]) == 0
+                 "--n", "1.3", "--depth", "24", "--final-photons", "20000", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "NOT DETERMINED" in printed and "absorption in G" in printed
     document = json.loads(out.read_text())
@@ -365,7 +371,9 @@ def test_a_capture_of_large_max_radius_is_fitted_on_the_rings_a_white_database_h
     dataset = open_dataset(tmp_path / "wide")
     assert dataset.max_radius == 18
     np.testing.assert_array_equal(profile_radii(dataset), np.arange(14.0))
-    result = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels", LAYERS3)
+    # The rings a database holds, not the fit's precision: final white runs of 20 000 photons.
+    result = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels",
+                           replace(LAYERS3, final_photons=20_000))
     inversion = result.inversion
     assert inversion.warning is None and inversion.used.max() <= 14
     assert all(result.inside), result.errors

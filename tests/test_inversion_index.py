@@ -69,13 +69,14 @@ def test_a_sample_key_that_cannot_hold_is_one_line_naming_the_manifest(tmp_path,
     assert "\n" not in str(error.value)
 
 
-def test_a_simulated_dataset_states_its_scenes_index_and_anisotropy_and_a_reopen_keeps_them():
+def test_a_simulated_dataset_states_its_scenes_index_and_anisotropy_and_a_reopen_keeps_them(place_sample):
     """The bundled layers3 is written by the simulator from the preset scene (n 1.3, g 0 in every
     material): its manifest's sample key says so, and so does the manifest a reopen reads back
     from the store's copy."""
     scene = json.loads(files("ringlight.resources.scenes").joinpath("layers3.json").read_text())
     anisotropies = {material.get("g", 0.0) for material in scene["materials"].values()}
     assert len(anisotropies) == 1
+    place_sample("layers3")  # as sample_dataset writes it, written once for the whole run
     folder = sample_dataset("layers3")
     stated = json.loads((folder / "dataset.json").read_text())["sample"]
     assert stated == {"n": scene["n"], "g": anisotropies.pop()}
@@ -230,15 +231,17 @@ def test_a_profiled_end_follows_the_valley_of_a_correlated_pair_to_its_analytic_
 
 
 def test_the_cli_fits_at_the_datasets_index_and_reports_what_the_data_allow(tmp_path, shared_cache, monkeypatch,
-                                                                              capsys):
+                                                                              capsys, place_sample):
     """``ringlight layers --method inverse`` with no --n on layers3 (simulated at n 1.3, stated in
     its manifest): the fit is at 1.3, each layer reports the width the data allow, and a layer
     whose allowed width is beyond 0.02 is reported as not determined to that tolerance."""
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    place_sample("layers3")
     folder = sample_dataset("layers3")
     out = tmp_path / "fit.json"
+    # What is reported, not its precision: final white runs of 20 000 photons (the default's tenth).
     assert main(["layers", str(folder), "--method", "inverse", "--boundaries", "2,5", "--mus", "0.5,0.5,1.5",
-                 "--depth", "24", "--json", str(out)]) == 0
+                 "--depth", "24", "--final-photons", "20000", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "n 1.3 and g 0 as the dataset states" in printed
     document = json.loads(out.read_text())
