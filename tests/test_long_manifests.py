@@ -73,3 +73,41 @@ def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys
                                                "radii (dr 1) up to 1 work (radii 0:1:1)")
     status = main(["stack", str(long_dataset), "--radii", "0:2:1", "--kind", "ring", "--out", str(tmp_path / "out")])
     assert status == 0 and len(reads) >= 1000
+
+
+def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_once(long_dataset, monkeypatch):
+    """check_files opened each frame three times (its magic, the library's header, its chunk
+    table) and had the library parse every header (about 100 us a frame): now one open a frame,
+    and the library reads the header the 1000 frames share once (the first frame's channels
+    take one more)."""
+    import OpenEXR
+    from ringlight.core.dataset import exr as exr_module
+
+    manifest = load_manifest(long_dataset)
+    opened, parsed = [], []
+    original_open, original_file = os.open, OpenEXR.File
+    monkeypatch.setattr(exr_module.os, "open", lambda path, *args, **kwargs: (
+        opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
+    monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (parsed.append(args[0]),
+                                                                   original_file(*args, **kwargs))[1])
+    assert check_files(manifest) == []
+    frame_opens = [path for path in opened if "/frames/" in path]
+    assert len(frame_opens) == 1000 + 2  # each frame once; the first one twice more (its channels, the library)
+    assert len(set(frame_opens)) == 1000
+    assert len(parsed) <= 2, parsed
+
+
+def test_a_frame_whose_header_differs_from_the_shared_one_is_still_refused(long_dataset):
+    """The shared header is known by its bytes: a frame of another size (or a truncated one) after
+    999 good ones is checked in full."""
+    write_rgb(long_dataset / "frames" / "other.exr", np.ones((10, 11, 3), np.float32))
+    (long_dataset / "frames" / "000500.exr").unlink()
+    os.link(long_dataset / "frames" / "other.exr", long_dataset / "frames" / "000500.exr")
+    data = (long_dataset / "frames" / "base.exr").read_bytes()
+    (long_dataset / "frames" / "000700.exr").unlink()
+    (long_dataset / "frames" / "000700.exr").write_bytes(data[:-20])
+    problems = check_files(load_manifest(long_dataset))
+    assert problems == [
+        f"{long_dataset}/frames/000500.exr: frame is 10 x 11, expected 10 x 10 (the size of the grid)",
+        f"{long_dataset}/frames/000700.exr: truncated or corrupt OpenEXR file (the file ends at byte "
+        f"{len(data) - 20}, before the end of its last chunk)"]

@@ -49,9 +49,10 @@ def cache_key(manifest: Manifest, max_radius: float) -> str:
     digest.update(np.array([len(frame.lit) for frame in frames], np.int64).tobytes())
     digest.update(np.concatenate([frame.lit for frame in frames]).astype(np.int64).tobytes())
     digest.update(np.array([frame.exposure for frame in frames], np.float64).tobytes())
+    prefix = os.path.join(str(manifest.folder), "")
     for name in manifest.referenced_files():
         try:
-            info = (manifest.folder / name).stat()
+            info = os.stat(prefix + name)
             digest.update(f"\n{name} {info.st_size} {info.st_mtime_ns} {info.st_ino} {info.st_ctime_ns}".encode())
         except OSError:
             digest.update(f"\n{name} missing".encode())

@@ -7,11 +7,14 @@ camera, whose value every tool takes as R = G = B), from its ``part``, checked a
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numba
 import numpy as np
 
 from ..errors import DatasetError
 from .exr import check_exr, read_exr_channels
+from .exr_seen import HeaderCache
 from .exr_header import ExrHeader, frame_channels
 from .file_paths import FileResolver
 from .manifest import FrameEntry, Manifest
@@ -153,7 +156,8 @@ class FrameReader:
     def __init__(self, manifest: Manifest, allow_outside: bool = False):
         self.manifest = manifest
         self.allow_outside = allow_outside
-        self.file_path = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
+        self.file_path = FileResolver(manifest.folder, allow_outside).locate  # each folder resolved once
+        self.headers = HeaderCache()  # the library reads a header shared by all frames once
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         self.frame_shape, self.size_of = self.grid_shape, "the grid"
@@ -204,7 +208,7 @@ class FrameReader:
         """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame (``rows``: only
         those rows of a grid-space file)."""
         return read_exr_channels(path, self.channels, self.frame_shape, what, self.size_of,
-                                 self.manifest.part, self.manifest.colorspace, rows)
+                                 self.manifest.part, self.manifest.colorspace, rows, self.headers)
 
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
@@ -212,7 +216,7 @@ class FrameReader:
     def check(self, frame: FrameEntry) -> ExrHeader:
         """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
         return check_exr(self.file_path(frame.file), self.channels, self.frame_shape,
-                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace)
+                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace, self.headers)
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None,
              out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
@@ -238,8 +242,8 @@ class FrameReader:
         radiance = out if out is not None else np.empty((*grid.shape[:2], 3), np.float32)
         bad, problem = _radiance(grid, np.float32(frame.exposure), dark, self.dark is not None, radiance)
         if problem == 1:
-            raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
+            raise DatasetError(f"{Path(path)}: dividing by the exposure {frame.exposure:g} "
                                "takes values out of float32's range")
         if problem == 2:
-            raise DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
+            raise DatasetError(f"{Path(path)}: subtracting the dark frame takes values out of float32's range")
         return radiance, camera_bad if self.mapping is not None else int(bad)
