@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ..errors import DatasetError
-from .exr import check_exr
+from .exr import visit_exr
 from .exr_seen import HeaderCache
 from .exr_header import RGB, quiet_library
 from .file_paths import FileResolver
@@ -62,14 +62,15 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
     """
     problems: list[str] = []
     total = 0
-    locate = FileResolver(manifest.folder, allow_outside).locate
+    resolver = FileResolver(manifest.folder, allow_outside)
     headers = HeaderCache()
 
     def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
         nonlocal total
         try:
-            header = check_exr(locate(name), channels, shape, what, size_of,
-                               manifest.part if frame else None, manifest.colorspace if frame else None, headers)
+            descriptor, path = resolver.open(name)
+            header = visit_exr(path, channels, shape, what, size_of, manifest.part if frame else None,
+                               manifest.colorspace if frame else None, headers, descriptor=descriptor)[0]
         except DatasetError as error:
             total += 1
             if keep is None or len(problems) < keep:
@@ -91,8 +92,8 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
     truth = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
     files = len(manifest.frames) + len(truth)
     with quiet_library():  # silenced once for all frames, not redirected and restored once a frame
-        for done, frame in enumerate(manifest.frames):
-            check(frame.file, channels, frame_shape, "frame", size_of)
+        for done, name in enumerate(manifest.frames.files):
+            check(name, channels, frame_shape, "frame", size_of)
             if progress is not None and done % 256 == 255:
                 progress((done + 1) / files)
     for image in truth:

@@ -88,13 +88,15 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
 def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
               expected_shape: tuple[int, int] | None = None, what: str = "image",
               size_of: str | None = None, part: str | None = None, colorspace: str | None = None,
-              headers: HeaderCache | None = None, whole_up_to: int = 0) -> tuple[ExrHeader, bytes | None]:
+              headers: HeaderCache | None = None, whole_up_to: int = 0,
+              descriptor: int | None = None) -> tuple[ExrHeader, bytes | None]:
     """:func:`check_exr` in one opening of the file, which also returns the file's bytes when it
     has at most ``whole_up_to`` of them (else None), so that it is decoded without opening it
     again. The library reads the header only when ``headers`` does not hold it (it then opens
-    the file itself)."""
+    the file itself). ``descriptor``: the regular file ``path`` already open for reading
+    (:meth:`.file_paths.FileResolver.open`), which is closed when done."""
     location = os.fspath(path)
-    with _open_file(location) as handle:
+    with (_open_file(location) if descriptor is None else os.fdopen(descriptor, "rb")) as handle:
         try:
             size = os.fstat(handle.fileno()).st_size
             head = handle.read(size + 1 if size <= whole_up_to else HEAD_BYTES)
@@ -171,7 +173,7 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                       expected_shape: tuple[int, int] | None = None, what: str = "image",
                       size_of: str | None = None, part: str | None = None,
                       colorspace: str | None = None, rows: tuple[int, int] | None = None,
-                      headers: HeaderCache | None = None) -> np.ndarray:
+                      headers: HeaderCache | None = None, descriptor: int | None = None) -> np.ndarray:
     """Read the named channels of an EXR file.
 
     Parameters
@@ -186,6 +188,8 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         What the file is and what ``expected_shape`` is the size of, for messages.
     part, colorspace, headers
         See :func:`check_exr`.
+    descriptor
+        The file already open for reading (see :func:`visit_exr`).
     rows
         ``(first, stop)``: read only these rows of the image (a single-part file decodes only
         the chunks holding them; a multi-part file is decoded whole).
@@ -201,7 +205,8 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         For every problem of :func:`check_exr` (all found before decoding), and for data the
         library cannot decode; the message names the file.
     """
-    header = check_exr(path, names, expected_shape, what, size_of, part, colorspace, headers)
+    header = visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers,
+                       descriptor=descriptor)[0]
     path = Path(path)
     first, stop = rows if rows is not None else (0, header.height)
     if not 0 <= first < stop <= header.height:

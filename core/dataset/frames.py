@@ -156,7 +156,8 @@ class FrameReader:
     def __init__(self, manifest: Manifest, allow_outside: bool = False):
         self.manifest = manifest
         self.allow_outside = allow_outside
-        self.file_path = FileResolver(manifest.folder, allow_outside).locate  # each folder resolved once
+        self.resolver = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
+        self.file_path = self.resolver.locate
         self.headers = HeaderCache()  # the library reads a header shared by all frames once
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
@@ -204,11 +205,12 @@ class FrameReader:
         """True when frames are read from one channel (a monochrome camera)."""
         return len(self.channels) == 1
 
-    def _read_file(self, path, what: str, rows: tuple[int, int] | None = None) -> np.ndarray:
+    def _read_file(self, path, what: str, rows: tuple[int, int] | None = None,
+                   descriptor: int | None = None) -> np.ndarray:
         """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame (``rows``: only
-        those rows of a grid-space file)."""
+        those rows of a grid-space file; ``descriptor``: the file already open)."""
         return read_exr_channels(path, self.channels, self.frame_shape, what, self.size_of,
-                                 self.manifest.part, self.manifest.colorspace, rows, self.headers)
+                                 self.manifest.part, self.manifest.colorspace, rows, self.headers, descriptor)
 
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
@@ -229,9 +231,9 @@ class FrameReader:
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
-        path = self.file_path(frame.file)
+        descriptor, path = self.resolver.open(frame.file)  # located, opened and checked in one visit
         first, stop = rows if rows is not None else (0, self.grid_shape[0])
-        image = self._read_file(path, "frame", rows if self.mapping is None else None)
+        image = self._read_file(path, "frame", rows if self.mapping is None else None, descriptor)
         camera_bad = 0
         if self.mapping is not None:  # decoded whole for every band: its bad values count with the first
             camera_bad = int(np.count_nonzero(~np.isfinite(image))) if first == 0 else 0
