@@ -29,7 +29,7 @@ from .frame_table import (  # noqa: F401 - FrameEntry and the limits are the man
     FrameTable,
 )
 from .sample import Sample, parse_sample
-from .spacing import check_multiplexed_spacing
+from .spacing import POINTS_AT_ONCE, check_multiplexed_spacing
 
 FORMAT_NAME = "ringlight-impulse"
 FORMAT_VERSION = 1
@@ -336,10 +336,6 @@ def _parse_frames(check: Validator, entries: list, height: int, width: int) -> F
     if len(multiple):
         _check_no_point_twice(check, table, multiple, height * width, width)
     return table
-
-
-POINTS_AT_ONCE = 2**20
-"""Lit points checked in one numpy pass: the temporaries of 7.2 million at once took 600 MB."""
 
 
 def _check_no_point_twice(check: Validator, table: FrameTable, multiple: np.ndarray, points: int,

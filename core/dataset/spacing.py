@@ -36,8 +36,9 @@ def check_multiplexed_spacing(where: Path, frames, max_radius: float) -> None:
             )
 
 
-POINTS_AT_ONCE = 2**20
-"""Lit points checked in one call: 7.2 million at once made 400 MB of temporaries."""
+POINTS_AT_ONCE = 2**18
+"""Lit points checked in one pass (here and by the manifest's other checks of its points): all
+7.2 million of a long manifest at once made 400 MB of temporaries."""
 
 
 def _runs(starts: np.ndarray) -> list[tuple[int, int]]:
