@@ -284,6 +284,7 @@ def warm_up_assembly() -> None:
     arrays of the types an open passes, so that a first open in a worker does not hold the GIL
     while numba loads them (see :func:`ringlight.core.rings.stacks.warm_up_kernels`)."""
     from .exr import _HALF_TO_FLOAT, _put_half
+    from .exr_small import _unpack
     from .frames import _radiance
     from .spacing import close_pair
 
@@ -297,6 +298,9 @@ def warm_up_assembly() -> None:
     _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
               np.zeros((1, 1, 3), np.float32))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
+    close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64), first=False)
+    _unpack(np.frombuffer(bytes(2), np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
+            _HALF_TO_FLOAT, np.zeros((1, 1, 1), np.float32))
 
 
 @contextmanager

@@ -31,6 +31,7 @@ from ..errors import DatasetError
 from .exr_chunks import HEAD_BYTES, ChunkLayout, chunk_layout, offsets_problem
 from .exr_header import EXR_MAGIC, ExrHeader, first_line, quiet_library, read_exr_header
 from .exr_seen import HeaderCache, PassedHeader
+from .exr_small import decode_small, small_layout
 
 MAX_DECODED_BYTES = 2**30
 """Largest total of the channels a read decodes (4 bytes a value)."""
@@ -89,10 +90,10 @@ def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
               expected_shape: tuple[int, int] | None = None, what: str = "image",
               size_of: str | None = None, part: str | None = None, colorspace: str | None = None,
               headers: HeaderCache | None = None, whole_up_to: int = 0,
-              descriptor: int | None = None) -> tuple[ExrHeader, bytes | None]:
+              descriptor: int | None = None) -> tuple[ExrHeader, bytes | None, PassedHeader | None]:
     """:func:`check_exr` in one opening of the file, which also returns the file's bytes when it
     has at most ``whole_up_to`` of them (else None), so that it is decoded without opening it
-    again. The library reads the header only when ``headers`` does not hold it (it then opens
+    again, and the header's entry in ``headers`` (None without one). The library reads the header only when ``headers`` does not hold it (it then opens
     the file itself). ``descriptor``: the regular file ``path`` already open for reading
     (:meth:`.file_paths.FileResolver.open`), which is closed when done."""
     location = os.fspath(path)
@@ -118,8 +119,10 @@ def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
     if problem:
         raise DatasetError(f"{Path(location)}: truncated or corrupt OpenEXR file ({problem})")
     if passed is None and headers is not None and isinstance(layout, ChunkLayout):
-        headers.add(PassedHeader(head[:layout.table_start], request, header, layout))
-    return header, (head if len(head) == size else None)
+        passed = PassedHeader(head[:layout.table_start], request, header, layout,
+                              small_layout(head[:layout.table_start]))
+        headers.add(passed)
+    return header, (head if len(head) == size else None), passed
 
 
 def _open_file(location: str):
@@ -205,14 +208,17 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         For every problem of :func:`check_exr` (all found before decoding), and for data the
         library cannot decode; the message names the file.
     """
-    header = visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers,
-                       descriptor=descriptor)[0]
+    header, data, passed = visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers,
+                                     HEAD_BYTES if headers is not None else 0, descriptor)
     path = Path(path)
     first, stop = rows if rows is not None else (0, header.height)
     if not 0 <= first < stop <= header.height:
         raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
     height = stop - first
     image = np.empty((height, header.width, len(names)), np.float32)
+    if data is not None and passed is not None and passed.small is not None \
+            and decode_small(data, passed.small, passed.layout, names, image, first):
+        return image  # a small file decoded from the bytes its check read (module exr_small)
     try:
         with quiet_library():
             if not whole_file_reader(header, names, height):

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from .exr_chunks import ChunkLayout
 from .exr_header import ExrHeader
+from .exr_small import SmallLayout
 
 KEPT = 16
 """Headers kept, the most recently matched first."""
@@ -24,12 +25,14 @@ KEPT = 16
 @dataclass(frozen=True)
 class PassedHeader:
     """A header's bytes, the request it passed (names, expected shape, part, colourspace), what
-    the library read from it and where its chunk table is."""
+    the library read from it, where its chunk table is, and how a small file of it is decoded
+    without the library (:mod:`.exr_small`; None: by the library)."""
 
     header_bytes: bytes
     request: tuple
     header: ExrHeader
     layout: ChunkLayout
+    small: SmallLayout | None = None
 
 
 class HeaderCache:

@@ -83,7 +83,10 @@ class FileResolver:
         else:
             try:
                 descriptor = os.open(path, flags | os.O_NOFOLLOW)
-            except OSError:  # a link (ELOOP), a missing file: resolved first, as locate does
+            except FileNotFoundError:  # no such file (nor link): said once its folder is known inside
+                self._check_inside(path, self._in_real_folder)
+                raise DatasetError(f"{os.path.normpath(path)}: file not found") from None
+            except OSError:  # a link (ELOOP) and the like: resolved first, as locate does
                 descriptor = _opened(self.locate(name), flags)
             else:
                 try:
