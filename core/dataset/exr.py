@@ -97,10 +97,11 @@ def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
     the file itself). ``descriptor``: the regular file ``path`` already open for reading
     (:meth:`.file_paths.FileResolver.open`), which is closed when done."""
     location = os.fspath(path)
-    with (_open_file(location) if descriptor is None else os.fdopen(descriptor, "rb")) as handle:
+    # Unbuffered: a buffered reader's own 8 KiB buffer and set-up cost more than a small file.
+    with open(_open_file(location) if descriptor is None else descriptor, "rb", buffering=0) as handle:
         try:
             size = os.fstat(handle.fileno()).st_size
-            head = handle.read(size + 1 if size <= whole_up_to else HEAD_BYTES)
+            head = handle.read(size + 1 if size <= whole_up_to else min(size + 1, HEAD_BYTES))
             if head[:4] != EXR_MAGIC:
                 raise DatasetError(f"{Path(location)}: not an OpenEXR file")
             request = (names, None if expected_shape is None else tuple(expected_shape), part, colorspace)
@@ -125,9 +126,9 @@ def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
     return header, (head if len(head) == size else None), passed
 
 
-def _open_file(location: str):
-    """The regular file at ``location`` opened for reading (:func:`.exr_header.open_regular`),
-    named as a Path in its errors."""
+def _open_file(location: str) -> int:
+    """A descriptor of the regular file at ``location`` opened for reading
+    (:func:`.exr_header.open_regular`), named as a Path in its errors."""
     try:
         descriptor = os.open(location, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block
     except FileNotFoundError:
@@ -137,7 +138,7 @@ def _open_file(location: str):
     if not stat.S_ISREG(os.fstat(descriptor).st_mode):
         os.close(descriptor)
         raise DatasetError(f"{Path(location)}: not a file")
-    return os.fdopen(descriptor, "rb")
+    return descriptor
 
 
 def _check_header(path: Path, header: ExrHeader, names: tuple[str, ...], expected_shape, what: str,
@@ -210,7 +211,6 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
     """
     header, data, passed = visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers,
                                      HEAD_BYTES if headers is not None else 0, descriptor)
-    path = Path(path)
     first, stop = rows if rows is not None else (0, header.height)
     if not 0 <= first < stop <= header.height:
         raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
@@ -219,6 +219,7 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
     if data is not None and passed is not None and passed.small is not None \
             and decode_small(data, passed.small, passed.layout, names, image, first):
         return image  # a small file decoded from the bytes its check read (module exr_small)
+    path = Path(path)
     try:
         with quiet_library():
             if not whole_file_reader(header, names, height):
