@@ -23,6 +23,7 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled, RinglightError
+from ..rings.geometry import ring_geometry
 from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
 from ..rings.stacks import Stack, ring_stack
@@ -148,6 +149,31 @@ def ring_sigma(images: np.ndarray, errors: np.ndarray, counts: np.ndarray, floor
     return np.sqrt(sigma * sigma + (floor * images) ** 2)
 
 
+def error_freedom(dataset: ImpulseDataset, radii: np.ndarray, noise_source: str) -> np.ndarray:
+    """(R,) degrees of freedom of each ring's standard error: replicates - 1, or for the ring
+    spread its members less its groups of equal distance (:mod:`ringlight.core.rings.noise`, whole
+    rings); a ring without a spread (r = 0) borrows its neighbour's."""
+    if noise_source == "replicates":
+        return np.full(len(radii), len(dataset.manifest.replicates) - 1.0)
+    freedom = []
+    for radius in radii:
+        offsets = ring_geometry(float(radius)).offsets
+        distances = np.unique(offsets[:, 0] ** 2 + offsets[:, 1] ** 2)
+        freedom.append(float(len(offsets) - len(distances)))
+    freedom = np.asarray(freedom)
+    spread = np.flatnonzero(freedom > 0)
+    return freedom if not len(spread) else np.where(freedom > 0, freedom, freedom[spread[0]])
+
+
+def t_inflation(freedom: np.ndarray) -> np.ndarray:
+    """(R,) factors for standard errors estimated with ``freedom`` degrees of freedom: a residual
+    over such an error is Student-t distributed, of variance nu / (nu - 2) (sqrt(3) for nu <= 3),
+    so the fit weighs the ring as the variance it has; at r = 1 (8 members at 2 distances, nu = 6)
+    the factor is 1.22. Without it, two-sigma intervals held the truth in 93.5 % of pixels on the
+    maps' own model at 5 % noise per response (tests/test_optics_maps.py), 95 % with it."""
+    return np.sqrt(np.where(freedom > 3, freedom / np.maximum(freedom - 2.0, 1e-9), 3.0))
+
+
 def ring_errors(dataset: ImpulseDataset, radii: np.ndarray, progress=None) -> tuple[np.ndarray, str]:
     """(R, H, W, 3) float32 standard errors of E_r at ``radii`` 0, 1, ... (thickness 1) and where
     they come from: the replicates' spread (:mod:`ringlight.core.rings.replicate_noise`) or the
@@ -207,6 +233,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     if errors is None:
         errors, noise_source = ring_errors(dataset, radii, progress=report.part(0.3, 0.6))
+        errors = errors * t_inflation(error_freedom(dataset, radii, noise_source))[:, None, None, None]
     report.check()
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
@@ -241,8 +268,6 @@ def maps_from_fit(fitted: dict, table: ProfileTable, pitch_mm: float | None, com
 
 
 def _ring_members(radius: float) -> int:
-    from ..rings.geometry import ring_geometry
-
     return len(ring_geometry(float(radius)).offsets)
 
 

@@ -17,8 +17,11 @@ applied afterwards for each ``mus`` (:mod:`.table`).
 The records are tallied as they come into cells of ``log rho`` and ``log L`` (ratio
 :data:`RATIO`), each keeping its weight ``W = sum v`` and the weighted sums of ``rho`` and ``L``
 (the cell's means stand for its records). A photon is followed until it leaves or its path
-reaches :data:`LONGEST` mean free paths (what such a path carries is below
-``exp(-mua LONGEST / mus)``: 1e-4 for the weakest absorption a table holds, :data:`.table.ALBEDO_RANGE`).
+reaches :data:`LONGEST` transport mean free paths: what such a path carries is below
+``exp(-mua LONGEST / mus')``: 0.7 % where ``mua / mus' = 1e-3`` (0.005 / mm absorption under 5 / mm
+reduced scattering), and few paths are that long (in a half-space the share longer than ``L``
+falls as ``L^-1/2``: about 1 %). Weaker absorption relative to the scattering loses more; the
+fits there are not determined anyway (``tools/evaluate_optics.py``).
 """
 
 from __future__ import annotations
@@ -47,8 +50,11 @@ SHORTEST_RHO = 1e-3
 FARTHEST_RHO = 600.0
 """Mean free paths: records farther from the entry point are not kept (the walk goes on)."""
 SHORTEST_PATH = 1e-2
-LONGEST = 2e5
-"""Mean free paths: a walk stops when its path reaches this length."""
+LONGEST = 5e3
+"""Transport mean free paths (``1 / (mus (1 - g))``): a walk stops when its path reaches this
+length (``LONGEST / (1 - g)`` mean free paths)."""
+MOST_ANISOTROPIC = 0.95
+"""Largest ``|g|`` a run is made for (its walks are ``1 / (1 - g)`` times longer)."""
 DEEPEST = 40.0
 """Optical depth past which an estimate (below exp(-40) of the walk's weight) is dropped."""
 BLOCKS = 16
@@ -57,7 +63,7 @@ CHUNK = 4
 """Blocks run in parallel between progress reports."""
 FORMAT_VERSION = 1
 RHO_CELLS = 1 + int(math.ceil(math.log(FARTHEST_RHO / SHORTEST_RHO) / math.log(RATIO)))
-PATH_CELLS = 1 + int(math.ceil(math.log(LONGEST / SHORTEST_PATH) / math.log(RATIO)))
+PATH_CELLS = 1 + int(math.ceil(math.log(LONGEST / (1.0 - MOST_ANISOTROPIC) / SHORTEST_PATH) / math.log(RATIO)))
 _ARRAYS = ("photons", "weight", "rho", "path", "seconds")
 
 
@@ -102,7 +108,7 @@ def _cell(value, shortest, cells):
 
 
 @numba.njit(cache=True)
-def _radial_block(g, n, photons, seed, stream, weight, rho_sum, path_sum):
+def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_sum):
     """Trace ``photons`` on stream ``stream`` and add their estimates to the cell sums."""
     state = seed_state(seed, stream)
     entry_weight = 1.0 - exit_fresnel(n, 1.0)
@@ -114,7 +120,7 @@ def _radial_block(g, n, photons, seed, stream, weight, rho_sum, path_sum):
         z = 0.0
         uy, ux, uz = 0.0, 0.0, 1.0
         length = 0.0
-        while length < LONGEST:
+        while length < longest:
             step = -math.log(1.0 - uniform(state))
             if uz < 0.0 and z + step * uz <= 0.0:
                 travel = -z / uz
@@ -144,15 +150,17 @@ def _radial_block(g, n, photons, seed, stream, weight, rho_sum, path_sum):
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _radial_blocks(g, n, per_block, seed, first, weight, rho_sum, path_sum):
+def _radial_blocks(g, n, longest, per_block, seed, first, weight, rho_sum, path_sum):
     for i in numba.prange(weight.shape[0]):
-        _radial_block(g, n, per_block, seed, first + i, weight[i], rho_sum[i], path_sum[i])
+        _radial_block(g, n, longest, per_block, seed, first + i, weight[i], rho_sum[i], path_sum[i])
 
 
 def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None) -> RadialRun:
     """Trace ``photons`` (rounded up to whole :data:`BLOCKS`) into a half-space of index ``n`` and
     anisotropy ``g`` without absorption; ``progress(fraction)`` after each :data:`CHUNK` blocks
     (raise from it to cancel)."""
+    if not abs(g) <= MOST_ANISOTROPIC:
+        raise TableError(f"a white run is made for |g| <= {MOST_ANISOTROPIC:g}, not g = {g:g}")
     start = time.perf_counter()
     per_block = max(1, -(-int(photons) // BLOCKS))
     weight = np.zeros((RHO_CELLS, PATH_CELLS))
@@ -160,7 +168,7 @@ def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None) -
     path_sum = np.zeros_like(weight)
     for first in range(0, BLOCKS, CHUNK):
         parts = [np.zeros((CHUNK, RHO_CELLS, PATH_CELLS)) for _ in range(3)]
-        _radial_blocks(float(g), float(n), per_block, seed, first, *parts)
+        _radial_blocks(float(g), float(n), LONGEST / (1.0 - abs(g)), per_block, seed, first, *parts)
         weight += parts[0].sum(axis=0)
         rho_sum += parts[1].sum(axis=0)
         path_sum += parts[2].sum(axis=0)

@@ -249,8 +249,8 @@ def interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
     return True
 
 
-DEFAULT_PHOTONS = 40_000
-"""Photons of the white run behind a table (a few seconds for g = 0; cached per n and g)."""
+DEFAULT_PHOTONS = 1_000_000
+"""Photons of the white run behind a table: its noise is about 0.2 % of E per ring (``tools/evaluate_optics.py``); the run takes about a minute on two busy cores for g = 0 (longer as g nears 1), once per n and g (cached)."""
 _TABLES: dict[tuple, ProfileTable] = {}
 _KEPT_TABLES = 8
 
