@@ -90,7 +90,8 @@ def test_model_tail_is_the_light_beyond_the_rings():
     # the transform as f grows (1.3 % at 0.05 and 1.5 % at 0.1 cycles per grid step).
     assert result.reflectance[0, 0] == pytest.approx(whole[0], rel=0.006)
     np.testing.assert_allclose(result.reflectance[1:, 0], whole[1:], rtol=0.02)
-    assert 0 < model_tail(run, mus, mua, [0.0], 11.5)[0] < 0.2 * whole[0]
+    # A quarter of this weakly absorbing medium's light leaves beyond the rings: it must be added.
+    assert 0.2 * whole[0] < model_tail(run, mus, mua, [0.0], 11.5)[0] < 0.3 * whole[0]
 
 
 def test_model_reflectance_follows_diffusion_theory_where_it_holds():
