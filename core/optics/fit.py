@@ -25,7 +25,7 @@ from .table import ProfileTable, interpolate
 
 MIN_RINGS = 3
 MAX_ITERATIONS = 40
-TOLERANCE = 1e-7
+TOLERANCE = 1e-5
 """Largest step in (u, v) at which a fit has converged."""
 COARSE_STRIDE = 6
 """Table nodes between the points of the coarse search (in u and in v)."""
@@ -68,13 +68,19 @@ def _fit_rows(log_profile, u0, du, v0, dv, measured, sigma, scale, row0, row1, u
               rings_out, status):
     width = measured.shape[2]
     channels = measured.shape[3]
+    rings = measured.shape[0]
     for y in numba.prange(row0, row1):
+        # Scratch arrays once per row (an allocation per fit cost a tenth of its time).
+        result = np.empty(8)
+        used = np.empty(rings, np.bool_)
+        values = np.empty(rings)
+        slopes = np.empty((rings, 2))
         for c in range(channels):
             start_u = math.nan
             start_v = math.nan
             for x in range(width):
-                result = _fit_one(log_profile, u0, du, v0, dv, measured[:, y, x, c], sigma[:, y, x, c], scale[c],
-                                  start_u, start_v)
+                _fit_one(log_profile, u0, du, v0, dv, measured[:, y, x, c], sigma[:, y, x, c], scale[c],
+                         start_u, start_v, result, used, values, slopes)
                 code = int(result[7])
                 status[y, x, c] = code
                 rings_out[y, x, c] = int(result[6])
@@ -125,11 +131,12 @@ def _coarse_start(log_profile, u0, du, v0, dv, measured, sigma, scale, used):
 
 
 @numba.njit(cache=True)
-def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start_v):
-    """Fit one profile. Returns (u, v, Cuu, Cuv, Cvv, chi2, rings used, status) as 8 float64."""
-    result = np.full(8, math.nan)
+def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start_v, result, used, values, slopes):
+    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status); ``used``,
+    ``values`` and ``slopes`` are scratch of the rings' size."""
+    result[:] = math.nan
     rings = measured.shape[0]
-    used = np.zeros(rings, np.bool_)
+    used[:] = False
     count = 0
     for r in range(rings):
         if math.isfinite(measured[r]) and math.isfinite(sigma[r]) and sigma[r] > 0.0:
@@ -138,9 +145,7 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
     result[6] = count
     if count < MIN_RINGS:
         result[7] = NO_DATA
-        return result
-    values = np.empty(rings)
-    slopes = np.empty((rings, 2))
+        return
     for attempt in range(2):
         if attempt == 0 and math.isfinite(start_u):
             u, v = start_u, start_v
@@ -161,7 +166,6 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
         result[4] = a_uu / determinant
     result[5] = chi2
     result[7] = status
-    return result
 
 
 @numba.njit(cache=True)
