@@ -15,8 +15,14 @@ Prints one markdown row per slab: the truth, the median map value's relative err
 relative error over pixels, the coverage (truth within two standard errors) and the share of
 pixel channels determined, for mu_s' and mu_a; then the targets' summary.
 
+``--scenes`` instead maps the bundled heterogeneous samples (red-bead: a bead under 1 grid step
+of clay; skin1: homogeneous skin) and prints the values at the bead's centre, in the clay and at
+skin1's centre against their scenes' materials; and an edge between two materials side by side
+(simulated), printing the maps' profile across it: how far from the edge a pixel is trustworthy.
+
     python tools/evaluate_optics.py [--musp 0.5 1 2 4] [--mua 0.005 0.02 0.05 0.1 0.5] [--n 1.0 1.4 1.5]
                                     [--photons 300000] [--size 40] [--pitch 0.1]
+    python tools/evaluate_optics.py --scenes
 """
 
 from __future__ import annotations
@@ -83,6 +89,69 @@ def evaluate(musp: float, mua: float, n: float, pitch: float, photons: int, size
     return row
 
 
+def sample_values(name: str, points: dict[str, tuple[int, int]], truth: dict[str, tuple]) -> None:
+    """Map the bundled sample ``name`` and print each point's values against its material."""
+    from ringlight.core import open_dataset
+    from ringlight.core.simulate.samples import sample_dataset
+
+    dataset = open_dataset(sample_dataset(name))
+    maps = optical_maps(dataset)
+    for label, (y, x) in points.items():
+        mua, musp = truth[label]
+        print(f"| {name} | {label} ({y}, {x}) | {_triple(maps.musp[y, x])} +- {_triple(maps.musp_se[y, x])} | "
+              f"{_triple(musp)} | {_triple(maps.mua[y, x])} +- {_triple(maps.mua_se[y, x])} | {_triple(mua)} | "
+              f"{maps.units} |")
+
+
+def _triple(values) -> str:
+    return " / ".join(f"{v:.4g}" for v in values)
+
+
+def edge_profile(photons: int) -> None:
+    """Two materials side by side (x < 20: A, else B; n 1.4, g 0, per grid step), simulated, mapped;
+    the median over rows of each column's values printed against the distance from the edge."""
+    a, b = {"mus": [1.0] * 3, "mua": [0.01] * 3, "g": 0.0}, {"mus": [0.5] * 3, "mua": [0.05] * 3, "g": 0.0}
+    height, width, radius = 24, 40, 8
+    scene = parse_scene({
+        "format": "ringlight-scene", "version": 1, "grid": {"height": height, "width": width}, "depth": 60,
+        "n": 1.4, "materials": {"a": a, "b": b}, "background": "a", "photons_per_point": photons,
+        "max_radius": radius, "path_length_bins": {"step": 1.0, "count": 4}, "seed": 3})
+    scene.volume[:, :, width // 2:] = 1  # material b on the right (voxel x >= 20)
+    import tempfile
+    from pathlib import Path
+
+    from ringlight.core import open_dataset
+    from ringlight.core.simulate.transport import write_transport
+
+    transport = simulate_transport(scene)
+    with tempfile.TemporaryDirectory() as folder:
+        write_transport(transport, Path(folder) / "edge")
+        maps = optical_maps(open_dataset(Path(folder) / "edge"))
+    rows = slice(radius, height - radius)  # rows whose rings lie whole on the grid vertically
+    print("| x | distance from edge | musp (a: 1, b: 0.5) | mua (a: 0.01, b: 0.05) | musp SE | mua SE |")
+    print("|---|---|---|---|---|---|")
+    for x in range(width):
+        musp = np.median(maps.musp[rows, x, 0])
+        mua = np.median(maps.mua[rows, x, 0])
+        print(f"| {x} | {x + 0.5 - width / 2:+.1f} | {musp:.4f} | {mua:.5f} | {np.median(maps.musp_se[rows, x, 0]):.4f} "
+              f"| {np.median(maps.mua_se[rows, x, 0]):.5f} |")
+
+
+def scenes(photons: int) -> None:
+    print("| sample | point | musp fitted | musp truth | mua fitted | mua truth | units |")
+    print("|---|---|---|---|---|---|---|")
+    # red-bead (resources/scenes/red-bead.json): the bead (centre [20, 20], top at depth 1) under
+    # clay; per grid step, g 0.
+    sample_values("red-bead", {"bead centre": (20, 20), "clay": (34, 34), "clay (rings whole)": (20, 32)},
+                  {"bead centre": ((0.004, 0.25, 0.3), (0.3,) * 3), "clay": ((0.01, 0.01, 0.012), (1.5,) * 3),
+                   "clay (rings whole)": ((0.01, 0.01, 0.012), (1.5,) * 3)})
+    sample_values("skin1", {"centre": (16, 16), "corner": (1, 1)},
+                  {"centre": ((0.032, 0.17, 0.48), (0.74, 0.88, 1.01)),
+                   "corner": ((0.032, 0.17, 0.48), (0.74, 0.88, 1.01))})
+    print()
+    edge_profile(photons)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--musp", type=float, nargs="+", default=[0.5, 1.0, 2.0, 4.0])
@@ -92,7 +161,12 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=40)
     parser.add_argument("--pitch", type=float, default=0.1)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--scenes", action="store_true", help="the bundled samples and an edge instead")
+    parser.add_argument("--edge-photons", type=int, default=4000)
     args = parser.parse_args()
+    if args.scenes:
+        scenes(args.edge_photons)
+        return
     print(f"pitch {args.pitch:g} mm, g 0, {args.photons} photons per simulated response, {args.size} x {args.size} "
           f"grid, max_radius {MAX_RADIUS}; errors relative to the truth")
     print()

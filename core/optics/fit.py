@@ -99,13 +99,15 @@ def _fit_rows(log_profile, u0, du, v0, dv, measured, sigma, scale, row0, row1, u
 
 @numba.njit(cache=True)
 def _chi2(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes):
-    """chi2 at (u, v), or inf outside the table; fills ``values`` and ``slopes``."""
+    """chi2 at (u, v), or inf outside the table; fills ``values`` with the model's E (scale
+    included) and ``slopes`` with d log E / d(u, v)."""
     if not interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
         return math.inf
     total = 0.0
     for r in range(measured.shape[0]):
         if used[r]:
-            residual = (measured[r] - scale * math.exp(values[r])) / sigma[r]
+            values[r] = scale * math.exp(values[r])
+            residual = (measured[r] - values[r]) / sigma[r]
             total += residual * residual
     return total
 
@@ -186,7 +188,7 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
         a_uu = a_uv = a_vv = b_u = b_v = 0.0
         for r in range(rings):
             if used[r]:
-                model = scale * math.exp(values[r])
+                model = values[r]
                 weight = 1.0 / (sigma[r] * sigma[r])
                 j_u = model * slopes[r, 0]
                 j_v = model * slopes[r, 1]
@@ -196,6 +198,16 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
                 a_vv += weight * j_v * j_v
                 b_u += weight * j_u * residual
                 b_v += weight * j_v * residual
+        # Converged when the Gauss-Newton step itself is below the tolerance: no trial (near the
+        # minimum a trial's chi2 differs from the current one by rounding only, and was refused
+        # a dozen times, most of a fit's time).
+        determinant = a_uu * a_vv - a_uv * a_uv
+        if determinant > 0.0:
+            newton_u = (a_vv * b_u - a_uv * b_v) / determinant
+            newton_v = (a_uu * b_v - a_uv * b_u) / determinant
+            if abs(newton_u) < TOLERANCE and abs(newton_v) < TOLERANCE:
+                status = CONVERGED
+                break
         improved = False
         step_u = step_v = 0.0
         for _ in range(12):
@@ -231,7 +243,7 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
         a_uu = a_uv = a_vv = 0.0
         for r in range(rings):
             if used[r]:
-                model = scale * math.exp(values[r])
+                model = values[r]
                 weight = 1.0 / (sigma[r] * sigma[r])
                 j_u = model * slopes[r, 0]
                 j_v = model * slopes[r, 1]
