@@ -70,12 +70,15 @@ class RegionOptics:
 
 def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n: float | None = None,
                   g: float | None = None, calibration=None, layers: int = 1, frequencies=(0.0,),
-                  photons: int = DEFAULT_PHOTONS, floor: float = MODEL_FLOOR, progress=None) -> RegionOptics:
+                  photons: int = DEFAULT_PHOTONS, floor: float = MODEL_FLOOR, progress=None,
+                  layer_settings=None) -> RegionOptics:
     """Fit the mean profile of ``mask`` ((H, W) bool; None: the whole grid).
 
     ``frequencies`` in cycles per mm when the manifest gives ``grid.pitch_mm``, else per grid
-    step. ``layers`` 1, or 2 to run the layer inversion on the same profile as well (its settings
-    the inversion's defaults with this n and g). ``progress(fraction)`` may raise Cancelled.
+    step. ``layers`` 1, or 2 to run the layer inversion on the same profile as well: with
+    ``layer_settings`` (an :class:`ringlight.core.inversion.settings.InversionSettings`) or the
+    inversion's defaults, two layers of this n and g and the homogeneous fit's scattering.
+    ``progress(fraction)`` may raise Cancelled.
     """
     if layers not in (1, 2):
         raise OpticsError(f"a region is fitted with 1 or 2 layers, got {layers}")
@@ -120,8 +123,13 @@ def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n:
         from ..inversion.layers import invert
         from ..inversion.settings import InversionSettings
 
+        from dataclasses import replace
+
         mus = float(np.nanmean(musp / per)) / (1.0 - g) if np.isfinite(musp).any() else None
-        inversion = invert(measured, InversionSettings(layers=2, n=n, g=g, mus=mus), dataset.colorspace)
+        settings = replace(layer_settings or InversionSettings(), layers=2, n=n, g=g)
+        if settings.mus is None and settings.boundaries is None:
+            settings = replace(settings, mus=mus)
+        inversion = invert(measured, settings, dataset.colorspace)
     return RegionOptics(mua, musp, mua_se, musp_se, determined, "per_mm" if pitch else "per_grid_step", pitch, n, g,
                         ("R", "G", "B"), asked, reflectance, radii, mean, measured.standard_error, model,
                         fitted["chi2"][0, 0], measured.points, inversion)
