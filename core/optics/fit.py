@@ -27,6 +27,9 @@ MIN_RINGS = 3
 MAX_ITERATIONS = 40
 TOLERANCE = 1e-5
 """Largest step in (u, v) at which a fit has converged."""
+DECREMENT = 1e-4
+"""Newton decrement (chi2 units) at which a fit has converged: the step left is below 1 % of a
+standard error."""
 COARSE_STRIDE = 6
 """Table nodes between the points of the coarse search (in u and in v)."""
 CONVERGED, NO_DATA, NOT_CONVERGED, AT_EDGE = 0, 1, 2, 3
@@ -205,7 +208,9 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
         if determinant > 0.0:
             newton_u = (a_vv * b_u - a_uv * b_v) / determinant
             newton_v = (a_uu * b_v - a_uv * b_u) / determinant
-            if abs(newton_u) < TOLERANCE and abs(newton_v) < TOLERANCE:
+            # The Newton decrement (the chi2 the step would gain) below DECREMENT: the remaining
+            # error is below a hundredth of a standard error, whatever the parameter's scale.
+            if (abs(newton_u) < TOLERANCE and abs(newton_v) < TOLERANCE) or newton_u * b_u + newton_v * b_v < DECREMENT:
                 status = CONVERGED
                 break
         improved = False
