@@ -61,19 +61,22 @@ def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
 
 def region_text(maps: OpticalMaps, key: str, channel: int, region: np.ndarray | None, where: str) -> str:
     """Mean ± standard error of the mean (std / sqrt N) of property ``key`` in ``channel`` over the
-    pixels of the (H, W) ``region`` (None: the whole grid) whose value is determined."""
+    pixels of the (H, W) ``region`` (None: the whole grid) whose value is determined and whose
+    rings lie whole on the grid (a cut ring's fit is biased, :attr:`OpticalMaps.complete`)."""
     values = getattr(maps, key)[..., channel]
     inside = np.ones(values.shape, bool) if region is None else region
-    used = inside & getattr(maps, f"{key}_determined")[..., channel] & np.isfinite(values)
-    count, total = int(used.sum()), int(inside.sum())
+    determined = inside & getattr(maps, f"{key}_determined")[..., channel] & np.isfinite(values)
+    used = determined & maps.complete
+    count, total, cut = int(used.sum()), int(inside.sum()), int((determined & ~maps.complete).sum())
     name, unit = QUANTITIES[key], UNITS[maps.units]
+    left_out = f" ({cut} more with rings cut by the edge left out)" if cut else ""
     if count == 0:
-        return f"{where}: no pixel of {total} has a determined {name}"
+        return f"{where}: no pixel of {total} has a determined {name} from whole rings{left_out}"
     chosen = values[used].astype(np.float64)
     std = float(chosen.std(ddof=1)) if count > 1 else float("nan")
     # Neighbouring pixels' fits share ring members, so std / sqrt N understates the mean's error.
     se = std / np.sqrt(count) if count > 1 else None
-    return (f"{where}: {count} of {total} px determined; {name} {maps.channels[channel]} mean "
+    return (f"{where}: {count} of {total} px{left_out}; {name} {maps.channels[channel]} mean "
             f"{with_error(float(chosen.mean()), se)} {unit} (SE of the mean), std {std:.3g}")
 
 
@@ -86,6 +89,7 @@ class OpticsView:
         self.optics_photons = DEFAULT_PHOTONS  # the model table's white run (tests use fewer)
         self._optics_photons_used = DEFAULT_PHOTONS  # that of the maps on screen
         self._optics_dataset: ImpulseDataset | None = None  # whose maps they are
+        self._optics_hovered = (-1, -1)  # the map's pixel under the mouse, for the readout
         self._optics_stop = threading.Event()
         self.optics_panel = OpticsPanel()
         self.analysis_tabs.addTab(self.optics_panel, "Optics")
@@ -107,6 +111,10 @@ class OpticsView:
         self.optics_jobs.cancelled.connect(lambda: panel.set_map(None, title="Cancelled: Compute maps to start again"))
         self.dataset_loaded.connect(self._forget_optics)
         self.layer_tab.region_changed.connect(self._refresh_optics_region)
+
+    def _show_optics(self) -> None:
+        self.analysis_tabs.setCurrentWidget(self.optics_panel)
+        self.profile_dock.show()
 
     def compute_optics(self) -> None:
         """Fit the maps of the dataset on screen in a worker (cancel: :meth:`cancel_optics`)."""
@@ -182,6 +190,7 @@ class OpticsView:
                       f"dim: not determined; grey: no fit")
         if self.picked is not None:
             panel.show_point(*self.picked)
+        self._on_optics_hover(*self._optics_hovered)  # the other channel's numbers under the mouse
         self._refresh_optics_region()
 
     def _refresh_optics_region(self) -> None:
@@ -194,6 +203,7 @@ class OpticsView:
                                                  "whole grid" if whole else "Layers region"))
 
     def _on_optics_hover(self, y: int, x: int) -> None:
+        self._optics_hovered = (y, x)
         inside = self.optics is not None and 0 <= y < self.optics.mua.shape[0] and 0 <= x < self.optics.mua.shape[1]
         self.optics_panel.set_hover(describe_optics(self.optics, y, x, self.optics_panel.channel()) if inside else "")
 
@@ -212,4 +222,5 @@ class OpticsView:
                 model[:, channel] = model_profile(mua, musp, maps.radii, n=maps.n, g=maps.g, pitch_mm=maps.pitch_mm,
                                                   scale=float(maps.scale[channel]), photons=self._optics_photons_used)
         self.profile_plot.set_model(maps.radii, model)
+        self.profile_plot.set_point(f"at y {y} x {x}\ndashed: mu_a, mu_s' fit")
         self.optics_panel.show_point(y, x)
