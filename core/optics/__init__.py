@@ -10,9 +10,9 @@ from .calibration import Calibration, CalibrationError, calibrate, read_calibrat
 from .maps import OpticalMaps, optical_maps
 from .model import model_profile
 from .region import RegionOptics, region_optics
-from .transform import diffuse_reflectance
+from .transform import diffuse_reflectance, reflectance_maps
 
 __all__ = [
     "Calibration", "CalibrationError", "OpticalMaps", "RegionOptics", "calibrate", "diffuse_reflectance",
-    "model_profile", "optical_maps", "read_calibration", "region_optics", "write_calibration",
+    "model_profile", "optical_maps", "read_calibration", "reflectance_maps", "region_optics", "write_calibration",
 ]

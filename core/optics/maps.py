@@ -240,7 +240,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
-    scale = _scale(calibration, dataset)
+    scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
     sigma = ring_sigma(stack.images, errors, stack.counts, floor)
     fitted = fit_profiles(table, stack.images, sigma, scale, cancelled=report.cancelled)
     report.progress(1.0)
@@ -272,12 +272,6 @@ def maps_from_fit(fitted: dict, table: ProfileTable, pitch_mm: float | None, com
 
 def _ring_members(radius: float) -> int:
     return len(ring_geometry(float(radius)).offsets)
-
-
-def _scale(calibration, dataset: ImpulseDataset) -> np.ndarray:
-    if calibration is None:
-        return np.ones(3)
-    return np.asarray(calibration.scale, np.float64)
 
 
 class _Phases:
