@@ -27,16 +27,19 @@ UNITS = {"per_mm": "/mm", "per_grid_step": "/grid step"}
 
 @dataclass(frozen=True, eq=False)
 class OpticsRequest:
-    """The maps of ``dataset`` under ``calibration``, with the table's white run of ``photons``;
+    """The maps of ``dataset`` under ``calibration``, with the table's white run of ``photons``, for
+    index ``n`` and anisotropy ``g`` (None: the manifest's);
     ``stop`` set asks the fit to stop (its cancel question between pixel blocks)."""
 
     dataset: ImpulseDataset
     calibration: Calibration | None
     photons: int
     stop: threading.Event
+    n: float | None = None
+    g: float | None = None
 
     def run(self, progress) -> OpticalMaps:
-        return optical_maps(self.dataset, calibration=self.calibration, progress=progress,
+        return optical_maps(self.dataset, n=self.n, g=self.g, calibration=self.calibration, progress=progress,
                             cancelled=self.stop.is_set, photons=self.photons)
 
 
@@ -121,9 +124,15 @@ class OpticsView:
         if self.loaded is None:
             self.optics_panel.set_map(None, title="Open a dataset first")
             return
+        try:
+            n, g = self.optics_panel.sample()
+        except ValueError as error:
+            self.show_error("Could not compute the optical maps", str(error))
+            return
         self._optics_stop.set()  # a job still running stops at its next question
         self._optics_stop = threading.Event()
-        request = OpticsRequest(self.loaded.dataset, self.optics_calibration, self.optics_photons, self._optics_stop)
+        request = OpticsRequest(self.loaded.dataset, self.optics_calibration, self.optics_photons, self._optics_stop,
+                                n, g)
         self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
         self.optics_jobs.start("Optical maps", lambda progress: (request, request.run(progress)))
 

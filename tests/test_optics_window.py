@@ -175,3 +175,12 @@ def test_a_bad_calibration_file_gives_one_line_naming_it(qtbot, window, tmp_path
     assert not window.load_calibration(path)
     assert "\n" not in window.last_error and "rig-calibration.json" in window.last_error
     assert window.optics_calibration is None
+
+
+def test_the_typed_index_is_the_one_fitted_and_a_bad_one_gives_one_line(qtbot, window):
+    window.optics_panel.n_edit.setText("1.4x")
+    window.optics_panel.compute_button.click()
+    assert not window.optics_jobs.busy and window.last_error == "n must be a number, got '1.4x'"
+    window.optics_panel.n_edit.setText("1.33")
+    compute(qtbot, window)
+    assert window.optics.n == 1.33 and window.optics.g == 0.0  # g: the manifest states none, so 0

@@ -16,6 +16,7 @@ from PySide6.QtWidgets import (
     QGridLayout,
     QHBoxLayout,
     QLabel,
+    QLineEdit,
     QProgressBar,
     QPushButton,
     QVBoxLayout,
@@ -101,6 +102,12 @@ class OpticsPanel(QWidget):
             self.quantity_box.addItem(name, key)
         self.channel_box = QComboBox()
         self.channel_box.addItems(CHANNELS)
+        self.n_edit = QLineEdit()
+        self.n_edit.setPlaceholderText("manifest's")
+        self.n_edit.setToolTip("Refractive index of the sample (e.g. 1.4 for tissue); empty: the manifest's sample.n")
+        self.g_edit = QLineEdit()
+        self.g_edit.setPlaceholderText("manifest's or 0")
+        self.g_edit.setToolTip("Henyey-Greenstein anisotropy; empty: the manifest's sample.g, else 0 (isotropic)")
         self.calibration_label = QLabel("Calibration: none (absolute, simulated data)")
         self.calibration_label.setWordWrap(True)
         self.calibration_button = QPushButton("Calibration…")
@@ -125,6 +132,10 @@ class OpticsPanel(QWidget):
         choices.addWidget(self.quantity_box, 0, 1)
         choices.addWidget(QLabel("Channel"), 0, 2)
         choices.addWidget(self.channel_box, 0, 3)
+        choices.addWidget(QLabel("n"), 1, 0)
+        choices.addWidget(self.n_edit, 1, 1)
+        choices.addWidget(QLabel("g"), 1, 2)
+        choices.addWidget(self.g_edit, 1, 3)
         calibration = QHBoxLayout()
         calibration.addWidget(self.calibration_label, 1)
         calibration.addWidget(self.calibration_button)
@@ -155,6 +166,18 @@ class OpticsPanel(QWidget):
     def channel(self) -> int:
         """Index of the chosen channel (0 R, 1 G, 2 B)."""
         return self.channel_box.currentIndex()
+
+    def sample(self) -> tuple[float | None, float | None]:
+        """The refractive index and anisotropy typed (None where empty: the manifest's); ValueError
+        with one line when one is not a number."""
+        values = []
+        for name, edit in (("n", self.n_edit), ("g", self.g_edit)):
+            text = edit.text().strip()
+            try:
+                values.append(float(text) if text else None)
+            except ValueError:
+                raise ValueError(f"{name} must be a number, got {text!r}") from None
+        return values[0], values[1]
 
     def set_busy(self, busy: bool) -> None:
         """A computation runs (cancel offered) or not."""
