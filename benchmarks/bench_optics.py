@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from ringlight.core.optics.fit import fit_profiles
+from ringlight.core.optics.pixel_fit import fit_profiles
 from ringlight.core.optics.maps import error_freedom, profile_radii, ring_errors, ring_sigma, t_inflation
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.synthetic import homogeneous_dataset

@@ -1,5 +1,5 @@
 """Maps of absorption mu_a and reduced scattering mu_s' per pixel and channel: each pixel's ring
-profile E_p(r) fitted as a homogeneous semi-infinite medium (:mod:`.fit` on :mod:`.table`).
+profile E_p(r) fitted as a homogeneous semi-infinite medium (:mod:`.pixel_fit` on :mod:`.table`).
 
 The profile is the ring light stack at radii 0, 1, ... (thickness 1, every ring within the
 dataset's max_radius), its standard errors the noise of the stack (:mod:`ringlight.core.rings.noise`:
@@ -30,7 +30,7 @@ from ..rings.geometry import ring_geometry
 from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
 from ..rings.stacks import Stack, ring_stack
-from .fit import CONVERGED, fit_profiles
+from .pixel_fit import CONVERGED, fit_profiles
 from .table import DEFAULT_PHOTONS, ProfileTable, table_for
 
 MODEL_FLOOR = 0.005
@@ -206,7 +206,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     n, g
         Refractive index and Henyey-Greenstein anisotropy; None takes the manifest's ``sample``.
     calibration
-        A :class:`.calibration.Calibration` for a real rig (its per-channel scale); None for a
+        A :class:`ringlight.core.optics.calibration.Calibration` for a real rig (its per-channel scale); None for a
         simulated, absolute dataset.
     progress
         ``progress(fraction)`` along the way (may raise :class:`~ringlight.core.errors.Cancelled`).
@@ -251,7 +251,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
 
 def maps_from_fit(fitted: dict, table: ProfileTable, pitch_mm: float | None, complete: np.ndarray, radii: np.ndarray,
                   noise_source: str, scale: np.ndarray) -> OpticalMaps:
-    """The maps of :func:`.fit.fit_profiles`' result in the table's units converted to per mm."""
+    """The maps of :func:`.pixel_fit.fit_profiles`' result in the table's units converted to per mm."""
     g = table.g
     per = 1.0 / pitch_mm if pitch_mm else 1.0
     musp = (1.0 - g) * np.exp(fitted["u"]) * per

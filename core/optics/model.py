@@ -22,7 +22,7 @@ def model_profile(mua: float, musp: float, radii, *, n: float, g: float = 0.0, p
     n, g
         Refractive index and anisotropy.
     scale
-        The rig's scale for the channel (:attr:`.calibration.Calibration.scale`; 1 for a
+        The rig's scale for the channel (:attr:`ringlight.core.optics.calibration.Calibration.scale`; 1 for a
         simulated dataset).
     thickness, photons
         The rings' thickness, the table's white run (:func:`.table.table_for`).

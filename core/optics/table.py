@@ -18,7 +18,7 @@ with ``N`` the run's photons: the same quantity, normalisation and rings as the 
 stack's E_r (the region mean of a laterally homogeneous surface, every ring whole).
 
 The table holds ``log E`` on a regular grid of ``u = log mus`` and ``v = log a`` and interpolates
-it by Catmull-Rom splines in both (continuous first derivatives: :mod:`.fit` differentiates it).
+it by Catmull-Rom splines in both (continuous first derivatives: :mod:`.pixel_fit` differentiates it).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ Levenberg-Marquardt on the look-up table (:mod:`.table`), compiled and run over 
 channel at once.
 
 For one pixel and channel, with measured E_r, their standard deviations sigma_r and the rig's
-scale ``s`` (1 for a simulated dataset, :mod:`.calibration` for a real one), the fit minimises::
+scale ``s`` (1 for a simulated dataset, :mod:`ringlight.core.optics.calibration` for a real one), the fit minimises::
 
     chi2(u, v) = sum_r ((E_r - s exp(logE_r(u, v))) / sigma_r)^2,   u = log mus, v = log (mua / mus)
 
