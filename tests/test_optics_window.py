@@ -152,7 +152,8 @@ def test_region_statistics_are_mean_and_its_standard_error(direct):
 
 
 def test_cancel_stops_the_maps(qtbot, window, homogeneous):
-    window.optics_panel.compute_button.click()
+    with qtbot.waitSignal(window.optics_jobs.progress, timeout=TIMEOUT_MS):  # under way, mid-stack
+        window.optics_panel.compute_button.click()
     assert window.optics_jobs.busy and window.optics_panel.cancel_button.isEnabled()
     window.optics_panel.cancel_button.click()
     qtbot.waitUntil(lambda: not window.optics_jobs.busy, timeout=TIMEOUT_MS)
