@@ -17,6 +17,7 @@ from ringlight.core.capture.live_view import LIVE_FPS, summarise_frame
 from ringlight.core.capture.scan import Scan, capture_with_timeout
 from ringlight.core.capture.scan_plan import ScanError, estimate_disk
 from ringlight.core.dataset.memory import format_bytes
+from ringlight.core.optics.table import DEFAULT_PHOTONS
 from ringlight.core.capture.workflow import (
     camera_notes,
     estimated_seconds,
@@ -35,6 +36,8 @@ from ringlight.widgets.capture_wizard import (
 )
 from ringlight.widgets.jobs import JobSlot
 
+from .reference_calibration import ReferenceCalibration
+
 
 class CaptureTab(QObject):
     """Signals: ``dataset_ready(str)`` when a scan finished; ``error(str, str)`` title and message;
@@ -49,6 +52,8 @@ class CaptureTab(QObject):
         self.wizard = wizard
         self.jobs = JobSlot(pool, self)
         self.live_jobs = JobSlot(pool, self)
+        self.calibration_jobs = JobSlot(pool, self)
+        self.calibration_photons = DEFAULT_PHOTONS  # the model table's white run (tests use fewer)
         self.discovery = discover_plugins()
         wizard.set_devices(sorted(self.discovery.cameras()), sorted(self.discovery.projectors()),
                            [f"{name}: {reason}" for name, reason in self.discovery.failures])
@@ -78,6 +83,12 @@ class CaptureTab(QObject):
         self.jobs.failed.connect(self._on_failed)
         self.jobs.cancelled.connect(self._on_cancelled)
         self.jobs.progress.connect(self._on_progress)
+        box = wizard.reference_box
+        box.calibrate_requested.connect(self.calibrate_reference)
+        self.calibration_jobs.started.connect(lambda _: box.set_busy(True))
+        self.calibration_jobs.idle.connect(lambda: box.set_busy(False))
+        self.calibration_jobs.finished.connect(lambda result: box.set_status(result.summary()))
+        self.calibration_jobs.failed.connect(self._on_calibration_failed)
 
     def open_devices(self, camera_name: str, projector_name: str, options_text: str,
                      camera_options_text: str = "") -> None:
@@ -187,6 +198,15 @@ class CaptureTab(QObject):
             return run_scan(scan, camera, projector, resume, report)
         self._start("scan", f"Scanning {len(scan.frames)} frames", work)
 
+    def calibrate_reference(self, scan: str, mua, musp, n, description: str, out: str) -> None:
+        """Calibrate the rig on the reference's scan and write the calibration file, in a worker."""
+        request = ReferenceCalibration(scan, tuple(mua), tuple(musp), n, description, out, self.calibration_photons)
+        self.calibration_jobs.start(f"Calibrating on {Path(scan).name}", request.run)
+
+    def _on_calibration_failed(self, message: str) -> None:
+        self.wizard.reference_box.set_status(f"Failed: {message.splitlines()[0]}")
+        self.error.emit("Calibration", message)
+
     def close_devices(self) -> None:
         for device in (self.camera, self.projector):
             if device is not None:
@@ -195,6 +215,7 @@ class CaptureTab(QObject):
         self.dark = self.white = self.colour_fit = None
 
     def shutdown(self) -> None:
+        self.calibration_jobs.close()
         self.live_jobs.close()
         self.jobs.close()
 
@@ -272,6 +293,7 @@ class CaptureTab(QObject):
             wizard.drift_label.setText(self._scan.projector_check.summary() or "No projector checks in this scan.")
             wizard.finish_label.setText(f"Dataset written to {result}.")
             wizard.open_dataset_button.setEnabled(True)
+            wizard.reference_box.set_scan(str(result))
             wizard.go_to(FINISH)
 
     def _on_failed(self, message: str) -> None:

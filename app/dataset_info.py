@@ -32,15 +32,15 @@ def describe_dataset(manifest: Manifest, allow_outside: bool = False, radius: fl
     lit = int(np.count_nonzero(counts))
     missing = counts.size - lit
     pitch = f", pitch {manifest.pitch_mm:g} mm" if manifest.pitch_mm else ""
-    points_per_frame = [len(frame.lit) for frame in manifest.frames]
-    exposures = sorted({frame.exposure for frame in manifest.frames})
+    points_per_frame = manifest.frames.counts
+    exposures = np.unique(manifest.frames.exposures).tolist()
     lines = [
         f"dataset      {manifest.folder}",
         f"grid         {manifest.height} x {manifest.width}{pitch}",
         f"colorspace   {manifest.colorspace.removeprefix(CUSTOM_PREFIX)}",
         f"channels     {_describe_channels(manifest, allow_outside)}",
         f"frames       {len(manifest.frames)} in {manifest.frame_space} frame space"
-        f" ({min(points_per_frame)}-{max(points_per_frame)} lit points per frame;"
+        f" ({points_per_frame.min()}-{points_per_frame.max()} lit points per frame;"
         f" exposures {', '.join(f'{e:g}' for e in exposures[:6])}{' ...' if len(exposures) > 6 else ''})",
         f"lit points   {lit} (lit in several frames: {int(np.count_nonzero(counts > 1))})",
         f"missing      {missing} point(s) lit in no frame",

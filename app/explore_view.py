@@ -121,6 +121,7 @@ class ExploreView:
         for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
                      self.impulse_jobs):
             slot.cancel()
+        self.cancel_optics()
         self.scrub_bar.play_button.setChecked(False)
 
     def show_steady_preview(self, steady: np.ndarray, rows: int, colorspace: str) -> None:
@@ -323,6 +324,7 @@ class ExploreView:
         self.profile_plot.set_profiles(self.profile.radii, self.profile.ring, self.profile.transient,
                                        ring_se, transient_se)
         self.profile_plot.set_point(f"at y {self.picked[0]} x {self.picked[1]}")
+        self._refresh_optics_model()
         self._mark_radius()
 
     def _mark_radius(self) -> None:

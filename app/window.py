@@ -42,13 +42,14 @@ from .export_actions import ExportActions
 from .help_dialogs import HelpDialogs
 from .layer_tab import LayerTab
 from .noise_view import NoiseView, ViewNoise
+from .optics_view import OpticsView
 from .session import LoadedDataset, ViewStacks, compute_view_stacks
 from .view_levels import ViewLevels
 from .window_menus import WindowMenus
 from .window_settings import WindowSettings, first_size
 from .window_tools import LineProfileDock
 
-class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActions, WindowMenus, WindowSettings,
+class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, OpticsView, ExportActions, WindowMenus, WindowSettings,
                  HelpDialogs, LineProfileDock, QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
@@ -99,6 +100,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs,
                                   self.fit_jobs, self)
         self.capture_tab = CaptureTab(self.capture_wizard, self.capture_pool, self)
+        self._build_optics()
         self.statusBar().addPermanentWidget(JobIndicator(self.capture_tab.jobs))
         self._build_menus()
         self._connect()
@@ -278,8 +280,9 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, ExportActio
         """Cancel all work, start no more, and wait for the workers (so no job outlives the window)."""
         self.cancel_all()
         for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
-                     self.impulse_jobs):
+                     self.impulse_jobs, self.optics_jobs):
             slot.close()
+        self._optics_stop.set()
         self.capture_tab.shutdown()
         self.scrub_bar.timer.stop()
         self.pool.waitForDone()

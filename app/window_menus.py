@@ -61,6 +61,8 @@ class WindowMenus:
         self._action(view_menu, "Pick radius for layers", self.layer_panel.pick_requested.emit, "P")
         self._action(view_menu, "Fit layers (inverse method)", self._fit_layers, "F")
         self._action(view_menu, "Layers tab", lambda: self.analysis_tabs.setCurrentWidget(self.layer_panel), "Ctrl+L")
+        self._action(view_menu, "Optics tab: mu_a, mu_s' maps", self._show_optics,
+                     tip="Absorption and reduced scattering of every pixel, fitted to its E(r) (Compute maps there)")
         self._action(view_menu, "Reset zoom", self._reset_zoom, "Ctrl+0")
         self.radius_mm_action = self._action(
             view_menu, "Radius in &mm", lambda _=False: self._apply_radius_unit(),

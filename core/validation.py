@@ -15,6 +15,7 @@ import os
 import re
 import reprlib
 import stat
+from collections.abc import Callable
 from pathlib import Path
 
 MAX_JSON_BYTES = 256 * 2**20
@@ -87,8 +88,15 @@ def read_bounded(path: str | os.PathLike, error: type[Exception], what: str = "J
     return data
 
 
-def decode_json(data: bytes, path: str | os.PathLike, error: type[Exception], what: str = "JSON file") -> object:
-    """Decode ``data``, the bytes of the JSON file ``path``, with the limits of :func:`read_json`."""
+def decode_json(data: bytes, path: str | os.PathLike, error: type[Exception], what: str = "JSON file",
+                element_hooks: dict[str, Callable[[], Callable[[object], object]]] | None = None) -> object:
+    """Decode ``data``, the bytes of the JSON file ``path``, with the limits of :func:`read_json`.
+
+    ``element_hooks``: for a key of the top-level object whose value is an array, a factory of a
+    function that each element is passed to as soon as it is decoded, and whose result is kept in
+    its place (a long array's elements made compact one by one: see
+    :class:`ringlight.core.dataset.frame_table.FrameCollector`); one function per occurrence of
+    the key."""
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as problem:
@@ -102,7 +110,8 @@ def decode_json(data: bytes, path: str | os.PathLike, error: type[Exception], wh
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return _decode_in_pieces(text, json.JSONDecoder(parse_int=parse_int, parse_constant=_no_constant))
+        return _decode_in_pieces(text, json.JSONDecoder(parse_int=parse_int, parse_constant=_no_constant),
+                                 element_hooks or {})
     except json.JSONDecodeError as problem:
         raise error(f"{path}: invalid JSON at line {problem.lineno}: {problem.msg}") from None
     except RecursionError:
@@ -127,7 +136,7 @@ def _has_long_digit_run(text: str) -> bool:
                for start in range(0, max(len(text), 1), _PIECE))
 
 
-def _decode_in_pieces(text: str, decoder: json.JSONDecoder) -> object:
+def _decode_in_pieces(text: str, decoder: json.JSONDecoder, element_hooks: dict) -> object:
     """``decoder.decode(text)``, with a top-level object's values and the elements of its arrays
     each decoded by one call of the decoder: a single call holds the GIL for the whole document
     (an 800 px manifest's 20 MB of JSON: 1-2 s in which a window's event loop stood still); between
@@ -150,7 +159,8 @@ def _decode_in_pieces(text: str, decoder: json.JSONDecoder) -> object:
                 raise json.JSONDecodeError("Expecting ':' delimiter", text, index)
             index = _SPACE.match(text, index + 1).end()
             if text.startswith("[", index):
-                result[key], index = _array_in_pieces(text, index, decoder)
+                hook = element_hooks.get(key)
+                result[key], index = _array_in_pieces(text, index, decoder, hook() if hook else None)
             else:
                 result[key], index = _one_value(text, index, decoder)
             index = _SPACE.match(text, index).end()
@@ -166,14 +176,16 @@ def _decode_in_pieces(text: str, decoder: json.JSONDecoder) -> object:
     return result
 
 
-def _array_in_pieces(text: str, index: int, decoder: json.JSONDecoder) -> tuple[list, int]:
-    """The array starting at ``text[index]`` ("["), an element a call; and the index after it."""
+def _array_in_pieces(text: str, index: int, decoder: json.JSONDecoder,
+                     convert: Callable[[object], object] | None = None) -> tuple[list, int]:
+    """The array starting at ``text[index]`` ("["), an element a call (each passed through
+    ``convert`` when given); and the index after it."""
     values, index = [], _SPACE.match(text, index + 1).end()
     if text.startswith("]", index):
         return values, index + 1
     while True:
         value, index = _one_value(text, index, decoder)
-        values.append(value)
+        values.append(value if convert is None else convert(value))
         index = _SPACE.match(text, index).end()
         if text.startswith("]", index):
             return values, index + 1

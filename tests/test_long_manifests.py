@@ -73,3 +73,144 @@ def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys
                                                "radii (dr 1) up to 1 work (radii 0:1:1)")
     status = main(["stack", str(long_dataset), "--radii", "0:2:1", "--kind", "ring", "--out", str(tmp_path / "out")])
     assert status == 0 and len(reads) >= 1000
+
+
+def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_once(long_dataset, monkeypatch):
+    """check_files opened each frame three times (its magic, the library's header, its chunk
+    table) and had the library parse every header (about 100 us a frame): now one open a frame,
+    and the library reads the header the 1000 frames share once (the first frame's channels
+    take one more)."""
+    import OpenEXR
+    from ringlight.core.dataset import exr as exr_module
+
+    manifest = load_manifest(long_dataset)
+    opened, parsed = [], []
+    original_open, original_file = os.open, OpenEXR.File
+    monkeypatch.setattr(exr_module.os, "open", lambda path, *args, **kwargs: (
+        opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
+    monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (parsed.append(args[0]),
+                                                                   original_file(*args, **kwargs))[1])
+    assert check_files(manifest) == []
+    frame_opens = [path for path in opened if "/frames/" in path]
+    assert len(frame_opens) == 1000 + 2  # each frame once; the first one twice more (its channels, the library)
+    assert len(set(frame_opens)) == 1000
+    assert len(parsed) <= 2, parsed
+
+
+def test_a_frame_whose_header_differs_from_the_shared_one_is_still_refused(long_dataset):
+    """The shared header is known by its bytes: a frame of another size (or a truncated one) after
+    999 good ones is checked in full."""
+    write_rgb(long_dataset / "frames" / "other.exr", np.ones((10, 11, 3), np.float32))
+    (long_dataset / "frames" / "000500.exr").unlink()
+    os.link(long_dataset / "frames" / "other.exr", long_dataset / "frames" / "000500.exr")
+    data = (long_dataset / "frames" / "base.exr").read_bytes()
+    (long_dataset / "frames" / "000700.exr").unlink()
+    (long_dataset / "frames" / "000700.exr").write_bytes(data[:-20])
+    problems = check_files(load_manifest(long_dataset))
+    assert problems == [
+        f"{long_dataset}/frames/000500.exr: frame is 10 x 11, expected 10 x 10 (the size of the grid)",
+        f"{long_dataset}/frames/000700.exr: truncated or corrupt OpenEXR file (the file ends at byte "
+        f"{len(data) - 20}, before the end of its last chunk)"]
+
+
+def one_point_manifest(folder: Path, frames: int, width: int = 400) -> Path:
+    """A manifest of ``frames`` frames lighting one point each, row by row (no frame files)."""
+    import json
+
+    folder.mkdir()
+    entries = [{"file": f"frames/{i:06d}.exr", "lit": [[i // width, i % width]], "exposure": 1.0}
+               for i in range(frames)]
+    (folder / "dataset.json").write_text(json.dumps({"format": "ringlight-impulse", "version": 1,
+                                                     "grid": {"height": -(-frames // width), "width": width},
+                                                     "frames": entries}))
+    return folder
+
+
+def multiplexed_manifest(folder: Path, side: int = 1000, step: int = 5) -> Path:
+    """25 frames lighting a 5-step lattice each: a million lit points on a 1000 x 1000 grid."""
+    import json
+
+    folder.mkdir()
+    frames = [{"file": f"frames/{py}_{px}.exr",
+               "lit": [[y, x] for y in range(py, side, step) for x in range(px, side, step)]}
+              for py in range(step) for px in range(step)]
+    (folder / "dataset.json").write_text(json.dumps({"format": "ringlight-impulse", "version": 1, "max_radius": 2,
+                                                     "grid": {"height": side, "width": side}, "frames": frames}))
+    return folder
+
+
+def traced_peak_of(function):
+    """(result, peak bytes of Python allocations while ``function()`` ran)."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        result = function()
+        return result, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_a_long_manifest_is_read_in_memory_a_few_times_its_size(tmp_path):
+    """Each frame's JSON objects become a row of the frame table as they are decoded: 100 000
+    one-point frames (6.5 MiB of JSON) peaked at 97 MiB of Python allocations (the whole decoded
+    document, then a frame object and array view each), now at 25; a million multiplexed points
+    (11 MiB) at 248 MiB, now at 61 (the point checks run 2^18 points at a time)."""
+    from ringlight.core.dataset.manifest import read_manifest
+
+    read_manifest(one_point_manifest(tmp_path / "warm", 10))  # lazy imports and caches, counted once
+    folder = one_point_manifest(tmp_path / "one", 100_000)
+    manifest, peak = traced_peak_of(lambda: read_manifest(folder))
+    assert peak < 40 * 2**20, peak / 2**20
+    assert len(manifest.frames) == 100_000 and manifest.frames[12_345].lit.tolist() == [[30, 345]]
+    assert (manifest.lit_counts() == 1).all()
+    folder = multiplexed_manifest(tmp_path / "multiplexed")
+    manifest, peak = traced_peak_of(lambda: read_manifest(folder))
+    assert peak < 100 * 2**20, peak / 2**20
+    assert len(manifest.frames) == 25 and manifest.frames.counts.tolist() == [40_000] * 25
+    assert manifest.frames[7].lit[:2].tolist() == [[1, 2], [1, 7]]  # frame 7: phase (1, 2) of the lattice
+    assert (manifest.lit_counts() == 1).all()
+
+
+def test_the_checks_of_a_long_manifest_still_name_the_first_frame_at_fault(tmp_path):
+    """The points are checked in runs of frames: a fault in a later run is found and named."""
+    import json
+
+    from ringlight.core import DatasetError
+    from ringlight.core.dataset.manifest import read_manifest
+
+    folder = multiplexed_manifest(tmp_path / "m")
+    document = json.loads((folder / "dataset.json").read_text())
+    document["frames"][20]["lit"][30_000] = [1, 0]  # frame 20 lights [4, 0], 3 away; a duplicate point next
+    document["frames"][23]["lit"][39_999] = document["frames"][23]["lit"][0]
+    (folder / "dataset.json").write_text(json.dumps(document))
+    message = str(pytest.raises(DatasetError, read_manifest, folder).value)
+    assert message == (f"{folder}/dataset.json: frames[23] (frames/4_3.exr) lists a lit point twice")
+    document["frames"][23]["lit"][39_999] = [999, 998]
+    (folder / "dataset.json").write_text(json.dumps(document))
+    message = str(pytest.raises(DatasetError, read_manifest, folder).value)
+    assert message == (f"{folder}/dataset.json: frames[20] (frames/4_0.exr) lights [4, 0] and [1, 0] 3 apart; "
+                       "multiplexed points must be more than 2 * max_radius = 4 apart")
+
+
+def test_an_open_visits_each_frame_file_once(long_dataset, monkeypatch):
+    """An open located, checked and read each frame in four openings of it (an lstat, its magic,
+    the library's header, its chunk table) before the library decoded it: now ringlight opens
+    each frame once, and the library reads the header the frames share a few times in all (the
+    first frame's channels and checks), then only decodes. The responses are the frames' own."""
+    import OpenEXR
+    from ringlight.core import open_dataset
+
+    opened, headers = [], []
+    original_open, original_file = os.open, OpenEXR.File
+    monkeypatch.setattr(os, "open", lambda path, *args, **kwargs: (
+        opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
+    monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (
+        headers.append(args[0]) if kwargs.get("header_only") else None, original_file(*args, **kwargs))[1])
+    dataset = open_dataset(long_dataset, use_cache=False)
+    frame_opens = [path for path in opened if "/frames/" in path]
+    assert len(set(frame_opens)) == 1000
+    assert len(frame_opens) <= 1000 + 5, len(frame_opens)
+    assert len(headers) <= 3, headers
+    # Every point is lit in 10 frames of value 1: each response is their mean, 1.
+    assert np.allclose(dataset.point(4, 4)[0], 1.0) and (dataset.lit_counts == 10).all()

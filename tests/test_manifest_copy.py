@@ -138,7 +138,7 @@ def test_a_copy_that_fails_a_check_is_ignored(dataset, monkeypatch, damage):
     if damage not in ("a link", "exposures edited, table not"):
         retable(entry, COPY_NAME)
     calls = []
-    monkeypatch.setattr(copy_module, "decode_json", lambda *args: calls.append(1) or json.loads(args[0]))
+    monkeypatch.setattr(copy_module, "decode_json", lambda *args, **kwargs: calls.append(1) or json.loads(args[0]))
     assert_same_manifest(load_manifest(dataset), read_manifest(dataset))
     assert calls == [1]  # parsed, not taken from the copy
 

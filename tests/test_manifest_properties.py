@@ -73,3 +73,22 @@ def test_close_pair_with_groups_agrees_with_brute_force():
         if found is not None:
             a, b = found
             assert groups[a] == groups[b] and math.dist(points[a], points[b]) <= limit
+
+
+def test_close_pair_in_one_sweep_agrees_with_brute_force_on_whether_there_is_one():
+    """The forward sweep (first=False) answers only whether some pair is within the limit: the
+    brute force over all pairs of a group says the same, and a pair it returns is one."""
+    from ringlight.core.dataset.spacing import close_pair
+
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        count = int(rng.integers(2, 40))
+        points = rng.integers(0, int(rng.integers(3, 60)), size=(count, 2)).astype(np.int64)
+        groups = rng.integers(0, int(rng.integers(1, 4)), size=count).astype(np.int64)
+        limit = float(rng.choice([0.0, 1.0, 1.5, 2.0, 4.4, 7.0]))
+        distance = np.hypot(*(points[:, None] - points[None]).transpose(2, 0, 1))
+        close = (distance <= limit) & (groups[:, None] == groups[None]) & ~np.eye(count, dtype=bool)
+        found = close_pair(points, limit, groups, first=False)
+        assert (found is not None) == bool(close.any()), (trial, found)
+        if found is not None:
+            assert close[found[0], found[1]], (trial, found)

@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (
 
 from .calibration_pages import ColourPage, DarkFramePage, LiveViewPage
 from .image_panel import ImagePanel
+from .reference_calibration import ReferenceCalibrationBox
 
 STEPS = ["1  Devices", "2  Live view", "3  Dark frame", "4  Colour", "5  Correspondence",
          "6  Region and exposure", "7  Plan", "8  Scan", "9  Finish"]
@@ -192,7 +193,8 @@ class CaptureWizard(QWidget):
         self.open_dataset_button = QPushButton("Open in the explorer")
         self.open_dataset_button.setEnabled(False)
         self.open_dataset_button.clicked.connect(lambda: self.open_dataset_requested.emit(self.out_edit.text()))
-        self.pages.addWidget(_page(self.finish_label, self.open_dataset_button))
+        self.reference_box = ReferenceCalibrationBox()
+        self.pages.addWidget(_page(self.finish_label, self.open_dataset_button, self.reference_box))
 
         self.back_button = QPushButton("< Back")
         self.back_button.clicked.connect(lambda: self.go_to(self.steps.currentRow() - 1))

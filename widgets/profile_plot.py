@@ -140,7 +140,9 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self.transient_bands = [Band(colour) for colour in CHANNEL_PENS]
         self.ring_curves = [pg.PlotCurveItem(pen=colour) for colour in CHANNEL_PENS]
         self.transient_curves = [pg.PlotCurveItem(pen=colour) for colour in CHANNEL_PENS]
-        for plot, items in ((self.ring_plot, self.ring_bands + self.ring_curves),
+        self.model_curves = [pg.PlotCurveItem(pen=pg.mkPen(colour, width=1.5, style=Qt.PenStyle.DashLine))
+                             for colour in CHANNEL_PENS]
+        for plot, items in ((self.ring_plot, self.ring_bands + self.ring_curves + self.model_curves),
                             (self.transient_plot, self.transient_bands + self.transient_curves)):
             for item in items:
                 plot.addItem(item)
@@ -176,6 +178,8 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         self._ring_se = np.zeros((0, 3))
         self._transient_se = np.zeros((0, 3))
         self._pitch_mm: float | None = None
+        self._model_radii = np.zeros(0)
+        self._model = np.zeros((0, 3))
         self._set_axes()
 
     @property
@@ -216,6 +220,17 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
         for line in self.radius_lines:
             line.setVisible(len(self._radii) > 0)
         self._redraw()
+
+    def set_model(self, radii: np.ndarray | None, model: np.ndarray | None = None) -> None:
+        """Draw a fitted model's (n, 3) E over the (n,) ``radii`` on the E(r) plot, dashed in the
+        channels' colours (NaN points left out); None removes it."""
+        self._model_radii = np.zeros(0) if radii is None else np.asarray(radii, np.float64)
+        self._model = np.zeros((0, 3)) if model is None else np.asarray(model, np.float64)
+        self._redraw()
+
+    def model_data(self) -> tuple[np.ndarray, np.ndarray]:
+        """(radii, (n, 3) E) of the model drawn now, before any log transform."""
+        return self._model_radii, self._model
 
     def set_point(self, text: str) -> None:
         """Name the point the profiles belong to (top right of the E(r) plot)."""
@@ -266,6 +281,10 @@ class ProfilePlot(pg.GraphicsLayoutWidget):
                 if self._log_y:
                     low = np.where(low > 0, low, LOG_BAND_FLOOR * y)
                 band.set_edges(x[shown], low[shown], high[shown], self._log_y)
+        for channel, curve in enumerate(self.model_curves):
+            y = self._model[:, channel] if len(self._model) else np.zeros(0)
+            keep = np.isfinite(y) & ((y > 0) if self._log_y else True)
+            curve.setData(self._model_radii[keep], plotted(y[keep]))
         settle(self.ring_plot.vb, self.transient_plot.vb)
 
     def _set_axes(self) -> None:

@@ -10,7 +10,7 @@ import sys
 
 from ringlight.core import RinglightError
 
-from . import capture, demo, info, layers, simulate, stack
+from . import capture, demo, info, layers, optics, simulate, stack
 from .progress import configure_logging
 
 EXIT_USER_ERROR = 2
@@ -18,7 +18,7 @@ EXIT_USER_ERROR = 2
 
 def add_commands(subparsers) -> None:
     """Register every sub-command on an argparse subparsers object, in the order of ``--help``."""
-    for command in (info, stack, simulate, layers, capture, demo):
+    for command in (info, stack, simulate, layers, optics, capture, demo):
         command.add_command(_Described(subparsers))
 
 

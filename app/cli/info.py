@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ringlight.core import load_manifest
-from ringlight.core.dataset.checks import check_files
+from ringlight.core.dataset.checks import find_file_problems
 
 from ..dataset_info import describe_dataset
 
@@ -25,11 +25,10 @@ def run_info(args) -> int:
     manifest = load_manifest(args.dataset)
     lines = describe_dataset(manifest, getattr(args, "allow_outside", False))
     print("\n".join(lines))
-    problems = check_files(manifest, allow_outside=getattr(args, "allow_outside", False))
-    if problems:
-        shown = problems[:MAX_PROBLEMS_SHOWN]
-        more = f" (and {len(problems) - len(shown)} more)" if len(problems) > len(shown) else ""
-        print(f"ringlight: error: {len(problems)} file problem(s){more}:", file=sys.stderr)
+    shown, total = find_file_problems(manifest, getattr(args, "allow_outside", False), keep=MAX_PROBLEMS_SHOWN)
+    if total:
+        more = f" (and {total - len(shown)} more)" if total > len(shown) else ""
+        print(f"ringlight: error: {total} file problem(s){more}:", file=sys.stderr)
         for problem in shown:
             print(f"  {problem}", file=sys.stderr)
         return EXIT_FILE_PROBLEMS

@@ -45,13 +45,14 @@ def cache_key(manifest: Manifest, max_radius: float) -> str:
                   f"{manifest.frame_space} {manifest.mapping!r} {manifest.dark!r} {manifest.channels!r} "
                   f"{manifest.part!r} {manifest.colorspace!r}\n".encode())
     frames = manifest.frames
-    digest.update("\0".join(frame.file for frame in frames).encode("utf-8"))
-    digest.update(np.array([len(frame.lit) for frame in frames], np.int64).tobytes())
-    digest.update(np.concatenate([frame.lit for frame in frames]).astype(np.int64).tobytes())
-    digest.update(np.array([frame.exposure for frame in frames], np.float64).tobytes())
+    digest.update("\0".join(frames.files).encode("utf-8"))
+    digest.update(np.ascontiguousarray(frames.counts, np.int64).tobytes())
+    digest.update(np.ascontiguousarray(frames.lit, np.int64).tobytes())
+    digest.update(np.ascontiguousarray(frames.exposures, np.float64).tobytes())
+    prefix = os.path.join(str(manifest.folder), "")
     for name in manifest.referenced_files():
         try:
-            info = (manifest.folder / name).stat()
+            info = os.stat(prefix + name)
             digest.update(f"\n{name} {info.st_size} {info.st_mtime_ns} {info.st_ino} {info.st_ctime_ns}".encode())
         except OSError:
             digest.update(f"\n{name} missing".encode())

@@ -9,7 +9,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ..errors import DatasetError
-from .exr import check_exr
+from .exr import visit_exr
+from .exr_seen import HeaderCache
 from .exr_header import RGB, quiet_library
 from .file_paths import FileResolver
 from .frames import dataset_channels
@@ -18,6 +19,14 @@ from .manifest import Manifest
 
 def check_files(manifest: Manifest, allow_outside: bool = False,
                 progress: Callable[[float], None] | None = None) -> list[str]:
+    """Check the header of every file ``manifest`` references, in manifest order; one line per
+    problem (see :func:`find_file_problems`)."""
+    return find_file_problems(manifest, allow_outside, progress)[0]
+
+
+def find_file_problems(manifest: Manifest, allow_outside: bool = False,
+                       progress: Callable[[float], None] | None = None,
+                       keep: int | None = None) -> tuple[list[str], int]:
     """Check the header of every file ``manifest`` references, in manifest order.
 
     Each file is checked as reading it would check it (see
@@ -36,20 +45,36 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
         Accept files that resolve outside the dataset folder through symbolic links.
     progress
         Called with the fraction of files checked, in [0, 1].
+    keep
+        Lines kept (None: all): a manifest of a million missing frames makes a million lines,
+        of which a report shows a few.
 
     Returns
     -------
-    One line per problem, each naming its file; empty when every file passes.
+    The first ``keep`` lines, one per problem, each naming its file (empty when every file
+    passes), and how many problems there are.
+
+    Notes
+    -----
+    Each file is opened once (:func:`.exr.visit_exr`); the library reads a header only when it
+    differs from those already checked (:mod:`.exr_seen`), and every folder on the way is resolved
+    once (:class:`.file_paths.FileResolver`): the work a frame is a few system calls.
     """
     problems: list[str] = []
-    resolve = FileResolver(manifest.folder, allow_outside)  # each folder resolved once, not once a file
+    total = 0
+    resolver = FileResolver(manifest.folder, allow_outside)
+    headers = HeaderCache()
 
     def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
+        nonlocal total
         try:
-            header = check_exr(resolve(name), channels, shape, what, size_of,
-                               manifest.part if frame else None, manifest.colorspace if frame else None)
+            descriptor, path = resolver.open(name)
+            header = visit_exr(path, channels, shape, what, size_of, manifest.part if frame else None,
+                               manifest.colorspace if frame else None, headers, descriptor=descriptor)[0]
         except DatasetError as error:
-            problems.append(str(error))
+            total += 1
+            if keep is None or len(problems) < keep:
+                problems.append(str(error))
             return None
         return header.height, header.width
 
@@ -65,14 +90,14 @@ def check_files(manifest: Manifest, allow_outside: bool = False,
     if manifest.dark is not None:
         check(manifest.dark, channels, frame_shape, "dark frame", size_of)
     truth = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
-    total = len(manifest.frames) + len(truth)
+    files = len(manifest.frames) + len(truth)
     with quiet_library():  # silenced once for all frames, not redirected and restored once a frame
-        for done, frame in enumerate(manifest.frames):
-            check(frame.file, channels, frame_shape, "frame", size_of)
+        for done, name in enumerate(manifest.frames.files):
+            check(name, channels, frame_shape, "frame", size_of)
             if progress is not None and done % 256 == 255:
-                progress((done + 1) / total)
+                progress((done + 1) / files)
     for image in truth:
         check(image.file, RGB, (manifest.height, manifest.width), "ground-truth image", "the grid", frame=False)
     if progress is not None:
         progress(1.0)
-    return problems
+    return problems, total

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import threading
 from pathlib import Path
 
@@ -27,8 +28,10 @@ import OpenEXR
 
 from ..colourspaces import chromaticities_differ, colourspace_chromaticities, describe_chromaticities
 from ..errors import DatasetError
-from .exr_chunks import chunk_table_problem
-from .exr_header import ExrHeader, first_line, open_regular, quiet_library, read_exr_header
+from .exr_chunks import HEAD_BYTES, ChunkLayout, chunk_layout, offsets_problem
+from .exr_header import EXR_MAGIC, ExrHeader, first_line, quiet_library, read_exr_header
+from .exr_seen import HeaderCache, PassedHeader
+from .exr_small import decode_small, small_layout
 
 MAX_DECODED_BYTES = 2**30
 """Largest total of the channels a read decodes (4 bytes a value)."""
@@ -44,7 +47,7 @@ _HALF_TO_FLOAT = np.arange(2**16, dtype=np.uint32).astype(np.uint16).view(np.flo
 def check_exr(path: str | os.PathLike, names: tuple[str, ...],
               expected_shape: tuple[int, int] | None = None, what: str = "image",
               size_of: str | None = None, part: str | None = None,
-              colorspace: str | None = None) -> ExrHeader:
+              colorspace: str | None = None, headers: HeaderCache | None = None) -> ExrHeader:
     """Check everything about an EXR file that can be known without decoding its pixels.
 
     Parameters
@@ -64,6 +67,9 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
     colorspace
         The dataset's colourspace name: a ``chromaticities`` attribute that differs from it by
         more than 1e-3 is refused. None: not checked (mappings, ground truth of other spaces).
+    headers
+        Headers already checked in this pass (:mod:`.exr_seen`): a file whose header is one of
+        them is not read by the library again.
 
     Returns
     -------
@@ -77,8 +83,67 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
         (both named), more channel data than :data:`MAX_DECODED_BYTES`, or a chunk table that does
         not fit the file (truncation).
     """
-    path = Path(path)
-    header = read_exr_header(path, names, part)
+    return visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers)[0]
+
+
+def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
+              expected_shape: tuple[int, int] | None = None, what: str = "image",
+              size_of: str | None = None, part: str | None = None, colorspace: str | None = None,
+              headers: HeaderCache | None = None, whole_up_to: int = 0,
+              descriptor: int | None = None) -> tuple[ExrHeader, bytes | None, PassedHeader | None]:
+    """:func:`check_exr` in one opening of the file, which also returns the file's bytes when it
+    has at most ``whole_up_to`` of them (else None), so that it is decoded without opening it
+    again, and the header's entry in ``headers`` (None without one). The library reads the header only when ``headers`` does not hold it (it then opens
+    the file itself). ``descriptor``: the regular file ``path`` already open for reading
+    (:meth:`.file_paths.FileResolver.open`), which is closed when done."""
+    location = os.fspath(path)
+    # Unbuffered: a buffered reader's own 8 KiB buffer and set-up cost more than a small file.
+    with open(_open_file(location) if descriptor is None else descriptor, "rb", buffering=0) as handle:
+        try:
+            size = os.fstat(handle.fileno()).st_size
+            head = handle.read(size + 1 if size <= whole_up_to else min(size + 1, HEAD_BYTES))
+            if head[:4] != EXR_MAGIC:
+                raise DatasetError(f"{Path(location)}: not an OpenEXR file")
+            request = (names, None if expected_shape is None else tuple(expected_shape), part, colorspace)
+            passed = headers.find(head, request) if headers is not None else None
+            if passed is not None:
+                header, layout = passed.header, passed.layout
+            else:
+                header = read_exr_header(Path(location), names, part)
+                _check_header(Path(location), header, names, expected_shape, what, size_of, colorspace)
+                if headers is not None:
+                    headers.library_reads += 1
+                layout, head = chunk_layout(handle, head, size)
+            problem = offsets_problem(handle, head, size, layout) if isinstance(layout, ChunkLayout) else layout
+        except OSError as error:
+            raise DatasetError(f"{Path(location)}: cannot be read ({error.strerror or error})") from None
+    if problem:
+        raise DatasetError(f"{Path(location)}: truncated or corrupt OpenEXR file ({problem})")
+    if passed is None and headers is not None and isinstance(layout, ChunkLayout):
+        passed = PassedHeader(head[:layout.table_start], request, header, layout,
+                              small_layout(head[:layout.table_start]))
+        headers.add(passed)
+    return header, (head if len(head) == size else None), passed
+
+
+def _open_file(location: str) -> int:
+    """A descriptor of the regular file at ``location`` opened for reading
+    (:func:`.exr_header.open_regular`), named as a Path in its errors."""
+    try:
+        descriptor = os.open(location, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block
+    except FileNotFoundError:
+        raise DatasetError(f"{Path(location)}: file not found") from None
+    except OSError as error:
+        raise DatasetError(f"{Path(location)}: cannot be read ({error.strerror or error})") from None
+    if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+        os.close(descriptor)
+        raise DatasetError(f"{Path(location)}: not a file")
+    return descriptor
+
+
+def _check_header(path: Path, header: ExrHeader, names: tuple[str, ...], expected_shape, what: str,
+                  size_of: str | None, colorspace: str | None) -> None:
+    """The checks of :func:`check_exr` that its header alone decides."""
     if expected_shape is not None and (header.height, header.width) != tuple(expected_shape):
         raise DatasetError(f"{path}: {what} is {header.height} x {header.width}, "
                            f"expected {expected_shape[0]} x {expected_shape[1]}"
@@ -106,20 +171,13 @@ def check_exr(path: str | os.PathLike, names: tuple[str, ...],
         raise DatasetError(f"{path}: its {decoded_channels} decoded channels would take "
                            f"{decoded / 2**30:.1f} GiB, over the {MAX_DECODED_BYTES / 2**30:.0f} GiB "
                            "ringlight decodes")
-    try:
-        with open_regular(path) as handle:
-            problem = chunk_table_problem(handle, os.fstat(handle.fileno()).st_size)
-    except OSError as error:
-        raise DatasetError(f"{path}: cannot be read ({error.strerror or error})") from None
-    if problem:
-        raise DatasetError(f"{path}: truncated or corrupt OpenEXR file ({problem})")
-    return header
 
 
 def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
                       expected_shape: tuple[int, int] | None = None, what: str = "image",
                       size_of: str | None = None, part: str | None = None,
-                      colorspace: str | None = None, rows: tuple[int, int] | None = None) -> np.ndarray:
+                      colorspace: str | None = None, rows: tuple[int, int] | None = None,
+                      headers: HeaderCache | None = None, descriptor: int | None = None) -> np.ndarray:
     """Read the named channels of an EXR file.
 
     Parameters
@@ -132,8 +190,10 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         ``(height, width)`` the image must have (checked in the header, before decoding).
     what, size_of
         What the file is and what ``expected_shape`` is the size of, for messages.
-    part, colorspace
+    part, colorspace, headers
         See :func:`check_exr`.
+    descriptor
+        The file already open for reading (see :func:`visit_exr`).
     rows
         ``(first, stop)``: read only these rows of the image (a single-part file decodes only
         the chunks holding them; a multi-part file is decoded whole).
@@ -149,13 +209,17 @@ def read_exr_channels(path: str | os.PathLike, names: tuple[str, ...],
         For every problem of :func:`check_exr` (all found before decoding), and for data the
         library cannot decode; the message names the file.
     """
-    path = Path(path)
-    header = check_exr(path, names, expected_shape, what, size_of, part, colorspace)
+    header, data, passed = visit_exr(path, names, expected_shape, what, size_of, part, colorspace, headers,
+                                     HEAD_BYTES if headers is not None else 0, descriptor)
     first, stop = rows if rows is not None else (0, header.height)
     if not 0 <= first < stop <= header.height:
         raise ValueError(f"rows {first}..{stop} outside the image's {header.height}")
     height = stop - first
     image = np.empty((height, header.width, len(names)), np.float32)
+    if data is not None and passed is not None and passed.small is not None \
+            and decode_small(data, passed.small, passed.layout, names, image, first):
+        return image  # a small file decoded from the bytes its check read (module exr_small)
+    path = Path(path)
     try:
         with quiet_library():
             if not whole_file_reader(header, names, height):

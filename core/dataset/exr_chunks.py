@@ -7,6 +7,8 @@ before the library decodes it. Used by :mod:`.exr`.
 
 from __future__ import annotations
 
+import struct
+from dataclasses import dataclass
 from typing import BinaryIO
 
 import numpy as np
@@ -98,6 +100,46 @@ def _chunk_count(attributes: dict[str, bytes], tiled: bool) -> tuple[int, int] |
     return total, count(0, 0)
 
 
+HEAD_BYTES = 2**16
+"""Bytes of a file read at once for its header (and, in a small file, everything else)."""
+
+
+@dataclass(frozen=True)
+class ChunkLayout:
+    """Where a single-part file's chunk table is: it starts at byte ``table_start`` and has
+    ``entries`` offsets, of which the first ``first`` hold the full-resolution level."""
+
+    table_start: int
+    entries: int
+    first: int
+    tiled: bool
+
+
+def chunk_layout(handle: BinaryIO, head: bytes, size: int) -> tuple[ChunkLayout | str | None, bytes]:
+    """The :class:`ChunkLayout` of the open file ``handle`` of ``size`` bytes, whose first bytes
+    ``head`` have been read (:data:`HEAD_BYTES` of them, or all); a string saying why its header
+    is malformed; or None when it is not checked here (multi-part or deep, an unknown
+    compression, a header over the limit). Returned with the bytes read from the start: a header
+    longer than ``head`` is read on, up to the limit."""
+    version = int.from_bytes(head[4:8], "little")
+    if version & (_DEEP | _MULTIPART):
+        return None, head
+    try:
+        parsed = _attributes(head, size)
+        if parsed is None:  # a long header: read on, up to the limit
+            head += handle.read(_MAX_HEADER_BYTES - len(head))
+            parsed = _attributes(head, size)
+        if parsed is None:
+            return None, head
+        attributes, table_start = parsed
+        chunks = _chunk_count(attributes, bool(version & _TILED))
+    except ValueError as problem:
+        return str(problem), head
+    if chunks is None:
+        return None, head
+    return ChunkLayout(table_start, chunks[0], chunks[1], bool(version & _TILED)), head
+
+
 def chunk_table_problem(handle: BinaryIO, size: int) -> str | None:
     """Why the chunk (offset) table of a single-part file does not fit the file, or None.
 
@@ -109,37 +151,42 @@ def chunk_table_problem(handle: BinaryIO, size: int) -> str | None:
     here (the library checks them as it decodes). ``handle`` is the open file (at its start),
     ``size`` its length in bytes.
     """
-    head = handle.read(2**16)
-    version = int.from_bytes(head[4:8], "little")
-    if version & (_DEEP | _MULTIPART):
-        return None
-    try:
-        parsed = _attributes(head, size)
-        if parsed is None:  # a long header: read on, up to the limit
-            head += handle.read(_MAX_HEADER_BYTES - len(head))
-            parsed = _attributes(head, size)
-        if parsed is None:
-            return None
-        attributes, table_start = parsed
-        chunks = _chunk_count(attributes, bool(version & _TILED))
-    except ValueError as problem:
-        return str(problem)
-    if chunks is None:
-        return None
-    entries, first = chunks
-    table_end = table_start + 8 * entries
+    layout, head = chunk_layout(handle, handle.read(HEAD_BYTES), size)
+    if layout is None or isinstance(layout, str):
+        return layout
+    return offsets_problem(handle, head, size, layout)
+
+
+def offsets_problem(handle: BinaryIO, head: bytes, size: int, layout: ChunkLayout) -> str | None:
+    """Why the chunk table of ``layout`` does not fit a file of ``size`` bytes (see
+    :func:`chunk_table_problem`), or None. ``head`` holds the file's first bytes: what lies in it
+    is not read again (a small frame is read in one call)."""
+    table_end = layout.table_start + 8 * layout.entries
     if table_end > size:
-        return f"the file ends at byte {size}, inside its table of {entries} chunk offsets"
-    handle.seek(table_start)
-    offsets = np.frombuffer(handle.read(8 * first), "<u8")
-    if len(offsets) != first:
+        return f"the file ends at byte {size}, inside its table of {layout.entries} chunk offsets"
+    stop = layout.table_start + 8 * layout.first
+    if stop <= len(head):
+        table = head[layout.table_start:stop]
+    else:
+        handle.seek(layout.table_start)
+        table = handle.read(8 * layout.first)
+    if len(table) != 8 * layout.first:
         return "the file changed while it was read"
-    if offsets.min() < table_end or offsets.max() >= size:
+    # A small frame's few offsets in Python: numpy's reductions cost more than its whole check.
+    if layout.first <= 64:
+        offsets = struct.unpack(f"<{layout.first}Q", table)
+        lowest, last = min(offsets), max(offsets)
+    else:
+        offsets = np.frombuffer(table, "<u8")
+        lowest, last = int(offsets.min()), int(offsets.max())
+    if lowest < table_end or last >= size:
         return "a chunk offset points outside the file's data"
-    last = int(offsets.max())
-    prefix = 20 if version & _TILED else 8  # tile: x, y, level x, level y; scanline: y
-    handle.seek(last)
-    chunk_head = handle.read(prefix)
+    prefix = 20 if layout.tiled else 8  # tile: x, y, level x, level y; scanline: y
+    if last + prefix <= len(head):
+        chunk_head = head[last:last + prefix]
+    else:
+        handle.seek(last)
+        chunk_head = handle.read(prefix)
     if len(chunk_head) < prefix:
         return f"the file ends at byte {size}, inside its last chunk"
     data_size = int.from_bytes(chunk_head[prefix - 4:], "little", signed=True)

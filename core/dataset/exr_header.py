@@ -25,7 +25,7 @@ from .exr_chunks import MAX_PIXELS
 
 RGB = ("R", "G", "B")
 MONOCHROME = ("Y",)
-_EXR_MAGIC = b"\x76\x2f\x31\x01"
+EXR_MAGIC = b"\x76\x2f\x31\x01"
 _LIBC = ctypes.CDLL(None) if os.name == "posix" else ctypes.cdll.msvcrt
 """The C library whose stdio buffers the OpenEXR library's C++ output passes through."""
 
@@ -156,7 +156,7 @@ def _check_magic(path: Path) -> None:
             magic = handle.read(4)
         except OSError as error:
             raise DatasetError(f"{path}: cannot be read ({error.strerror or error})") from None
-    if magic != _EXR_MAGIC:
+    if magic != EXR_MAGIC:
         raise DatasetError(f"{path}: not an OpenEXR file")
 
 

@@ -7,11 +7,14 @@ camera, whose value every tool takes as R = G = B), from its ``part``, checked a
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numba
 import numpy as np
 
 from ..errors import DatasetError
 from .exr import check_exr, read_exr_channels
+from .exr_seen import HeaderCache
 from .exr_header import ExrHeader, frame_channels
 from .file_paths import FileResolver
 from .manifest import FrameEntry, Manifest
@@ -153,7 +156,9 @@ class FrameReader:
     def __init__(self, manifest: Manifest, allow_outside: bool = False):
         self.manifest = manifest
         self.allow_outside = allow_outside
-        self.file_path = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
+        self.resolver = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
+        self.file_path = self.resolver.locate
+        self.headers = HeaderCache()  # the library reads a header shared by all frames once
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         self.frame_shape, self.size_of = self.grid_shape, "the grid"
@@ -200,11 +205,12 @@ class FrameReader:
         """True when frames are read from one channel (a monochrome camera)."""
         return len(self.channels) == 1
 
-    def _read_file(self, path, what: str, rows: tuple[int, int] | None = None) -> np.ndarray:
+    def _read_file(self, path, what: str, rows: tuple[int, int] | None = None,
+                   descriptor: int | None = None) -> np.ndarray:
         """(Hf, Wf, len(channels)) float32 pixels of a frame or the dark frame (``rows``: only
-        those rows of a grid-space file)."""
+        those rows of a grid-space file; ``descriptor``: the file already open)."""
         return read_exr_channels(path, self.channels, self.frame_shape, what, self.size_of,
-                                 self.manifest.part, self.manifest.colorspace, rows)
+                                 self.manifest.part, self.manifest.colorspace, rows, self.headers, descriptor)
 
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
@@ -212,7 +218,7 @@ class FrameReader:
     def check(self, frame: FrameEntry) -> ExrHeader:
         """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
         return check_exr(self.file_path(frame.file), self.channels, self.frame_shape,
-                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace)
+                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace, self.headers)
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None,
              out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
@@ -225,9 +231,9 @@ class FrameReader:
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
-        path = self.file_path(frame.file)
+        descriptor, path = self.resolver.open(frame.file)  # located, opened and checked in one visit
         first, stop = rows if rows is not None else (0, self.grid_shape[0])
-        image = self._read_file(path, "frame", rows if self.mapping is None else None)
+        image = self._read_file(path, "frame", rows if self.mapping is None else None, descriptor)
         camera_bad = 0
         if self.mapping is not None:  # decoded whole for every band: its bad values count with the first
             camera_bad = int(np.count_nonzero(~np.isfinite(image))) if first == 0 else 0
@@ -238,8 +244,8 @@ class FrameReader:
         radiance = out if out is not None else np.empty((*grid.shape[:2], 3), np.float32)
         bad, problem = _radiance(grid, np.float32(frame.exposure), dark, self.dark is not None, radiance)
         if problem == 1:
-            raise DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
+            raise DatasetError(f"{Path(path)}: dividing by the exposure {frame.exposure:g} "
                                "takes values out of float32's range")
         if problem == 2:
-            raise DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
+            raise DatasetError(f"{Path(path)}: subtracting the dark frame takes values out of float32's range")
         return radiance, camera_bad if self.mapping is not None else int(bad)

@@ -17,6 +17,14 @@ memory, a larger one is built band by band into the store. A reopen reads only t
 arrays (lit counts, observed points, the steady state) and reads responses band by band when
 asked, keeping decoded bands up to the budget. Every consumer reads through :meth:`ImpulseDataset.rows`
 (or :meth:`~ImpulseDataset.point`, :meth:`~ImpulseDataset.window`), so both work alike.
+
+Long manifests. The work per frame is a few system calls and array rows: the manifest's frames are
+one table of arrays, each frame made a row as its JSON is decoded (:mod:`.frame_table`); the store's
+key stats each file; a first open then visits each frame file once, per band (located and opened in
+one call, :meth:`.file_paths.FileResolver.open`; its header, chunk table and, for a small frame, its
+pixels from one read, :func:`.exr.visit_exr`, the header the frames share read by the OpenEXR
+library once, :mod:`.exr_seen`, :mod:`.exr_small`). ``benchmarks/bench_manifest.py --pipeline``
+measures each step per frame against the parse.
 """
 
 from __future__ import annotations

@@ -18,8 +18,18 @@ from ..colourspaces import parse_colourspace
 from ..errors import DatasetError
 from ..validation import Validator, decode_json, read_bounded, short_repr
 from .file_paths import FileResolver
+from .frame_table import (  # noqa: F401 - FrameEntry and the limits are the manifest's names too
+    FLOAT32_MAX,
+    FLOAT32_TINY,
+    FRAME_KEYS,
+    MAX_REPLICATE,
+    Collected,
+    FrameCollector,
+    FrameEntry,
+    FrameTable,
+)
 from .sample import Sample, parse_sample
-from .spacing import check_multiplexed_spacing
+from .spacing import POINTS_AT_ONCE, check_multiplexed_spacing
 
 FORMAT_NAME = "ringlight-impulse"
 FORMAT_VERSION = 1
@@ -30,8 +40,7 @@ _TOP_KEYS = {
     "frames", "dark", "ground_truth", "notes", "channels", "part", "sample",
 }
 _GRID_KEYS = {"height", "width", "pitch_mm"}
-_FRAME_KEYS = {"file", "lit", "exposure", "replicate"}
-MAX_REPLICATE = 2**31 - 1
+_FRAME_KEYS = set(FRAME_KEYS)
 _TRUTH_KEYS = {"path_length_images", "layers"}
 _PATH_IMAGE_KEYS = {"file", "min", "max"}
 _LAYER_KEYS = {"name", "depth", "rgb"}
@@ -39,23 +48,6 @@ MAX_GRID_POINTS = 2**26
 """Largest grid (H x W) a manifest may declare: 8192 x 8192, far beyond any projector."""
 MAX_RADIUS_LIMIT = 1024.0
 """Largest ``max_radius`` (grid steps) a manifest may declare."""
-FLOAT32_TINY = float(np.finfo(np.float32).tiny)
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-
-
-@dataclass(frozen=True, eq=False)
-class FrameEntry:
-    """One captured frame: its file (relative to the dataset folder), lit points and exposure.
-
-    ``lit`` is an (n, 2) int64 array of grid positions ``[y, x]``. ``replicate`` labels the
-    independent repeat of the capture the frame belongs to (the manifest's optional frame key;
-    0 when absent): see :attr:`Manifest.replicates`.
-    """
-
-    file: str
-    lit: np.ndarray
-    exposure: float
-    replicate: int = 0
 
 
 @dataclass(frozen=True)
@@ -96,7 +88,8 @@ class Manifest:
     frame_space: str
     mapping: str | None
     max_radius: float | None
-    frames: tuple[FrameEntry, ...]
+    frames: FrameTable
+    """The frames (:class:`.frame_table.FrameTable`; a sequence of FrameEntry given here is made one)."""
     dark: str | None
     ground_truth: GroundTruth | None
     notes: str | None
@@ -112,6 +105,10 @@ class Manifest:
     A dataset's store keeps a copy of the manifest under it (:mod:`.manifest_copy`), so a
     manifest changed after reading (``dataclasses.replace``) must set it to None."""
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.frames, FrameTable):
+            object.__setattr__(self, "frames", FrameTable.from_entries(self.frames))
+
     @property
     def path(self) -> Path:
         return self.folder / MANIFEST_NAME
@@ -119,7 +116,7 @@ class Manifest:
     @property
     def multiplexed(self) -> bool:
         """True when some frame lights more than one point (parallel capture)."""
-        return any(len(frame.lit) > 1 for frame in self.frames)
+        return bool(len(self.frames) and self.frames.counts.max() > 1)
 
     @property
     def replicates(self) -> tuple[int, ...]:
@@ -127,7 +124,7 @@ class Manifest:
         independently (a rig's repeated scans, a simulator's independent batches), each replicate
         lighting the same points, so that the spread of anything computed from each replicate
         alone measures the noise of the whole, noise shared by lit points included."""
-        return tuple(sorted({frame.replicate for frame in self.frames}))
+        return tuple(np.unique(self.frames.replicates).tolist())
 
     def lit_counts(self) -> np.ndarray:
         """(H, W) int32: in how many frames each grid point is lit (0 = missing).
@@ -135,10 +132,12 @@ class Manifest:
         Memory: the (H, W) int32 result plus arrays the size of the lit points, never an
         (H * W) int64 temporary.
         """
-        lit = np.concatenate([frame.lit for frame in self.frames])
-        points, counts = np.unique(lit[:, 0] * self.width + lit[:, 1], return_counts=True)
+        lit = self.frames.lit
         result = np.zeros(self.height * self.width, np.int32)
-        result[points] = counts
+        for start in range(0, len(lit), POINTS_AT_ONCE):  # bounded temporaries, however many points
+            chunk = lit[start:start + POINTS_AT_ONCE]
+            points, counts = np.unique(chunk[:, 0] * self.width + chunk[:, 1], return_counts=True)
+            result[points] += counts.astype(np.int32)
         return result.reshape(self.height, self.width)
 
     def file_path(self, name: str, allow_outside: bool = False) -> Path:
@@ -152,7 +151,7 @@ class Manifest:
 
     def referenced_files(self) -> list[str]:
         """Every file the manifest names that loading reads (frames, dark, mapping)."""
-        files = [frame.file for frame in self.frames]
+        files = list(self.frames.files)
         files += [name for name in (self.dark, self.mapping) if name is not None]
         return files
 
@@ -169,8 +168,13 @@ def read_manifest(folder: str | Path) -> Manifest:
     """
     folder, path = locate_manifest(folder)
     data = read_bounded(path, DatasetError, "manifest")
-    return parse_manifest(decode_json(data, path, DatasetError, "manifest"), folder,
-                          source_sha256=hashlib.sha256(data).hexdigest())
+    return parse_manifest(decode_manifest(data, path), folder, source_sha256=hashlib.sha256(data).hexdigest())
+
+
+def decode_manifest(data: bytes, path: Path) -> object:
+    """The manifest's JSON document decoded, each frame made a row of a table as it is decoded
+    (:class:`.frame_table.FrameCollector`; :func:`parse_manifest` validates the rest)."""
+    return decode_json(data, path, DatasetError, "manifest", element_hooks={"frames": FrameCollector})
 
 
 def locate_manifest(folder: str | Path) -> tuple[Path, Path]:
@@ -191,7 +195,7 @@ def locate_manifest(folder: str | Path) -> tuple[Path, Path]:
 
 
 def parse_manifest(document: object, folder: Path, *, source_sha256: str | None = None,
-                   frames: tuple[FrameEntry, ...] | None = None) -> Manifest:
+                   frames: FrameTable | None = None) -> Manifest:
     """Validate a manifest already decoded from JSON; see :func:`read_manifest`.
 
     ``frames``: the frames of this manifest, validated before (a store's copy of it): its
@@ -258,13 +262,13 @@ def parse_manifest(document: object, folder: Path, *, source_sha256: str | None 
 
 def _check_replicates(where: Path, manifest: Manifest) -> None:
     """Every replicate must light the same points (else a point's noise has no replicate spread)."""
-    lit = {}
-    for frame in manifest.frames:
-        lit.setdefault(frame.replicate, []).append(frame.lit[:, 0] * manifest.width + frame.lit[:, 1])
+    frames = manifest.frames
+    keys = frames.lit[:, 0] * manifest.width + frames.lit[:, 1]
+    label_of_point = np.repeat(frames.replicates, frames.counts)
     labels = manifest.replicates
-    first = np.unique(np.concatenate(lit[labels[0]]))
+    first = np.unique(keys[label_of_point == labels[0]])
     for label in labels[1:]:
-        points = np.unique(np.concatenate(lit[label]))
+        points = np.unique(keys[label_of_point == label])
         if not np.array_equal(points, first):
             raise DatasetError(f"{where}: replicate {label} lights {len(points)} points and replicate {labels[0]} "
                                f"{len(first)}{'' if len(points) != len(first) else ' others'}: every replicate must "
@@ -281,61 +285,100 @@ def _parse_channels(check: Validator, value: object) -> tuple[str, ...]:
     return names
 
 
-def _parse_frames(check: Validator, entries: list, height: int, width: int) -> tuple[FrameEntry, ...]:
-    """Validate the ``frames`` list.
+def _parse_frames(check: Validator, entries: list, height: int, width: int) -> FrameTable:
+    """Validate the ``frames`` list into a :class:`FrameTable`.
 
-    One cheap pass of exact type tests per frame, then the lit points of all frames checked
-    together with numpy: a 100,000-frame manifest validates in well under a second. Anything
-    unusual takes the slow path through :class:`Validator`, which raises the precise message.
+    The frames :class:`FrameCollector` took while the JSON was decoded are rows already (exact
+    types, checked one by one as they were decoded); any other element is checked here, in order,
+    through :class:`Validator`, which raises the precise message. Then the lit points of all frames
+    are checked together with numpy: a 100,000-frame manifest validates in well under a second.
     """
-    files, exposures, counts, points, replicates = [], [], [], [], []
-    for index, entry in enumerate(entries):
-        if type(entry) is not dict or not entry.keys() <= _FRAME_KEYS or "file" not in entry or "lit" not in entry:
-            check.mapping(entry, f"frames[{index}]", _FRAME_KEYS, required={"file", "lit"})
-        file = check.relative_file(entry["file"], f"frames[{index}].file")
-        lit = entry["lit"]
-        if type(lit) is not list or not lit or not all(
-                type(point) is list and len(point) == 2 and type(point[0]) is int and type(point[1]) is int
-                for point in lit):
-            _raise_bad_lit(check, index, file, lit)
-        exposure = entry.get("exposure", 1.0)
-        if type(exposure) is not float or not FLOAT32_TINY <= exposure <= FLOAT32_MAX:
-            exposure = _checked_exposure(check, index, exposure)
-        replicate = entry.get("replicate", 0)
-        if type(replicate) is not int or not 0 <= replicate <= MAX_REPLICATE:
-            raise check.fail(f"frames[{index}].replicate", f"a whole number in [0, {MAX_REPLICATE}]", replicate)
-        replicates.append(replicate)
-        files.append(file)
-        exposures.append(exposure)
-        counts.append(len(lit))
-        points.extend(lit)
-    if not files:
-        return ()
-    ends = np.cumsum(counts)
-    try:
-        lit = np.array(points, np.int64)
+    collector = next((entry.collector for entry in entries if type(entry) is Collected), None)
+    if collector is not None and len(collector.files) == len(entries):  # every frame taken: the usual case
+        table = collector.table()
+        lit, points = table.lit, None
+    else:
+        files, exposures, counts, points, replicates = [], [], [], [], []
+        taken = 0
+        for index, entry in enumerate(entries):
+            if type(entry) is Collected:
+                file, lit, exposure, replicate = collector.row(taken)
+                taken += 1
+            else:
+                file, lit, exposure, replicate = _checked_frame(check, index, entry)
+            replicates.append(replicate)
+            files.append(file)
+            exposures.append(exposure)
+            counts.append(len(lit))
+            points.extend(lit)
+        if not files:
+            return FrameTable([], [], [], [], np.zeros((0, 2), np.int64))
+        try:
+            lit = np.array(points, np.int64).reshape(-1, 2)
+        except OverflowError:  # an integer beyond int64 is outside any grid
+            lit = None
+        table = None if lit is None else FrameTable(files, exposures, replicates, counts, lit)
+    if table is not None and not len(table):
+        return table
+    if lit is not None:
         outside = (lit[:, 0] < 0) | (lit[:, 0] >= height) | (lit[:, 1] < 0) | (lit[:, 1] >= width)
         first_outside = int(np.argmax(outside)) if outside.any() else None
-    except OverflowError:  # an integer beyond int64 is outside any grid
+    else:
         first_outside = next(i for i, (y, x) in enumerate(points) if not (0 <= y < height and 0 <= x < width))
     if first_outside is not None:
+        ends = np.cumsum(table.counts if table is not None else counts)
         index = int(np.searchsorted(ends, first_outside, side="right"))
-        y, x = points[first_outside]
-        raise DatasetError(f"{check.where}: frames[{index}] ({files[index]}) lights "
+        y, x = (lit[first_outside].tolist() if lit is not None else points[first_outside])
+        name = table.files[index] if table is not None else files[index]
+        raise DatasetError(f"{check.where}: frames[{index}] ({name}) lights "
                            f"[{short_repr(y)}, {short_repr(x)}], outside the {height} x {width} grid")
-    frame_of_point = np.repeat(np.arange(len(files)), counts)
-    multiple = np.repeat(np.asarray(counts) > 1, counts)
-    if multiple.any():
+    multiple = np.flatnonzero(table.counts > 1)
+    if len(multiple):
+        _check_no_point_twice(check, table, multiple, height * width, width)
+    return table
+
+
+def _check_no_point_twice(check: Validator, table: FrameTable, multiple: np.ndarray, points: int,
+                          width: int) -> None:
+    """DatasetError naming the first of the frames ``multiple`` (indices of frames lighting
+    several points) that lists a lit point twice; checked a run of frames of at most
+    :data:`POINTS_AT_ONCE` points at a time (one frame at least)."""
+    ends = table.starts[multiple + 1]
+    at = 0
+    while at < len(multiple):
+        stop = max(at + 1, int(np.searchsorted(ends, table.starts[multiple[at]] + POINTS_AT_ONCE, side="right")))
+        frames = multiple[at:stop]
+        lengths = table.counts[frames]
+        rows = np.arange(int(lengths.sum())) + np.repeat(table.starts[frames] - (np.cumsum(lengths) - lengths), lengths)
         # Python ints bound the key: frames * H * W < 2**63 for any manifest under the size limit.
-        keys = frame_of_point[multiple] * (height * width) + lit[multiple, 0] * width + lit[multiple, 1]
-        unique, first_of = np.unique(keys, return_index=True)
-        if len(unique) != len(keys):
-            repeated = np.setdiff1d(np.arange(len(keys)), first_of)[0]
-            index = int(frame_of_point[multiple][repeated])
-            raise DatasetError(f"{check.where}: frames[{index}] ({files[index]}) lists a lit point twice")
-    return tuple(FrameEntry(file=file, lit=points_of_frame, exposure=exposure, replicate=replicate)
-                 for file, points_of_frame, exposure, replicate
-                 in zip(files, np.split(lit, ends[:-1]), exposures, replicates))
+        keys = np.repeat(frames.astype(np.int64) * points, table.counts[frames])
+        keys += table.lit[rows, 0] * width + table.lit[rows, 1]
+        keys.sort()
+        if (keys[1:] == keys[:-1]).any():
+            index = int(frames[np.searchsorted(frames * points, keys[np.flatnonzero(keys[1:] == keys[:-1])[0]],
+                                               side="right") - 1])
+            raise DatasetError(f"{check.where}: frames[{index}] ({table.files[index]}) lists a lit point twice")
+        at = stop
+
+
+def _checked_frame(check: Validator, index: int, entry: object) -> tuple[str, list, float, int]:
+    """``(file, lit points, exposure, replicate)`` of a frame the collector did not take, or
+    DatasetError saying what is wrong with it."""
+    if type(entry) is not dict or not entry.keys() <= _FRAME_KEYS or "file" not in entry or "lit" not in entry:
+        check.mapping(entry, f"frames[{index}]", _FRAME_KEYS, required={"file", "lit"})
+    file = check.relative_file(entry["file"], f"frames[{index}].file")
+    lit = entry["lit"]
+    if type(lit) is not list or not lit or not all(
+            type(point) is list and len(point) == 2 and type(point[0]) is int and type(point[1]) is int
+            for point in lit):
+        _raise_bad_lit(check, index, file, lit)
+    exposure = entry.get("exposure", 1.0)
+    if type(exposure) is not float or not FLOAT32_TINY <= exposure <= FLOAT32_MAX:
+        exposure = _checked_exposure(check, index, exposure)
+    replicate = entry.get("replicate", 0)
+    if type(replicate) is not int or not 0 <= replicate <= MAX_REPLICATE:
+        raise check.fail(f"frames[{index}].replicate", f"a whole number in [0, {MAX_REPLICATE}]", replicate)
+    return file, lit, exposure, replicate
 
 
 def _raise_bad_lit(check: Validator, index: int, file: str, lit: object) -> None:

@@ -43,8 +43,9 @@ from .manifest import (
     MAX_REPLICATE,
     FORMAT_VERSION,
     MANIFEST_NAME,
-    FrameEntry,
+    FrameTable,
     Manifest,
+    FrameCollector,
     locate_manifest,
     parse_manifest,
 )
@@ -66,7 +67,8 @@ def load_manifest(folder: str | Path) -> Manifest:
     copy = read_manifest_copy(cache_location(folder), folder, digest)
     if copy is not None:
         return copy
-    return parse_manifest(decode_json(data, path, DatasetError, "manifest"), folder, source_sha256=digest)
+    document = decode_json(data, path, DatasetError, "manifest", element_hooks={"frames": FrameCollector})
+    return parse_manifest(document, folder, source_sha256=digest)
 
 
 def write_manifest_copy(folder: Path, manifest: Manifest) -> None:
@@ -86,11 +88,8 @@ def write_manifest_copy(folder: Path, manifest: Manifest) -> None:
     frames = manifest.frames
     np.savez(folder / COPY_NAME, version=np.int64(COPY_VERSION), digest=np.str_(manifest.source_sha256),
              header=np.frombuffer(json.dumps(header).encode("utf-8"), np.uint8),
-             files=np.array([frame.file for frame in frames], dtype=str),
-             exposures=np.array([frame.exposure for frame in frames], np.float64),
-             counts=np.array([len(frame.lit) for frame in frames], np.int64),
-             replicates=np.array([frame.replicate for frame in frames], np.int64),
-             lit=np.concatenate([frame.lit for frame in frames]).astype(np.int64))
+             files=np.array(frames.files, dtype=str), exposures=frames.exposures, counts=frames.counts,
+             replicates=frames.replicates, lit=frames.lit)
 
 
 def _keys(manifest: Manifest) -> dict:
@@ -150,9 +149,7 @@ def _rebuild(header: dict, files: list, exposures: np.ndarray, counts: np.ndarra
     check = Validator(folder / MANIFEST_NAME, DatasetError)
     for index, file in enumerate(files):
         check.relative_file(file, f"frames[{index}].file")
-    points = np.split(lit, np.cumsum(counts)[:-1])
-    frames = tuple(FrameEntry(file=file, lit=points_of_frame, exposure=float(exposure), replicate=int(replicate))
-                   for file, points_of_frame, exposure, replicate in zip(files, points, exposures, replicates))
+    frames = FrameTable(files, exposures, replicates, counts, lit)
     return parse_manifest({**header, "frames": []}, folder, source_sha256=digest, frames=frames)
 
 

@@ -1,0 +1,159 @@
+"""``ringlight optics``: absorption and reduced scattering maps (mu_a, mu_s') of a homogeneous
+half-space fitted to every pixel's ring profile, a region's values and diffuse reflectance R_d at
+spatial frequencies, and the calibration of a real rig on a reference."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from ringlight.core import RinglightError, load_manifest, open_dataset
+from ringlight.core.atomic import atomic_file, check_output_file
+from ringlight.core.colour.image_export import write_text
+from ringlight.core.colour.regions import parse_rectangle, rectangle_region
+from ringlight.core.dataset.exr import write_exr_channels
+from ringlight.core.optics.calibration import calibrate, read_calibration, write_calibration
+from ringlight.core.optics.maps import OpticalMaps, optical_maps
+from ringlight.core.optics.region import RegionOptics, region_optics
+from ringlight.core.optics.table import DEFAULT_PHOTONS
+
+from .progress import progress_bar
+
+
+def add_command(subparsers) -> None:
+    optics = subparsers.add_parser(
+        "optics", help="absorption and reduced scattering maps (mu_a, mu_s') and R_d at spatial frequencies")
+    optics.add_argument("dataset", help="dataset folder or its dataset.json")
+    optics.add_argument("--out", metavar="MAPS.exr",
+                        help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se")
+    optics.add_argument("--json", metavar="OUT",
+                        help="write the region's values (--roi, default the whole grid) and R_d as JSON")
+    optics.add_argument("--mtf", metavar="F1,F2,...", default="0",
+                        help="spatial frequencies of R_d in the JSON: cycles per mm when the dataset gives "
+                             "grid.pitch_mm, else per grid step (default 0)")
+    optics.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="the region of --json, end exclusive (default: all)")
+    optics.add_argument("--layers", type=int, choices=(1, 2), default=1,
+                        help="2: also fit the region as two layers by the layer inversion (default 1)")
+    optics.add_argument("--n", type=float, default=None,
+                        help="refractive index (default: the dataset's sample.n)")
+    optics.add_argument("--g", type=float, default=None,
+                        help="scattering anisotropy (default: the dataset's sample.g, else 0)")
+    optics.add_argument("--calibration", metavar="FILE",
+                        help="a real rig's calibration file (made with --write-calibration on a reference)")
+    calibration = optics.add_argument_group("calibrating a rig on a reference")
+    calibration.add_argument("--write-calibration", metavar="FILE",
+                             help="DATASET is a scan of a reference: write the rig's calibration to FILE")
+    calibration.add_argument("--reference-mua", metavar="A|R,G,B",
+                             help="the reference's absorption (per mm with a pitch, else per grid step)")
+    calibration.add_argument("--reference-musp", metavar="S|R,G,B", help="the reference's reduced scattering")
+    calibration.add_argument("--reference-description", default="", help="what the reference is")
+    optics.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
+                        help=f"photons of the white run behind the look-up table (default {DEFAULT_PHOTONS})")
+    optics.add_argument("--force", action="store_true", help="replace existing output files")
+    optics.add_argument("--allow-outside", action="store_true",
+                        help="read frames that resolve (through symbolic links) outside the dataset folder")
+    optics.set_defaults(handler=run_optics)
+
+
+def parse_numbers(text: str, option: str, count: int | None = None) -> list[float]:
+    """``"0,0.1"`` -> [0.0, 0.1] (finite, >= 0); one line naming ``option`` otherwise."""
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        raise RinglightError(f"{option} {text!r} must be numbers separated by commas") from None
+    if not all(math.isfinite(v) and v >= 0 for v in values) or (count is not None and len(values) not in (1, count)):
+        raise RinglightError(f"{option} {text!r} must be finite non-negative numbers"
+                             + (f", one or {count}" if count else ""))
+    return values
+
+
+def run_optics(args) -> int:
+    if not (args.out or args.json or args.write_calibration):
+        raise RinglightError("give --out, --json or --write-calibration: nothing to write")
+    frequencies_text = [part.strip() for part in args.mtf.split(",")]
+    frequencies = parse_numbers(args.mtf, "--mtf")
+    if args.write_calibration and (args.reference_mua is None or args.reference_musp is None):
+        raise RinglightError("--write-calibration needs the reference's --reference-mua and --reference-musp")
+    reference = (parse_numbers(args.reference_mua, "--reference-mua", 3),
+                 parse_numbers(args.reference_musp, "--reference-musp", 3)) if args.write_calibration else None
+    for path in (args.out, args.json, args.write_calibration):
+        if path is not None:
+            if not path.strip():
+                raise RinglightError("an output file needs a name")
+            check_output_file(path, args.force, probe=True)  # refused before the work
+    calibration = read_calibration(args.calibration) if args.calibration else None
+    manifest = load_manifest(args.dataset)
+    with progress_bar("opening the dataset") as progress:
+        dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
+    if reference is not None:
+        made = calibrate(dataset, reference[0], reference[1], n=args.n, g=args.g,
+                         description=args.reference_description, photons=args.photons)
+        write_calibration(args.write_calibration, made, overwrite=args.force)
+        print(f"{dataset.path}: rig scale R/G/B {' / '.join(f'{s:.5g}' for s in made.scale)} "
+              f"(+- {' / '.join(f'{s:.2g}' for s in made.scale_se)})")
+        print(f"wrote {args.write_calibration}")
+    if args.out:
+        with progress_bar("fitting every pixel") as progress:
+            maps = optical_maps(dataset, n=args.n, g=args.g, calibration=calibration, progress=progress,
+                                photons=args.photons)
+        with atomic_file(args.out, overwrite=args.force) as temporary:
+            write_exr_channels(temporary, map_channels(maps))
+        determined = maps.determined.mean() * 100
+        print(f"{dataset.path}: maps in {maps.units.replace('_', ' ')}, n {maps.n:g}, g {maps.g:g}, noise from the "
+              f"{maps.noise_source}; {determined:.1f} % of pixel channels determined")
+        print(f"wrote {args.out}")
+    if args.json:
+        region = None
+        if args.roi:
+            y0, x0, y1, x1 = parse_rectangle(args.roi)
+            region = rectangle_region(dataset.grid_shape, y0, x0, y1, x1)
+        result = region_optics(dataset, region, n=args.n, g=args.g, calibration=calibration, layers=args.layers,
+                               frequencies=frequencies, photons=args.photons)
+        write_text(args.json, json.dumps(region_document(result, frequencies_text, args.roi), indent=1) + "\n",
+                   overwrite=args.force)
+        units = result.units.replace("_", " ")
+        print(f"region: mua {_triple(result.mua)}, musp {_triple(result.musp)} {units}")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def map_channels(maps: OpticalMaps) -> dict[str, np.ndarray]:
+    """The maps as named EXR channels: ``mua.R``, ..., ``mua.R_se``, ..., ``musp.B_se``, and
+    ``determined.R`` ... (1 where determined, else 0)."""
+    channels = {}
+    for name, values, errors in (("mua", maps.mua, maps.mua_se), ("musp", maps.musp, maps.musp_se)):
+        for c, channel in enumerate(maps.channels):
+            channels[f"{name}.{channel}"] = values[..., c]
+            channels[f"{name}.{channel}_se"] = errors[..., c]
+    for c, channel in enumerate(maps.channels):
+        channels[f"determined.{channel}"] = maps.determined[..., c].astype(np.float32)
+    return channels
+
+
+def region_document(result: RegionOptics, frequencies_text: list[str], roi: str | None) -> dict:
+    """The ``--json`` document: the region's values per channel, units, n, g and R_d keyed by each
+    asked frequency as written."""
+    listed = lambda values: [_number(v) for v in np.asarray(values, float).tolist()]  # noqa: E731
+    document = {"mua": listed(result.mua), "musp": listed(result.musp), "mua_se": listed(result.mua_se),
+                "musp_se": listed(result.musp_se), "units": result.units, "n": result.n, "g": result.g,
+                "R_d": {text: listed(result.reflectance[i]) for i, text in enumerate(frequencies_text)},
+                "determined": [bool(d) for d in result.determined], "chi2": listed(result.chi2),
+                "rings": len(result.radii), "points": result.points, "region": roi or "all",
+                "channels": list(result.channels)}
+    if result.layers is not None:
+        per = 1.0 / result.pitch_mm if result.pitch_mm else 1.0
+        document["layers"] = [{"depth": [layer.top, layer.bottom], "mua": listed(np.asarray(layer.mua) * per),
+                               "mua_interval": [listed(row) for row in np.asarray(layer.mua_interval) * per],
+                               "musp": _number(layer.mus * per * (1.0 - result.g)),
+                               "determined": bool(layer.determined)} for layer in result.layers.layers]
+    return document
+
+
+def _number(value: float):
+    return value if math.isfinite(value) else None
+
+
+def _triple(values) -> str:
+    return " / ".join(f"{v:.4g}" for v in values)

@@ -1,0 +1,297 @@
+"""Maps of absorption mu_a and reduced scattering mu_s' per pixel and channel: each pixel's ring
+profile E_p(r) fitted as a homogeneous semi-infinite medium (:mod:`.pixel_fit` on :mod:`.table`).
+
+The profile is the ring light stack at radii 0, 1, ... (thickness 1, every ring within the
+dataset's max_radius), its standard errors the noise of the stack (:mod:`ringlight.core.rings.noise`:
+the replicates' spread where the dataset holds replicates, else the spread of each ring's members).
+Ring 0 has one member, so no spread: its standard error is the relative error of the nearest ring
+that has one, scaled by the square root of their member counts (independent members of equal
+relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what the noise does not
+show (the table's own Monte Carlo noise, a rig's calibration).
+
+A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
+(:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
+subset of distances. A pixel's values are those of the medium its rings see: across an edge
+between two materials they come within 1 % (mu_s') and 3 % (mu_a) of each material's own at
+about max_radius from the edge, and mu_s' steps from 10 % to 90 % within 3 grid steps
+(``tools/evaluate_optics.py --scenes``, max_radius 8).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..dataset.impulse_dataset import ImpulseDataset
+from ..errors import Cancelled, RinglightError
+from ..rings.geometry import ring_geometry
+from ..rings.noise import luminance_weights, stack_noise
+from ..rings.replicate_noise import replicate_spread
+from ..rings.stacks import Stack, ring_stack
+from .pixel_fit import CONVERGED, fit_profiles
+from .table import DEFAULT_PHOTONS, ProfileTable, table_for
+
+MODEL_FLOOR = 0.005
+"""Relative standard deviation added to every ring's: the table's own noise (at its default
+10^6 photons, 0.03-0.3 % per ring, from four independent runs) and what else the model leaves out."""
+DETERMINED_RELATIVE_ERROR = 0.5
+"""A value is *determined* where its fit converged inside the table and its standard error is
+below this fraction of it."""
+CHANNELS = ("R", "G", "B")
+
+
+class OpticsError(RinglightError):
+    """Optical properties asked of a dataset (or with arguments) that cannot give them."""
+
+
+@dataclass(frozen=True, eq=False)
+class OpticalMaps:
+    """Per-pixel optical properties of a homogeneous half-space fitted to each pixel's E(r).
+
+    Attributes
+    ----------
+    mua, musp
+        (H, W, C) float32 absorption and reduced scattering coefficients, in ``units``; NaN where
+        no fit was possible.
+    mua_se, musp_se
+        (H, W, C) float32 their standard errors (linearised fit).
+    determined
+        (H, W, C) bool: the fit converged inside the table and both relative standard errors are
+        below :data:`DETERMINED_RELATIVE_ERROR` (mua_determined, musp_determined say which).
+    mua_determined, musp_determined
+        (H, W, C) bool per property.
+    chi2
+        (H, W, C) float32 the fit's chi-square over ``rings`` (H, W, C) int32 rings used.
+    complete
+        (H, W) bool: every ring of the profile lies whole on the grid (else the fit is biased).
+    units
+        ``"per_mm"`` (the manifest gives ``grid.pitch_mm``) or ``"per_grid_step"``.
+    pitch_mm
+        The pitch behind per-mm units, else None.
+    n, g
+        Refractive index and anisotropy assumed.
+    channels
+        Channel names, ``("R", "G", "B")``.
+    radii
+        (R,) ring radii fitted, grid steps.
+    noise_source
+        ``"replicates"`` or ``"ring spread"``: where the standard errors of E_r came from.
+    scale
+        (C,) the rig's scale the model was multiplied by (1 for a simulated dataset).
+    """
+
+    mua: np.ndarray
+    musp: np.ndarray
+    mua_se: np.ndarray
+    musp_se: np.ndarray
+    determined: np.ndarray
+    mua_determined: np.ndarray
+    musp_determined: np.ndarray
+    chi2: np.ndarray
+    rings: np.ndarray
+    complete: np.ndarray
+    units: str
+    pitch_mm: float | None
+    n: float
+    g: float
+    channels: tuple[str, ...]
+    radii: np.ndarray
+    noise_source: str
+    scale: np.ndarray
+
+
+def profile_radii(dataset: ImpulseDataset, thickness: float = 1.0) -> np.ndarray:
+    """Radii 0, 1, ... (grid steps) of every ring of ``thickness`` within the dataset's max_radius."""
+    last = math.floor(dataset.max_radius - thickness / 2.0 + 1e-9)
+    if last < 2:
+        raise OpticsError(f"{dataset.path}: max_radius {dataset.max_radius:g} holds fewer than 3 rings; "
+                          f"optical properties need rings 0, 1, 2 at least")
+    return np.arange(0.0, last + 1.0)
+
+
+def sample_optics(dataset: ImpulseDataset, n: float | None, g: float | None) -> tuple[float, float]:
+    """``n`` and ``g`` as given, else as the manifest's ``sample`` key states them; OpticsError
+    naming the dataset when neither gives ``n`` (``g`` defaults to 0, isotropic scattering)."""
+    sample = dataset.manifest.sample
+    n = n if n is not None else sample.n
+    g = g if g is not None else (sample.g if sample.g is not None else 0.0)
+    if n is None:
+        raise OpticsError(f"{dataset.path}: the manifest states no refractive index (sample.n); give n "
+                          f"(--n), e.g. 1.4 for tissue")
+    if not 1.0 <= n <= 3.0:
+        raise OpticsError(f"refractive index n must lie in [1, 3], got {n:g}")
+    if not -0.95 <= g <= 0.95:
+        raise OpticsError(f"anisotropy g must lie in [-0.95, 0.95], got {g:g}")
+    return float(n), float(g)
+
+
+def ring_sigma(images: np.ndarray, errors: np.ndarray, counts: np.ndarray, floor: float = MODEL_FLOOR) -> np.ndarray:
+    """(R, H, W, C) float32 standard deviation of each ring's E: its standard error ``errors``
+    (R, H, W, C), a ring without one (NaN: fewer than 2 members) given the relative error of the
+    nearest ring that has one times sqrt(that ring's members / its own), and the relative
+    ``floor`` added in quadrature. ``counts`` (R, H, W) the rings' members."""
+    images = images.astype(np.float32, copy=False)
+    sigma = errors.astype(np.float32, copy=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = np.abs(sigma / images)
+    known = np.isfinite(relative)
+    for r in range(len(images)):
+        missing = ~known[r] & np.isfinite(images[r])
+        if not missing.any():
+            continue
+        for other in sorted(range(len(images)), key=lambda k: abs(k - r)):
+            usable = missing & known[other]
+            if usable.any():
+                ratio = np.sqrt(counts[other] / np.maximum(counts[r], 1))[..., None]
+                sigma[r][usable] = (np.abs(images[r]) * relative[other] * ratio)[usable]
+                missing &= ~usable
+            if not missing.any():
+                break
+    return np.sqrt(sigma * sigma + (floor * images) ** 2)
+
+
+def error_freedom(dataset: ImpulseDataset, radii: np.ndarray, noise_source: str) -> np.ndarray:
+    """(R,) degrees of freedom of each ring's standard error: replicates - 1, or for the ring
+    spread its members less its groups of equal distance (:mod:`ringlight.core.rings.noise`, whole
+    rings); a ring without a spread (r = 0) borrows its neighbour's."""
+    if noise_source == "replicates":
+        return np.full(len(radii), len(dataset.manifest.replicates) - 1.0)
+    freedom = []
+    for radius in radii:
+        offsets = ring_geometry(float(radius)).offsets
+        distances = np.unique(offsets[:, 0] ** 2 + offsets[:, 1] ** 2)
+        freedom.append(float(len(offsets) - len(distances)))
+    freedom = np.asarray(freedom)
+    spread = np.flatnonzero(freedom > 0)
+    return freedom if not len(spread) else np.where(freedom > 0, freedom, freedom[spread[0]])
+
+
+def t_inflation(freedom: np.ndarray) -> np.ndarray:
+    """(R,) factors for standard errors estimated with ``freedom`` degrees of freedom: a residual
+    over such an error is Student-t distributed, of variance nu / (nu - 2) (sqrt(3) for nu <= 3),
+    so the fit weighs the ring as the variance it has; at r = 1 (8 members at 2 distances, nu = 6)
+    the factor is 1.22. Without it, two-sigma intervals held the truth in 93.5 % of pixels on the
+    maps' own model at 5 % noise per response (tests/test_optics_maps.py), 95 % with it."""
+    return np.sqrt(np.where(freedom > 3, freedom / np.maximum(freedom - 2.0, 1e-9), 3.0))
+
+
+def ring_errors(dataset: ImpulseDataset, radii: np.ndarray, progress=None) -> tuple[np.ndarray, str]:
+    """(R, H, W, 3) float32 standard errors of E_r at ``radii`` 0, 1, ... (thickness 1) and where
+    they come from: the replicates' spread (:mod:`ringlight.core.rings.replicate_noise`) or the
+    ring members' spread (:func:`ringlight.core.rings.noise.stack_noise`, whose transient errors
+    ``sqrt(SE(E_r)^2 + SE(E_{r+1})^2)`` give the last ring's, since its own ring r + 1 lies beyond
+    max_radius)."""
+    if len(dataset.manifest.replicates) > 1:
+        every = np.arange(len(radii))
+        ring, _, _, _ = replicate_spread(dataset, radii, every, every, 1.0, False, luminance_weights(dataset.colorspace),
+                                         progress)
+        return ring, "replicates"
+    noise = stack_noise(dataset, radii[:-1], 1.0, progress=progress)
+    last = np.sqrt(np.maximum(noise.transient[-1] ** 2 - noise.ring[-1] ** 2, 0.0))
+    return np.concatenate([noise.ring, last[None]]), "ring spread"
+
+
+def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | None = None, calibration=None,
+                 progress=None, cancelled=None, stack: Stack | None = None, errors: np.ndarray | None = None,
+                 noise_source: str | None = None, photons: int = DEFAULT_PHOTONS,
+                 floor: float = MODEL_FLOOR) -> OpticalMaps:
+    """mu_a and mu_s' (and their standard errors) of every pixel and channel of ``dataset``.
+
+    Parameters
+    ----------
+    dataset
+        An open impulse dataset.
+    n, g
+        Refractive index and Henyey-Greenstein anisotropy; None takes the manifest's ``sample``.
+    calibration
+        A :class:`ringlight.core.optics.calibration.Calibration` for a real rig (its per-channel scale); None for a
+        simulated, absolute dataset.
+    progress
+        ``progress(fraction)`` along the way (may raise :class:`~ringlight.core.errors.Cancelled`).
+    cancelled
+        ``cancelled() -> bool`` asked along the way; True stops the work with ``Cancelled``.
+    stack, errors, noise_source
+        The ring stack at :func:`profile_radii` (thickness 1) and its standard errors (R, H, W, 3),
+        when already computed (the explorer has them); computed here otherwise.
+    photons
+        Photons of the table's white run (:func:`.table.table_for`).
+    floor
+        Relative standard deviation added to every ring (:data:`MODEL_FLOOR`).
+
+    Returns
+    -------
+    OpticalMaps
+        (H, W, 3) maps in per mm when the manifest gives ``grid.pitch_mm``, else per grid step.
+    """
+    n, g = sample_optics(dataset, n, g)
+    radii = profile_radii(dataset)
+    report = _Phases(progress, cancelled)
+    if stack is None:
+        stack = ring_stack(dataset, radii, progress=report.part(0.0, 0.3))
+    elif not np.array_equal(stack.radii, radii) or stack.thickness != 1.0 or stack.antialias:
+        raise OpticsError(f"the stack given holds radii {stack.radii.tolist()}, not the rings 0..{radii[-1]:g} "
+                          f"(thickness 1) that optical maps fit")
+    report.check()
+    if errors is None:
+        errors, noise_source = ring_errors(dataset, radii, progress=report.part(0.3, 0.6))
+        errors = errors * t_inflation(error_freedom(dataset, radii, noise_source))[:, None, None, None]
+    report.check()
+    table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
+    report.check()
+    scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
+    sigma = ring_sigma(stack.images, errors, stack.counts, floor)
+    fitted = fit_profiles(table, stack.images, sigma, scale, cancelled=report.cancelled)
+    report.progress(1.0)
+    whole = np.asarray([_ring_members(r) for r in radii])
+    complete = (stack.counts == whole[:, None, None]).all(axis=0)
+    return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, noise_source or "given", scale)
+
+
+def maps_from_fit(fitted: dict, table: ProfileTable, pitch_mm: float | None, complete: np.ndarray, radii: np.ndarray,
+                  noise_source: str, scale: np.ndarray) -> OpticalMaps:
+    """The maps of :func:`.pixel_fit.fit_profiles`' result in the table's units converted to per mm."""
+    g = table.g
+    per = 1.0 / pitch_mm if pitch_mm else 1.0
+    musp = (1.0 - g) * np.exp(fitted["u"]) * per
+    mua = np.exp(fitted["u"] + fitted["v"]) * per
+    # Delta method: log mus' = u + log(1 - g), log mua = u + v.
+    musp_se = musp * np.sqrt(fitted["cuu"])
+    mua_se = mua * np.sqrt(fitted["cuu"] + 2.0 * fitted["cuv"] + fitted["cvv"])
+    converged = fitted["status"] == CONVERGED
+    with np.errstate(invalid="ignore"):
+        mua_determined = converged & (mua_se < DETERMINED_RELATIVE_ERROR * mua)
+        musp_determined = converged & (musp_se < DETERMINED_RELATIVE_ERROR * musp)
+    as32 = lambda array: array.astype(np.float32)  # noqa: E731
+    return OpticalMaps(as32(mua), as32(musp), as32(mua_se), as32(musp_se), mua_determined & musp_determined,
+                       mua_determined, musp_determined, as32(fitted["chi2"]), fitted["rings"], complete,
+                       "per_mm" if pitch_mm else "per_grid_step", pitch_mm, table.n, g, CHANNELS,
+                       np.asarray(radii, np.float64), noise_source, np.asarray(scale, np.float64))
+
+
+def _ring_members(radius: float) -> int:
+    return len(ring_geometry(float(radius)).offsets)
+
+
+class _Phases:
+    """Progress of consecutive phases as one fraction, and the cancel question asked between them."""
+
+    def __init__(self, progress, cancelled):
+        self._progress = progress
+        self._cancelled = cancelled
+
+    def progress(self, fraction: float) -> None:
+        if self._progress is not None:
+            self._progress(fraction)
+        self.check()
+
+    def part(self, start: float, stop: float):
+        return lambda fraction: self.progress(start + (stop - start) * fraction)
+
+    def check(self) -> None:
+        if self._cancelled is not None and self._cancelled():
+            raise Cancelled("optical maps cancelled")
+
+    def cancelled(self) -> bool:
+        return self._cancelled is not None and bool(self._cancelled())

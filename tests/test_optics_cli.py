@@ -1,0 +1,97 @@
+"""``ringlight optics`` on a homogeneous dataset written as frames (the maps' model response with
+2 % noise per response value, pitch 0.1 mm): maps as named EXR channels, the region's JSON,
+calibration, and one-line refusals."""
+
+import json
+
+import numpy as np
+import pytest
+from optics_helpers import TEST_PHOTONS, model_kernel
+from reference import write_dataset
+from ringlight.app.main import main
+from ringlight.core.dataset.exr import read_exr_channels
+from ringlight.core.optics import radial
+
+MUA, MUSP = 0.2, 5.0  # per mm: 0.02 and 0.5 per grid step of 0.1 mm
+SIZE, MAX_RADIUS = 26, 6
+PHOTONS = ["--photons", str(TEST_PHOTONS)]
+
+
+@pytest.fixture(scope="module")
+def homogeneous(tmp_path_factory):
+    """The dataset's folder: every point lit in frames of 4 points (a lattice 13 apart)."""
+    run = radial.run_radial(1.4, 0.0, TEST_PHOTONS, seed=0)  # the seed the command's table uses
+    kernel = model_kernel(run, MUSP * 0.1, MUA * 0.1, MAX_RADIUS)
+    rng = np.random.default_rng(5)
+    impulses = {}
+    for y in range(SIZE):
+        for x in range(SIZE):
+            image = np.zeros((SIZE, SIZE, 3), np.float32)
+            y0, y1, x0, x1 = max(0, y - MAX_RADIUS), min(SIZE, y + MAX_RADIUS + 1), max(0, x - MAX_RADIUS), \
+                min(SIZE, x + MAX_RADIUS + 1)
+            window = kernel[y0 - y + MAX_RADIUS:y1 - y + MAX_RADIUS, x0 - x + MAX_RADIUS:x1 - x + MAX_RADIUS]
+            image[y0:y1, x0:x1] = window * (1 + 0.02 * rng.standard_normal(window.shape))
+            yy, xx = np.mgrid[:SIZE, :SIZE]
+            image[np.hypot(yy - y, xx - x) > MAX_RADIUS] = 0.0
+            impulses[(y, x)] = image
+    folder = tmp_path_factory.mktemp("optics") / "homogeneous"
+    write_dataset(folder, SIZE, SIZE, impulses, max_radius=MAX_RADIUS, multiplex=True,
+                  extra={"grid": {"height": SIZE, "width": SIZE, "pitch_mm": 0.1}, "sample": {"n": 1.4}})
+    return str(folder)
+
+
+def test_optics_writes_maps_and_the_regions_values(homogeneous, tmp_path, capsys):
+    out, document = tmp_path / "maps.exr", tmp_path / "region.json"
+    assert main(["optics", homogeneous, "--out", str(out), "--json", str(document), "--mtf", "0,0.5,1.",
+                 *PHOTONS]) == 0
+    names = tuple(f"{p}.{c}{s}" for p in ("mua", "musp") for c in "RGB" for s in ("", "_se"))
+    maps = read_exr_channels(out, names)
+    centre = maps[13, 13].reshape(2, 3, 2)  # (property, channel, value / se)
+    np.testing.assert_allclose(centre[0, :, 0], MUA, rtol=4 * centre[0, :, 1].max() / MUA)
+    np.testing.assert_allclose(centre[1, :, 0], MUSP, rtol=4 * centre[1, :, 1].max() / MUSP)
+    assert (centre[..., 1] > 0).all() and (centre[..., 1] < 0.1 * centre[..., 0]).all()
+    assert read_exr_channels(out, ("determined.R",))[13, 13, 0] == 1.0
+    result = json.loads(document.read_text())
+    assert result["units"] == "per_mm" and result["n"] == 1.4 and result["g"] == 0.0
+    assert list(result["R_d"]) == ["0", "0.5", "1."]  # keyed as written, cycles per mm
+    np.testing.assert_allclose(result["mua"], MUA, rtol=0.02)
+    np.testing.assert_allclose(result["musp"], MUSP, rtol=0.02)
+    rd = np.array(list(result["R_d"].values()))
+    assert (np.diff(rd, axis=0) < 0).all()  # R_d falls with frequency in every channel
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_a_calibration_made_on_a_reference_is_taken_by_later_maps(homogeneous, tmp_path, capsys):
+    calibration = tmp_path / "rig.json"
+    assert main(["optics", homogeneous, "--write-calibration", str(calibration), "--reference-mua", "0.2",
+                 "--reference-musp", "2.5,5,10", *PHOTONS]) == 0
+    scale = json.loads(calibration.read_text())["scale"]
+    # The green channel's reference is the truth (scale 1); red's and blue's musp are off by 2x,
+    # which a single scale cannot absorb: far from 1.
+    assert scale[1] == pytest.approx(1.0, rel=0.01) and abs(scale[0] - 1) > 0.05 and abs(scale[2] - 1) > 0.05
+    document = tmp_path / "region.json"
+    assert main(["optics", homogeneous, "--json", str(document), "--calibration", str(calibration), *PHOTONS]) == 0
+    assert json.loads(document.read_text())["mua"][1] == pytest.approx(MUA, rel=0.02)
+
+
+@pytest.mark.parametrize("arguments, message", [
+    ([], "give --out, --json or --write-calibration"),
+    (["--json", "r.json", "--mtf", "0,x"], "--mtf '0,x' must be numbers"),
+    (["--json", "r.json", "--mtf", "-1"], "--mtf '-1' must be finite non-negative"),
+    (["--write-calibration", "c.json", "--reference-mua", "0.1"], "--reference-mua and --reference-musp"),
+    (["--json", "r.json", "--calibration", "missing.json"], "missing.json"),
+    (["--json", "r.json", "--n", "0.3"], "n must lie in [1, 3]"),
+])
+def test_bad_arguments_are_one_line_and_exit_2(homogeneous, tmp_path, monkeypatch, capsys, arguments, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(["optics", homogeneous, *arguments, *PHOTONS]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and "\n" not in error and "Traceback" not in error
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_an_existing_file_is_not_replaced_without_force(homogeneous, tmp_path, capsys):
+    out = tmp_path / "maps.exr"
+    out.write_bytes(b"mine")
+    assert main(["optics", homogeneous, "--out", str(out), *PHOTONS]) == 2
+    assert "already exists" in capsys.readouterr().err and out.read_bytes() == b"mine"
