@@ -27,9 +27,10 @@ from ringlight.core.colour.chroma import chromaticity
 from ringlight.core.colour.layer_report import truth_layers
 from ringlight.core.dataset.impulse_dataset import open_dataset
 from ringlight.core.inversion.forward import Structure
-from ringlight.core.inversion.layers import database_optics, invert
+from ringlight.core.inversion.layers import invert
 from ringlight.core.inversion.measured import measured_profile
 from ringlight.core.inversion.report import profile_radii
+from ringlight.core.inversion.search import database_optics
 from ringlight.core.inversion.settings import MUS_GRID, N_GRID, SEARCH_BINS, InversionSettings
 from ringlight.core.inversion.white_cells import cell_database, run_cells
 from ringlight.core.inversion.white_mc import run_white, white_database

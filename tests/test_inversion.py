@@ -17,9 +17,10 @@ import ringlight.core.inversion.fit as fit_module
 from ringlight.core.inversion.fit import JOINT_CHI2, MUA_BOUNDS, fit_channel
 from ringlight.core.inversion.forward import Forward, Structure, ring_matrix
 from ringlight.core.inversion.layer_colour import region_contains
-from ringlight.core.inversion.layers import database_optics, invert
+from ringlight.core.inversion.layers import invert
 from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
 from ringlight.core.inversion.report import invert_region, profile_radii
+from ringlight.core.inversion.search import database_optics
 from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.white_cells import CellForward, cell_database, pixel_classes
 from ringlight.core.inversion.white_mc import SlabOptics, run_white, white_database

@@ -25,10 +25,11 @@ import argparse
 import numpy as np
 
 from ringlight.core.colour.chroma import chromaticity
-from ringlight.core.inversion import layers
+from ringlight.core.inversion import layers, search
 from ringlight.core.inversion.forward import Forward, Structure
-from ringlight.core.inversion.layers import database_optics, invert
+from ringlight.core.inversion.layers import invert
 from ringlight.core.inversion.measured import MeasuredProfile
+from ringlight.core.inversion.search import database_optics
 from ringlight.core.inversion.settings import InversionSettings
 from ringlight.core.inversion.white_mc import white_database
 from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
@@ -44,13 +45,13 @@ def main() -> None:
                         help="relative standard error of each ring's E (default 0.01 0.001)")
     parser.add_argument("--photons", type=int, default=20_000, help="photons of the white database")
     parser.add_argument("--radius", type=int, default=11, help="largest ring radius (11: a 24 px sample's)")
-    parser.add_argument("--reach", type=int, default=layers.REACH,
-                        help=f"pixels around the lit point the white databases keep (default {layers.REACH}; "
+    parser.add_argument("--reach", type=int, default=search.REACH,
+                        help=f"pixels around the lit point the white databases keep (default {search.REACH}; "
                              "at least --radius)")
     args = parser.parse_args()
     if args.reach < args.radius:
         parser.error(f"--reach {args.reach} must be at least --radius {args.radius}")
-    layers.REACH = args.reach
+    layers.REACH = search.REACH = args.reach  # the search's optics and the inversion's check
     print("| scene | noise | layer | truth mua R, G, B | fitted mua [two-sigma range] R; G; B | xy error | "
           "2-sigma width | data allow |")
     print("|---|---|---|---|---|---|---|---|")

@@ -5,9 +5,9 @@ each with its own absorption per channel, anisotropy ``g`` given, refractive ind
 chosen from :data:`~.settings.N_GRID` like the scattering (the index sets how much light the
 surface reflects back in, and so the profile's shape: assuming 1.4 for an index-matched slab
 misplaced its top layer's colour by 0.041 xy). The structure (layer boundaries, whole grid steps
-down to :data:`SEARCH_BINS` - 1) is given or searched by chi-square; the number of layers is given
+down to :data:`~.settings.SEARCH_BINS` - 1) is given or searched by chi-square; the number of layers is given
 or chosen by BIC. The scattering is given (common or per layer) or chosen from :data:`MUS_GRID`:
-common to every layer, or one for the layers above and another for the base (:func:`_base_search`),
+common to every layer, or one for the layers above and another for the base (:func:`.search.search_base`),
 by BIC. The search compares quick per-channel fits (:mod:`.fit`) on thinned databases; the chosen
 structure and those that fit about as well are fitted again, each with a white run of its own of
 ten times the photons tallied in cells (:mod:`.white_cells`), per channel and with the channels
@@ -17,7 +17,6 @@ layer's colour and its two-sigma region in xy: :mod:`.layer_colour`.
 
 from __future__ import annotations
 
-import itertools
 import math
 import time
 from collections.abc import Callable
@@ -28,30 +27,25 @@ import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
 from .fit import JOINT_CHI2, ChannelFit, fit_channels
-from .forward import Forward, Structure, weights_reach
+from .forward import Forward, weights_reach
 from .joint import JointFit, fit_jointly
 from .layer_colour import InvertedLayer, joined, layer_colours, widened
 from .limit import data_limits, limit_reason
 from .measured import MeasuredProfile
-from .settings import MAX_LAYERS, MUS_GRID, N_GRID, SEARCH_BINS, InversionError, InversionSettings
+from .settings import MUS_GRID, N_GRID, InversionError, InversionSettings
 from .white_cells import CellForward, cell_database
+from .search import (REACH, REFINE_STEPS, Candidate, all_structures, best_candidate, bic, database_optics,
+                     refine_scattering, scout_structures, search_base)
 from .white_mc import SlabOptics, WhiteDatabase, white_database
 
 SEARCH_SHARE = 4
 """A structure search fits with one in this many of the database's photons; the chosen one is
 fitted again with all."""
-REFINE_STEPS = (2 ** 0.5, 2 ** 0.25)
-"""Factors by which the chosen scattering is refined, in turn, between :data:`MUS_GRID`'s values
-(to within 2^(1/8), 9 %)."""
-REFINE_MOVES = 4
-"""Moves of the refinement's local search at most, per step."""
 PLAUSIBLE_CHI2 = JOINT_CHI2
 """Structures (and scatterings, and indices) whose search chi-square is within this of the chosen
 one's are fitted too, and each layer's region spans theirs (the same threshold as a layer's region)."""
 MAX_RIVALS = 4
 """At most this many of them (the best-fitting), to bound the time."""
-REACH = 13
-"""Pixels from the lit point (in y and in x) that a white database keeps."""
 MISFIT_P = 1e-3
 """A fit whose chi-square is this improbable under the model is reported as not fitting, and none
 of its layers as determined."""
@@ -98,17 +92,6 @@ class Inversion:
 
 
 Progress = Callable[[float, str], None]
-
-
-class Candidate(NamedTuple):
-    """One structure tried in a search: its BIC and chi-square (quick fit), scattering, and the optics
-    of its white database (the few fitted fully get a white run of their own, :mod:`.white_cells`)."""
-
-    bic: float
-    chi2: float
-    mus: float | tuple[float, ...]
-    structure: Structure
-    optics: SlabOptics
 
 
 class Fitted(NamedTuple):
@@ -174,11 +157,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False, floor=measured.floor)
             chi2 = sum(f.chi2 for f in fits)
-            candidates.append(Candidate(_bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
+            candidates.append(Candidate(bic(chi2, sum(f.used for f in fits), structure, mus), chi2, mus,
                                         structure, optics))
 
     bins = database_optics(settings, mus_choices[0], choices[0][0]).bins
-    structures = list(_structures(settings, bins, rings - 1))
+    structures = list(all_structures(settings, bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
     refine = len(REFINE_STEPS) if settings.mus is None else 0  # a share for each step
     share = 1.0 / (len(choices) + 2 + base_search + refine)
@@ -193,27 +176,27 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             break
         # With several scatterings (or indices) to try, each is scouted on the structures with even
         # boundaries; the others are tried for the best one only.
-        scouts = _scouts(structures) if len(choices) > 1 else structures
+        scouts = scout_structures(structures) if len(choices) > 1 else structures
         try_structures([(structure, optics, mus) for structure in scouts], (index + 0.5) * share,
                        f"fitting structures for {_optics_text(optics, mus)}")
-    if len(choices) > 1 and (scouted := _best(candidates)):
+    if len(choices) > 1 and (scouted := best_candidate(candidates)):
         _, _, mus, _, optics = scouted
-        rest = [structure for structure in structures if structure not in _scouts(structures)]
+        rest = [structure for structure in structures if structure not in scout_structures(structures)]
         try_structures([(structure, optics, mus) for structure in rest], len(choices) * share,
                        f"fitting every structure for {_optics_text(optics, mus)}")
-    if base_search and (leading := _best(candidates)):
+    if base_search and (leading := best_candidate(candidates)):
         # A base of its own scattering is tried for the layer count and index that fitted best (two
         # layers at least), on databases of its own: those of the phases before are let go (a
         # phase that needs one again reads it from the cache).
         searched.clear()
         count = max(leading.structure.layers, 2)
-        _base_search(settings, leading.optics.n, [structure for structure in structures if structure.layers == count],
+        search_base(settings, leading.optics.n, [structure for structure in structures if structure.layers == count],
                      candidates, try_structures, lambda fraction: (len(choices) + 1 + fraction) * share)
-    if refine and (leading := _best(candidates)):
+    if refine and (leading := best_candidate(candidates)):
         searched.clear()
-        _refine_scattering(settings, leading, bins, candidates, try_structures, (len(choices) + 1 + base_search) * share,
+        refine_scattering(settings, leading, bins, candidates, try_structures, (len(choices) + 1 + base_search) * share,
                            share)
-    best = _best(candidates)
+    best = best_candidate(candidates)
     if best is None:
         raise InversionError("too few rings stand out of the noise (E >= 3 sigma) to fit these layers")
     usable = [c for c in candidates if math.isfinite(c.bic)]
@@ -242,7 +225,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     # chosen one and its rivals, the one that fits best with every photon is reported, by the joint
     # fits' chi-square when every one has one (it weighs the noise common to the channels as such).
     together = all(fit.joint is not None for fit in fitted)
-    chosen = min(fitted, key=lambda fit: _bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
+    chosen = min(fitted, key=lambda fit: bic(*fit.misfit(together), fit.candidate.structure, fit.candidate.mus))
     (_, _, mus, structure, optics), fits, joint, forward = chosen
     if all(fit.used <= structure.layers for fit in fits):
         raise InversionError(f"no channel has more rings than layers that stand out of the noise (E >= 3 sigma) "
@@ -296,157 +279,12 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                      time.perf_counter() - start)
 
 
-def _best(candidates: list[Candidate]) -> Candidate | None:
-    """The candidate of lowest BIC, or None when no fit succeeded."""
-    return min((c for c in candidates if math.isfinite(c.bic)), key=lambda c: c.bic, default=None)
-
-
-def _bic(chi2: float, points: int, structure: Structure, mus) -> float:
-    """The Bayesian information criterion of a fit of ``points`` rings (every channel's): each
-    channel's absorption per layer is an unknown, and a base with a scattering of its own
-    (``mus`` a tuple) one more; infinite for a fit that failed."""
-    unknowns = 3 * structure.layers + (1 if isinstance(mus, tuple) else 0)
-    return chi2 + unknowns * math.log(max(points, 1)) if math.isfinite(chi2) else math.inf
-
-
-def _base_search(settings: InversionSettings, n: float, structures: list[Structure], candidates: list[Candidate],
-                 try_structures, fraction_done: Callable[[float], float]) -> None:
-    """Try structures of two or more layers again with a base that scatters otherwise than the
-    layers above: every pair of scatterings of :data:`MUS_GRID` on those of ``structures`` with even
-    boundaries, then every other one with the pair that fitted best. A thin upper layer over a base
-    that scatters otherwise (skin over flesh) is the common case; one scattering for all may then
-    fit a wrong structure as well as the right one, with regions that leave out the truth, or fit
-    none. ``try_structures`` adds its quick fits to ``candidates``; every database has index ``n``."""
-    def trial(structure: Structure, common: float, base: float):
-        return (structure, _base_optics(settings, common, base, structure.starts[-1], n),
-                (common,) * (structure.layers - 1) + (base,))
-
-    scouts = _scouts([structure for structure in structures if structure.layers > 1])
-    first = len(candidates)
-    try_structures([trial(structure, common, base) for common in MUS_GRID for base in MUS_GRID if base != common
-                    for structure in scouts], fraction_done(0.0),
-                   "fitting structures with a base that scatters otherwise", fraction_done(0.5) - fraction_done(0.0))
-    chosen = _best(candidates[first:])
-    if chosen is None:
-        return
-    common, base = chosen.mus[0], chosen.mus[-1]
-    rest = [structure for structure in structures if structure.layers > 1 and structure not in scouts]
-    try_structures([trial(structure, common, base) for structure in rest], fraction_done(0.5),
-                   f"fitting every structure with mus {common:g} over a base of {base:g}",
-                   fraction_done(1.0) - fraction_done(0.5))
-
-
-def _refine_scattering(settings: InversionSettings, leading: Candidate, bins: int, candidates: list[Candidate],
-                       try_structures, first: float, share: float) -> None:
-    """Refine the ``leading`` candidate's scattering between the values of :data:`MUS_GRID`
-    (factors of 2 apart) together with its boundaries, by a local search: at each step of
-    :data:`REFINE_STEPS`, the moves are its common scattering and (when it has one) its base's that
-    factor lower or higher, and each searched boundary one depth bin up or down (within ``bins``); the best
-    move that fits better is taken, at most :data:`REFINE_MOVES` times a step (progress from
-    ``first``, a ``share`` a step). A sample whose
-    scattering lies between grid values otherwise fits a nearby value, often with a boundary moved
-    to make up for it (layers3, base 1.5 and boundaries 2, 5: fitted at base 1 with 2, 4, the middle
-    layer 0.067 off in xy and its truth outside its region)."""
-    n = leading.optics.n
-    current = leading
-    tried = {(c.structure, c.mus) for c in candidates}
-    for number, step in enumerate(REFINE_STEPS):
-        for move in range(REFINE_MOVES):
-            trials = [trial for trial in _moves(settings, current, step, bins, n) if (trial[0], trial[2]) not in tried]
-            tried.update((trial[0], trial[2]) for trial in trials)
-            if not trials:
-                break
-            start = len(candidates)
-            try_structures(trials, first + (number + move / REFINE_MOVES) * share,
-                           f"refining the scattering and boundaries (factor {step:.3g})", share / REFINE_MOVES)
-            moved = min([current, *candidates[start:]], key=lambda c: c.bic)
-            if moved is current:
-                break
-            current = moved
-
-
-def _moves(settings: InversionSettings, current: Candidate, step: float, bins: int, n: float):
-    """``(structure, optics, mus)`` of each move of :func:`_refine_scattering` from ``current``."""
-    structure = current.structure
-    common, base = (current.mus[0], current.mus[-1]) if isinstance(current.mus, tuple) else (current.mus,) * 2
-    own_base = isinstance(current.mus, tuple)
-    pairs = [(_rounded(common * factor), _rounded(base * factor) if not own_base else base)
-             for factor in (1 / step, step)]
-    if own_base:
-        pairs += [(common, _rounded(base * factor)) for factor in (1 / step, step)]
-    structures = [structure]
-    cuts = list(structure.starts[1:]) if settings.boundaries is None else []  # given boundaries stay
-    for k in range(len(cuts)):
-        for shift in (-1, 1):
-            moved = cuts[:k] + [cuts[k] + shift] + cuts[k + 1:]
-            if all(0 < a < b for a, b in zip([0, *moved], moved)) and moved[-1] < bins:
-                structures.append(Structure((0, *moved)))
-    moves = [(structure, first, last) for first, last in pairs]
-    moves += [(other, common, base) for other in structures[1:]]
-    for other, first, last in moves:
-        if first == last or other.layers == 1:
-            yield other, database_optics(settings, first, n), first
-        else:
-            yield other, _base_optics(settings, first, last, other.starts[-1], n), (first,) * (other.layers - 1) + (last,)
-
-
-def _rounded(mus: float) -> float:
-    """``mus`` to 4 significant digits (as reports print it)."""
-    return float(f"{mus:.4g}")
-
-
 def _mus_text(mus) -> str:
     return ", ".join(f"{m:g}" for m in np.atleast_1d(mus))
 
 
 def _optics_text(optics: SlabOptics, mus) -> str:
     return f"mus {_mus_text(mus)}, n {optics.n:g}"
-
-
-def database_optics(settings: InversionSettings, mus, n: float | None = None) -> SlabOptics:
-    """The white database's optics at index ``n`` (default: ``settings.n``): per-layer scattering
-    over the given boundaries, or a common one over :data:`SEARCH_BINS` bins (more when a given
-    boundary lies deeper: a bin per grid step down to the last boundary, then the base)."""
-    n = settings.n if n is None else n
-    if isinstance(mus, tuple):
-        edges = [0, *settings.boundaries]
-        bins = []
-        for k, top in enumerate(edges):
-            bottom = edges[k + 1] if k + 1 < len(edges) else top + 1
-            bins += [mus[k]] * (bottom - top)
-        return _optics(settings, bins, n)
-    deepest = settings.boundaries[-1] + 1 if settings.boundaries else 0
-    return _optics(settings, [mus] * max(SEARCH_BINS, deepest), n)
-
-
-def _base_optics(settings: InversionSettings, common: float, base: float, top: int, n: float) -> SlabOptics:
-    """A database's optics at index ``n`` for a structure whose base, from bin ``top`` down,
-    scatters with ``base`` and every bin above with ``common``."""
-    return _optics(settings, [common if b < top else base for b in range(max(SEARCH_BINS, top + 1))], n)
-
-
-def _optics(settings: InversionSettings, bins, n: float) -> SlabOptics:
-    """Optics of scattering ``bins`` per depth bin at index ``n``, with ``settings``' g and depth."""
-    if n is None:
-        raise ValueError("a white database needs a refractive index")
-    return SlabOptics(tuple(float(m) for m in bins), settings.anisotropy, float(n), settings.depth, REACH)
-
-
-def _structures(settings: InversionSettings, bins: int, most_layers: int):
-    """Every structure to try, of at most ``most_layers`` layers when their count is searched."""
-    if settings.boundaries is not None:
-        yield Structure((0, *settings.boundaries))
-        return
-    counts = [settings.layers] if settings.layers is not None else range(1, min(MAX_LAYERS, most_layers) + 1)
-    for count in counts:
-        for cut in itertools.combinations(range(1, bins), count - 1):
-            yield Structure((0, *cut))
-
-
-def _scouts(structures: list[Structure]) -> list[Structure]:
-    """The structures whose boundaries all lie at even depths (all of them if none does)."""
-    even = [structure for structure in structures if all(b % 2 == 0 for b in structure.starts[1:])]
-    return even or structures
 
 
 def _thinned(database, share: int):

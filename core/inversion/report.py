@@ -15,7 +15,8 @@ from ..dataset.impulse_dataset import ImpulseDataset
 from .layer_colour import region_contains
 from .limit import TOLERANCE_XY
 from ..phases import phase
-from .layers import REACH, Inversion, Progress, invert
+from .layers import Inversion, Progress, invert
+from .search import REACH
 from .settings import InversionSettings
 from .measured import measured_profile
 
@@ -38,7 +39,7 @@ class DatasetInversion:
 
 def profile_radii(dataset: ImpulseDataset) -> np.ndarray:
     """Radii 0, 1, ... whose rings (thickness 1) lie within the dataset's max_radius and within the
-    white databases' :data:`~.layers.REACH` (rings to r = 13 at most).
+    white databases' :data:`~.search.REACH` (rings to r = 13 at most).
 
     A capture at the paper's scale (max_radius 24) has rings beyond what a database keeps. They add
     little: fitted without error at 0.1 % noise per ring (``tools/inversion_limit.py``, 80 000 white
