@@ -173,10 +173,29 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
     result[7] = status
 
 
+@numba.njit(cache=True, inline="always")
+def _normal_equations(measured, sigma, used, values, slopes):
+    """``(A_uu, A_uv, A_vv, b_u, b_v)``: ``A = J^T W J`` and ``b = J^T W (measured - model)`` over the
+    rings ``used``, with the model ``values`` (R,) and its log-slopes ``slopes`` (R, 2) at the fit."""
+    a_uu = a_uv = a_vv = b_u = b_v = 0.0
+    for r in range(measured.shape[0]):
+        if used[r]:
+            model = values[r]
+            weight = 1.0 / (sigma[r] * sigma[r])
+            j_u = model * slopes[r, 0]
+            j_v = model * slopes[r, 1]
+            residual = measured[r] - model
+            a_uu += weight * j_u * j_u
+            a_uv += weight * j_u * j_v
+            a_vv += weight * j_v * j_v
+            b_u += weight * j_u * residual
+            b_v += weight * j_v * residual
+    return a_uu, a_uv, a_vv, b_u, b_v
+
+
 @numba.njit(cache=True)
 def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes):
     """Minimise chi2 from (u, v). Returns (status, u, v, A_uu, A_uv, A_vv, chi2), A = J^T W J."""
-    rings = measured.shape[0]
     low_u = u0 + 1.0 * du
     high_u = u0 + (log_profile.shape[0] - 2.0) * du - 1e-9
     low_v = v0 + 1.0 * dv
@@ -188,19 +207,7 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
     a_uu = a_uv = a_vv = 0.0
     status = NOT_CONVERGED
     for _ in range(MAX_ITERATIONS):
-        a_uu = a_uv = a_vv = b_u = b_v = 0.0
-        for r in range(rings):
-            if used[r]:
-                model = values[r]
-                weight = 1.0 / (sigma[r] * sigma[r])
-                j_u = model * slopes[r, 0]
-                j_v = model * slopes[r, 1]
-                residual = measured[r] - model
-                a_uu += weight * j_u * j_u
-                a_uv += weight * j_u * j_v
-                a_vv += weight * j_v * j_v
-                b_u += weight * j_u * residual
-                b_v += weight * j_v * residual
+        a_uu, a_uv, a_vv, b_u, b_v = _normal_equations(measured, sigma, used, values, slopes)
         # Converged when the Gauss-Newton step itself is below the tolerance: no trial (near the
         # minimum a trial's chi2 differs from the current one by rounding only, and was refused
         # a dozen times, most of a fit's time).
@@ -245,16 +252,7 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
             break
     if status == CONVERGED:
         # The curvature at the minimum (values and slopes are at (u, v) now).
-        a_uu = a_uv = a_vv = 0.0
-        for r in range(rings):
-            if used[r]:
-                model = values[r]
-                weight = 1.0 / (sigma[r] * sigma[r])
-                j_u = model * slopes[r, 0]
-                j_v = model * slopes[r, 1]
-                a_uu += weight * j_u * j_u
-                a_uv += weight * j_u * j_v
-                a_vv += weight * j_v * j_v
+        a_uu, a_uv, a_vv, _, _ = _normal_equations(measured, sigma, used, values, slopes)
         edge = 1e-6
         if u <= low_u + edge or u >= high_u - edge or v <= low_v + edge or v >= high_v - edge:
             status = AT_EDGE
