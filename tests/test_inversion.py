@@ -33,6 +33,9 @@ from ringlight.core.simulate.tables import walk_tables
 
 from reference import assert_slopes_are_central_differences, write_dataset
 
+# The final white runs these tests' figures were set at (the default, 1 000 000 photons, costs CI
+# a minute a fit: the evaluation tools and the docs hold its figures).
+FINAL_PHOTONS = 200_000
 RADII = np.arange(0.0, 10.0)
 REACH = 13
 
@@ -101,7 +104,8 @@ def layers3_sample(shared_cache, place_sample):
         return sample_dataset("layers3")
 
 
-LAYERS3 = InversionSettings(boundaries=(2, 5), mus=(0.5, 0.5, 1.5), n=1.3, g=0.0, depth=24.0, photons=20_000)
+LAYERS3 = InversionSettings(boundaries=(2, 5), mus=(0.5, 0.5, 1.5), n=1.3, g=0.0, depth=24.0, photons=20_000,
+                            final_photons=FINAL_PHOTONS)
 
 
 def test_layers3_sample_top_and_middle_recovered_base_honestly_undetermined(layers3_sample, shared_cache, monkeypatch):
@@ -197,7 +201,7 @@ def test_the_noise_weighted_pass_leaves_a_false_minimum(shared_cache, monkeypatc
     0.021) at chi-square 24.8, against 11.2 at the truth (0.005, 0.1). It must reach at least as low
     as the truth, and there."""
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
-    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000)
+    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000, final_photons=FINAL_PHOTONS)
     database = white_database(database_optics(settings, settings.mus), settings.photons)
     radii = np.arange(12.0)
     forward = Forward(database, Structure((0, 2)), radii, ring_weights=edge_ring_weights(24, 24, radii, 12))
@@ -230,7 +234,8 @@ def test_structure_search_finds_the_boundary_of_a_two_layer_slab():
     mua = [[0.3, 0.05, 0.01], [0.01, 0.02, 0.2]]
     mean, error = direct_profile([1.0, 1.0], mua, [0, 3], 0.0, 1.4, 24.0, 30_000, seed=5)
     measured = MeasuredProfile(RADII, mean, error, 1)
-    settings = InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=20_000)
+    settings = InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=20_000,
+                                 final_photons=FINAL_PHOTONS)
     inversion = invert(measured, settings)
     assert "boundaries [3] (searched)" in inversion.notes
     assert inversion.warning is None
@@ -319,7 +324,7 @@ def test_the_fit_finds_a_strongly_absorbing_top_over_a_clear_base_not_the_mirror
     opaque; chi-square 1900 against 70 at the truth); the start grid must find the truth."""
     mua = [[0.005, 0.2, 0.25], [0.1, 0.03, 0.005]]
     mean, error = direct_profile([0.5, 2.0], mua, [0, 2], 0.0, 1.4, 24.0, 20_000, seed=5)
-    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000)
+    settings = InversionSettings(2, (2,), (0.5, 2.0), 1.4, 0.0, 24.0, photons=20_000, final_photons=FINAL_PHOTONS)
     inversion = invert(MeasuredProfile(RADII, mean, error, 1), settings)
     top, base = inversion.layers
     np.testing.assert_allclose(top.mua, mua[0], rtol=0.1, atol=0.005)
@@ -342,14 +347,16 @@ def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache
     mua = [[0.005, 0.2, 0.25], [0.1, 0.03, 0.005]]
     mean, error = direct_profile([0.5, 2.0], mua, [0, 2], 0.0, 1.4, 24.0, 20_000, seed=7)
     measured = MeasuredProfile(RADII, mean, error, 1)
-    searched = invert(measured, InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=10_000))
+    searched = invert(measured, InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=10_000,
+                                                  final_photons=FINAL_PHOTONS))
     assert "boundaries [2] (searched), mus 0.5, 2 (chosen from" in searched.notes
     assert searched.warning is None
     for layer, truth, mus in zip(searched.layers, mua, (0.5, 2.0)):
         truth_xy = chromaticity(thick_slab_reflectance(np.full(3, mus), np.array(truth), 0.0, 1.4), "sRGB")
         assert region_contains(layer.region, truth_xy)
         assert layer.determined and np.hypot(*(layer.xy - truth_xy)) < 0.03
-    common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000))
+    common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000,
+                                                final_photons=FINAL_PHOTONS))
     assert common.chi2 > 10 * common.dof and "does not fit" in common.warning
 
 
@@ -417,7 +424,8 @@ def test_a_boundary_deeper_than_a_search_reaches_is_fitted_with_a_common_scatter
     direct simulator's profile holds the truth in each layer's region and finds the top's colour."""
     mua = [[0.02, 0.1, 0.3], [0.3, 0.05, 0.01]]
     mean, error = direct_profile([1.0, 1.0], mua, [0, 10], 0.0, 1.4, 24.0, 20_000, seed=9)
-    settings = InversionSettings(boundaries=(10,), mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000)
+    settings = InversionSettings(boundaries=(10,), mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000,
+                                 final_photons=FINAL_PHOTONS)
     assert database_optics(settings, 1.0).bins == 11
     inversion = invert(MeasuredProfile(RADII, mean, error, 1), settings)
     assert inversion.warning is None

@@ -19,12 +19,12 @@ from ringlight.core.dataset.manifest import read_manifest
 from ringlight.core.dataset.sample import Sample
 from ringlight.core.errors import DatasetError
 from ringlight.core.inversion import fit as fit_module
-from ringlight.core.inversion.fit import JOINT_CHI2, PROFILE_TOLERANCE, RELATIVE_FLOOR
+from ringlight.core.inversion.fit import JOINT_CHI2, PROFILE_TOLERANCE, RELATIVE_FLOOR, fit_channels
 from ringlight.core.inversion.forward import Forward, Structure
 from ringlight.core.inversion.joint import ELLIPSE_CHI2
 from ringlight.core.inversion.layer_colour import joined, region_contains
 from ringlight.core.inversion.layers import invert
-from ringlight.core.inversion.limit import allowed_width, data_limits, log_absorption_covariance
+from ringlight.core.inversion.limit import ExactForward, allowed_width, data_limits, log_absorption_covariance
 from ringlight.core.inversion.measured import MeasuredProfile
 from ringlight.core.inversion.settings import N_GRID, InversionSettings, settings_from_text
 from ringlight.core.inversion.white_mc import SlabOptics, run_white
@@ -32,7 +32,7 @@ from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
 from ringlight.core.simulate.samples import sample_dataset
 
 from reference import write_dataset
-from test_inversion import RADII, direct_profile
+from test_inversion import FINAL_PHOTONS, RADII, direct_profile
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,8 @@ def test_the_index_is_found_from_the_data_and_the_truth_lies_in_every_region(tru
     mua = [[0.3, 0.05, 0.01], [0.01, 0.03, 0.2]]
     mean, error = direct_profile([1.0, 1.0], mua, [0, 3], 0.0, truth_n, 24.0, 40_000, seed=11)
     measured = MeasuredProfile(RADII, mean, error, 1)
-    searched = invert(measured, InversionSettings(2, (3,), 1.0, None, 0.0, 24.0, photons=20_000))
+    searched = invert(measured, InversionSettings(2, (3,), 1.0, None, 0.0, 24.0, photons=20_000,
+                                                  final_photons=FINAL_PHOTONS))
     assert f", n {truth_n:g} (chosen from" in searched.notes
     assert searched.warning is None
     truths = chromaticity(np.array([thick_slab_reflectance(np.ones(3), np.array(row), 0.0, truth_n) for row in mua]),
@@ -114,7 +115,8 @@ def test_the_index_is_found_from_the_data_and_the_truth_lies_in_every_region(tru
         assert region_contains(layer.region, truth_xy)
         assert layer.determined and np.hypot(*(layer.xy - truth_xy)) < 0.02
     wrong = 1.4 if truth_n == 1.0 else 1.0
-    assumed = invert(measured, InversionSettings(2, (3,), 1.0, wrong, 0.0, 24.0, photons=20_000))
+    assumed = invert(measured, InversionSettings(2, (3,), 1.0, wrong, 0.0, 24.0, photons=20_000,
+                                                 final_photons=FINAL_PHOTONS))
     assumed_error = np.hypot(*(assumed.layers[0].xy - truths[0]))
     assert assumed.warning is not None or assumed_error > np.hypot(*(searched.layers[0].xy - truths[0]))
 
@@ -270,3 +272,26 @@ def test_a_region_joins_the_ellipse_the_data_allow_and_is_never_narrower_than_it
         np.testing.assert_allclose(limit.ellipse.mean(axis=0), xy[k], atol=1e-12)
         tiny = xy[k] + np.array([[0.0, 0.0], [1e-4, 0.0], [0.0, 1e-4]])
         assert np.ptp(joined(tiny, limit.ellipse), axis=0).max() >= width * (1 - 1e-6)  # hulls are float32
+
+
+def test_the_exact_model_interval_is_where_the_data_chi_square_alone_rises_by_the_threshold():
+    """The width the data allow comes from fits with the model taken as exact (no white-run
+    variance): a one-layer channel's interval is where the chi-square of the data's noise alone,
+    scanned on a fine grid of log absorption (brute force), rises JOINT_CHI2 above its minimum (the
+    ends taken at most PROFILE_TOLERANCE outward, or at a confirmed Wald end just beyond); with the
+    white run's 8000-photon noise it is wider."""
+    optics = SlabOptics((1.0,) * 5, 0.0, 1.3, 16.0, 13)
+    forward = Forward(run_white(optics, 8000, seed=4), Structure((0,)), np.arange(0.0, 8.0))
+    clean = forward.profile(np.array([0.05]))
+    error = 0.01 * clean
+    measured = clean * (1.0 + 0.01 * np.random.default_rng(3).standard_normal(clean.shape))
+    exact = fit_channels(ExactForward(forward), measured[:, None], error[:, None], floor=0.0)[0]
+    assert exact.used == 8
+    theta = np.linspace(math.log(0.05) - 0.6, math.log(0.05) + 0.6, 6001)
+    chi2 = np.array([np.sum(((np.log(measured) - np.log(forward.profile(np.exp([t])))) / (error / measured)) ** 2)
+                     for t in theta])
+    inside = theta[chi2 <= chi2.min() + JOINT_CHI2]
+    low, high = np.log(exact.interval[0])
+    assert inside[0] - 0.02 <= low <= inside[0] + 2e-4 and inside[-1] - 2e-4 <= high <= inside[-1] + 0.02
+    noisy = fit_channels(forward, measured[:, None], error[:, None], floor=0.0)[0]
+    assert np.ptp(np.log(noisy.interval[0])) > np.ptp(np.log(exact.interval[0]))

@@ -8,11 +8,13 @@ misplaced its top layer's colour by 0.041 xy). The structure (layer boundaries, 
 down to :data:`~.settings.SEARCH_BINS` - 1) is given or searched by chi-square; the number of layers is given
 or chosen by BIC. The scattering is given (common or per layer) or chosen from :data:`MUS_GRID`:
 common to every layer, or one for the layers above and another for the base (:func:`.search.search_base`),
-by BIC. The search compares quick per-channel fits (:mod:`.fit`) on thinned databases; the chosen
-structure and those that fit about as well are fitted again, each with a white run of its own of
-ten times the photons tallied in cells (:mod:`.white_cells`), per channel and with the channels
-together (:mod:`.joint`), and the one whose joint fit is best by BIC is reported. Each
-layer's colour and its two-sigma region in xy: :mod:`.layer_colour`.
+by BIC. The search compares quick per-channel fits (:mod:`.fit`) on thinned databases; its choice,
+the structures that fit about as well and the choice's boundary neighbours are ranked again by
+quick fits with a white run of their own of :attr:`~.settings.InversionSettings.final_photons`
+tallied in cells (:mod:`.finalists`, :mod:`.white_cells`); the best of those and the ones that fit
+about as well are fitted fully, per channel and with the channels together (:mod:`.joint`), and
+the one whose joint fit is best by BIC is reported. Each layer's colour and its two-sigma region
+in xy: :mod:`.layer_colour`.
 """
 
 from __future__ import annotations
@@ -30,10 +32,11 @@ from .fit import JOINT_CHI2, ChannelFit, fit_channels
 from .forward import Forward, weights_reach
 from .joint import JointFit, fit_jointly
 from .layer_colour import InvertedLayer, joined, layer_colours, widened
-from .limit import data_limits, limit_reason
+from .limit import data_limits, exact_regions, limit_reason
 from .measured import MeasuredProfile
 from .settings import MUS_GRID, N_GRID, InversionError, InversionSettings
 from .white_cells import CellForward, cell_database
+from .finalists import screen
 from .search import (REACH, REFINE_STEPS, Candidate, all_structures, best_candidate, bic, database_optics,
                      refine_scattering, scout_structures, search_base)
 from .white_mc import SlabOptics, WhiteDatabase, white_database
@@ -164,7 +167,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     structures = list(all_structures(settings, bins, rings - 1))
     base_search = settings.mus is None and any(structure.layers > 1 for structure in structures)
     refine = len(REFINE_STEPS) if settings.mus is None else 0  # a share for each step
-    share = 1.0 / (len(choices) + 2 + base_search + refine)
+    screening = len(structures) > 1 or len(choices) > 1  # more than one model: screened with every photon
+    share = 1.0 / (len(choices) + 2 + base_search + refine + screening)
     for index, (n, mus) in enumerate(choices):
         optics = database_optics(settings, mus, n)
         what = f"white Monte Carlo for {_optics_text(optics, mus)}"
@@ -206,9 +210,18 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
                      and (c.structure, c.optics) != (best.structure, best.optics)), key=lambda c: c.chi2)
     rivals = [c for c in rivals if c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     searched.clear()  # the structures fitted at the end get white runs of their own
+    screened = []
+    if screening:
+        # The quick fits' own noise can rank neighbouring structures wrongly: the choice, its rivals
+        # and its boundary neighbours are ranked again with every photon (:mod:`.finalists`).
+        screened = screen(settings, [best, *rivals], bins, measured, report,
+                          (len(choices) + 1 + base_search + refine) * share, share)
+        best = screened[0]
+        rivals = [c for c in screened[1:] if c.structure.layers == best.structure.layers
+                  and c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
     fitted = []
     for number, candidate in enumerate([best, *rivals]):
-        done = (len(choices) + 1 + base_search + refine + number / (len(rivals) + 1)) * share
+        done = (len(choices) + 1 + base_search + refine + screening + number / (len(rivals) + 1)) * share
         what = (f"white Monte Carlo of {settings.final_photons} photons for "
                 f"{'the chosen structure' if not number else 'a structure that fits as well'}")
         report(done, what)
@@ -239,7 +252,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     fitted_mua = joint.mua if joint is not None else np.array([f.mua for f in fits])
     limits = data_limits(forward, fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
                          colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
-                         measured.covariance, np.array([layer.xy for layer in layers]))
+                         measured.covariance, np.array([layer.xy for layer in layers]),
+                         exact_regions(forward, measured.mean, measured.standard_error, colorspace, measured.floor))
     # A region is never narrower than what the data alone allow (where that is quadratic).
     layers = [replace(layer, region=joined(layer.region, limit.ellipse), allowed_width=limit.width,
                       limit=limit_reason(limit.width)) for layer, limit in zip(layers, limits)]
@@ -263,7 +277,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"{searched_mus if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {forward.database.photons} white "
-             f"photons (the search's {settings.photons} each)"
+             f"photons (the search's {settings.photons} each"
+             + (f"; {len(screened)} model(s) ranked again with every photon" if screened else "") + ")"
              + (f"; regions also span {len(rivals)} other model(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
                 + (f" (n {', '.join(f'{n:g}' for n in other_indices)} among them)" if other_indices else "")
                 if rivals else "")

@@ -102,9 +102,9 @@ def inversion_document(result: DatasetInversion, dataset_path: str) -> dict:
                 "warning": inversion.warning, "seconds": round(inversion.seconds, 2)},
         "uncertainty": ("two-sigma (95.4 %) region of the three channels together: the per-channel profile-likelihood "
                         "region, joined with the joint fit's ellipse where its chi-square is close to quadratic; "
-                        "see ringlight.core.inversion.layer_colour. xy_width_the_data_allow: the two-sigma width "
-                        "from the Fisher information of the fitted model at the data's noise alone (replicates' "
-                        "spread, or ring spread and floor) "
+                        "see ringlight.core.inversion.layer_colour. xy_width_the_data_allow: the width of the "
+                        "same two-sigma region with the fitted model taken as exact, at the data's noise alone "
+                        "(replicates' spread, or ring spread and floor): no white-run noise, no rival models "
                         f"(ringlight.core.inversion.limit); within_tolerance: it is at most {TOLERANCE_XY:g}"),
         "profile": {"radii": finite_or_none(inversion.measured.radii),
                     "measured": [finite_or_none(row) for row in inversion.measured.mean],

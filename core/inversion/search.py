@@ -104,27 +104,40 @@ def refine_scattering(settings: InversionSettings, leading: Candidate, bins: int
 
 def _moves(settings: InversionSettings, current: Candidate, step: float, bins: int, n: float):
     """``(structure, optics, mus)`` of each move of :func:`refine_scattering` from ``current``."""
-    structure = current.structure
-    common, base = (current.mus[0], current.mus[-1]) if isinstance(current.mus, tuple) else (current.mus,) * 2
+    common, base = _common_and_base(current.mus)
     own_base = isinstance(current.mus, tuple)
     pairs = [(_rounded(common * factor), _rounded(base * factor) if not own_base else base)
              for factor in (1 / step, step)]
     if own_base:
         pairs += [(common, _rounded(base * factor)) for factor in (1 / step, step)]
-    structures = [structure]
-    cuts = list(structure.starts[1:]) if settings.boundaries is None else []  # given boundaries stay
+    for first, last in pairs:
+        yield _trial(settings, current.structure, first, last, n)
+    yield from boundary_moves(settings, current, bins)
+
+
+def boundary_moves(settings: InversionSettings, current: Candidate, bins: int):
+    """``(structure, optics, mus)`` of ``current`` with one searched boundary a depth bin up or down
+    (within ``bins``; none when the boundaries are given), its scattering and index kept."""
+    common, base = _common_and_base(current.mus)
+    cuts = list(current.structure.starts[1:]) if settings.boundaries is None else []  # given boundaries stay
     for k in range(len(cuts)):
         for shift in (-1, 1):
             moved = cuts[:k] + [cuts[k] + shift] + cuts[k + 1:]
-            if all(0 < a < b for a, b in zip([0, *moved], moved)) and moved[-1] < bins:
-                structures.append(Structure((0, *moved)))
-    moves = [(structure, first, last) for first, last in pairs]
-    moves += [(other, common, base) for other in structures[1:]]
-    for other, first, last in moves:
-        if first == last or other.layers == 1:
-            yield other, database_optics(settings, first, n), first
-        else:
-            yield other, base_optics(settings, first, last, other.starts[-1], n), (first,) * (other.layers - 1) + (last,)
+            if all(a < b for a, b in zip([0, *moved], moved)) and moved[-1] < bins:
+                yield _trial(settings, Structure((0, *moved)), common, base, current.optics.n)
+
+
+def _common_and_base(mus) -> tuple[float, float]:
+    """The scattering of the upper layers and of the base of a candidate's ``mus``."""
+    return (mus[0], mus[-1]) if isinstance(mus, tuple) else (mus, mus)
+
+
+def _trial(settings: InversionSettings, structure: Structure, common: float, base: float, n: float):
+    """``(structure, optics, mus)``: ``structure`` scattering ``common`` over a base of ``base``."""
+    if common == base or structure.layers == 1:
+        return structure, database_optics(settings, common, n), common
+    return (structure, base_optics(settings, common, base, structure.starts[-1], n),
+            (common,) * (structure.layers - 1) + (base,))
 
 
 def _rounded(mus: float) -> float:
