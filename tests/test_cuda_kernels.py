@@ -1,0 +1,68 @@
+"""The CUDA kernels against the CPU kernels: on a GPU when this machine has one, else in numba's
+CUDA simulator (tiny problems: it runs each thread in Python). Run by :mod:`cuda_cases`."""
+
+import numpy as np
+import pytest
+from cuda_cases import run_case
+from numpy.testing import assert_allclose
+from reference import random_impulses, write_dataset
+from ringlight.core import open_dataset
+from ringlight.core.device import DeviceError, choose_device, cuda_device, simulator_enabled
+from ringlight.core.optics import radial
+from ringlight.core.rings.stacks import ring_and_transient_stacks
+
+
+def cuda_case(case, tmp_path, argument=""):
+    arrays = run_case(case, tmp_path / f"{case}.npz", argument)
+    if arrays is None:
+        pytest.skip("numba's CUDA simulator is not available")
+    return arrays
+
+
+def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
+    # Thread t walks stream (seed, t) with the same compiled steps: the CPU's block kernel on
+    # streams 0..3 makes the same cell sums (up to the order of the additions). 12 photons are
+    # rounded up as the CPU rounds them (whole blocks: 16), 4 on each stream.
+    gpu = cuda_case("radial", tmp_path)
+    assert int(gpu["photons"]) == radial.traced_photons(12) == 16
+    weight, rho_sum, path_sum = (np.zeros((radial.RHO_CELLS, radial.PATH_CELLS)) for _ in range(3))
+    for stream in range(4):
+        radial._radial_block(0.5, 1.4, radial.LONGEST / 0.5, 4, 3, stream, weight, rho_sum, path_sum)
+    assert weight.sum() > 0
+    assert_allclose(gpu["weight"], weight, rtol=1e-12, atol=1e-18)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert_allclose(gpu["rho"], np.where(weight > 0, rho_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
+        assert_allclose(gpu["path"], np.where(weight > 0, path_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
+
+
+def test_stack_kernel_equals_the_cpu_stacks(tmp_path):
+    # A 6 x 7 dataset with missing points: the gather kernel's ring and transient images against
+    # core.rings' (same sums in another order: float32 rounding), NaN in the same places.
+    rng = np.random.default_rng(4)
+    impulses = random_impulses(rng, 6, 7, support=40, missing=0.2)
+    write_dataset(tmp_path / "ds", 6, 7, impulses)
+    gpu = cuda_case("stacks", tmp_path, str(tmp_path / "ds"))
+    ring, transient = ring_and_transient_stacks(open_dataset(tmp_path / "ds", radius=4.5), np.arange(4.0), 1.0)
+    for name, cpu in (("ring", ring.images), ("transient", transient.images)):
+        assert np.array_equal(np.isnan(gpu[name]), np.isnan(cpu))
+        assert np.isnan(cpu).any() and not np.isnan(cpu).all()
+        assert_allclose(np.nan_to_num(gpu[name]), np.nan_to_num(cpu), rtol=1e-5, atol=1e-7)
+    assert np.array_equal(gpu["counts"], ring.counts)
+
+
+def test_cuda_device_is_the_gpu_or_the_simulator_and_auto_never_the_simulator(tmp_path):
+    arrays = cuda_case("device", tmp_path)
+    usable = cuda_device()
+    assert str(arrays["name"]) == (usable.name if usable is not None else "CUDA simulator")
+    assert str(arrays["auto"]) == ("cuda" if usable is not None else "cpu")
+
+
+@pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
+def test_without_a_gpu_auto_is_the_cpu_and_cuda_a_one_line_error():
+    assert choose_device("auto").kind == "cpu"
+    assert choose_device("cpu").name.startswith("CPU (")
+    with pytest.raises(DeviceError, match="^--device cuda: no usable NVIDIA GPU") as error:
+        choose_device("cuda")
+    assert "\n" not in str(error.value)
+    with pytest.raises(DeviceError, match="unknown device 'gpu'"):
+        choose_device("gpu")
