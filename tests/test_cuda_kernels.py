@@ -66,3 +66,19 @@ def test_without_a_gpu_auto_is_the_cpu_and_cuda_a_one_line_error():
     assert "\n" not in str(error.value)
     with pytest.raises(DeviceError, match="unknown device 'gpu'"):
         choose_device("gpu")
+
+
+def test_stack_command_says_which_device_summed_the_rings(tmp_path, capsys):
+    from ringlight.app.main import main
+
+    impulses = random_impulses(np.random.default_rng(5), 5, 6, support=2.5, missing=0.0)
+    write_dataset(tmp_path / "ds", 5, 6, impulses, max_radius=2.5)
+    assert main(["stack", str(tmp_path / "ds"), "--radii", "0:1:1", "--device", "cpu", "--out",
+                 str(tmp_path / "cpu")]) == 0
+    assert "; rings summed on CPU (" in capsys.readouterr().out
+    # Without a GPU (or with one but together with --interpolate), --device cuda is one line, exit 2.
+    status = main(["stack", str(tmp_path / "ds"), "--radii", "0:1:1", "--device", "cuda", "--interpolate",
+                   "--out", str(tmp_path / "gpu")])
+    error = capsys.readouterr().err
+    assert status == 2 and "--device cuda" in error and "--interpolate" in error
+    assert not (tmp_path / "gpu").exists()
