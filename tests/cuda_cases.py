@@ -27,6 +27,16 @@ def radial(out: Path, argument: str) -> None:
     np.savez(out, weight=run.weight, rho=run.rho, path=run.path, photons=run.photons)
 
 
+def white(out: Path, argument: str) -> None:
+    """The layered slab's white run kernel: 256 photons on 4 streams of seed 2, an index-matched
+    isotropic slab of mus 1 per grid step, 8 grid steps deep, records within 5 pixels."""
+    from ringlight.core.inversion.white_cuda import run_white_cuda
+    from ringlight.core.inversion.white_mc import SlabOptics
+
+    run = run_white_cuda(SlabOptics((1.0,), 0.0, 1.0, 8.0, 5), 256, seed=2, streams=4)
+    np.savez(out, pixel=run.pixel, value=run.value, lengths=run.lengths, photon=run.photon, photons=run.photons)
+
+
 def stacks(out: Path, argument: str) -> None:
     """The ring and transient stacks of the dataset at ``argument`` (radius 4.5), radii 0..3."""
     from ringlight.core import open_dataset
@@ -44,7 +54,7 @@ def device(out: Path, argument: str) -> None:
     np.savez(out, name=choose_device("cuda").name, auto=choose_device("auto").kind)
 
 
-CASES = {"radial": radial, "stacks": stacks, "device": device}
+CASES = {"radial": radial, "white": white, "stacks": stacks, "device": device}
 
 
 def run_case(case: str, out: Path, argument: str = "") -> dict[str, np.ndarray] | None:

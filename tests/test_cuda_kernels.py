@@ -6,8 +6,10 @@ import pytest
 from cuda_cases import run_case
 from numpy.testing import assert_allclose
 from reference import random_impulses, write_dataset
+from test_adding_doubling import chandrasekhar_h_at_one
 from ringlight.core import open_dataset
 from ringlight.core.device import DeviceError, choose_device, cuda_device, simulator_enabled
+from ringlight.core.inversion import white_mc
 from ringlight.core.optics import radial
 from ringlight.core.rings.stacks import ring_and_transient_stacks
 
@@ -33,6 +35,35 @@ def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
     with np.errstate(invalid="ignore", divide="ignore"):
         assert_allclose(gpu["rho"], np.where(weight > 0, rho_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
         assert_allclose(gpu["path"], np.where(weight > 0, path_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
+
+
+def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(tmp_path):
+    gpu = cuda_case("white", tmp_path)
+    # (1) Thread t walks stream (seed 2, t) and its estimator stream, photons 64 t .. 64 t + 63:
+    # the CPU's block kernel on those streams makes the same records in the same order.
+    optics = white_mc.SlabOptics((1.0,), 0.0, 1.0, 8.0, 5)
+    parts = []
+    for stream in range(4):
+        arguments = (np.array(optics.mus), optics.g, optics.n, optics.depth, optics.reach, 64, 64 * stream, 2, stream)
+        count = white_mc._white_block(*arguments, np.zeros(0, np.int32), np.zeros(0, np.float32),
+                                      np.zeros((0, 1), np.float32), np.zeros(0, np.int32))
+        records = (np.zeros(count, np.int32), np.zeros(count, np.float32), np.zeros((count, 1), np.float32),
+                   np.zeros(count, np.int32))
+        white_mc._white_block(*arguments, *records)
+        parts.append(records)
+    pixel, value, lengths, photon = (np.concatenate([part[i] for part in parts]) for i in range(4))
+    assert int(gpu["photons"]) == 256 and len(photon) > 1000
+    assert np.array_equal(gpu["pixel"], pixel) and np.array_equal(gpu["photon"], photon)
+    assert_allclose(gpu["value"], value, rtol=1e-6)
+    assert_allclose(gpu["lengths"], lengths, rtol=1e-6)
+    # (2) Reweighted for absorption mua = mus (albedo 1/2), the records' sum per photon is the
+    # normal radiance of an index-matched isotropic half-space, omega H(1)^2 / 8 (Chandrasekhar
+    # 1960; the same check as the optics table's white run): 0.09785. The slab's depth and reach
+    # cut off below 0.1 % of it (the CPU with 10^5 photons: 0.09793 +- 0.00036). 256 photons
+    # leave a standard error of about 7 % (itself uncertain: the estimates are heavy-tailed).
+    per_photon = np.bincount(gpu["photon"], gpu["value"] * np.exp(-gpu["lengths"][:, 0]), 256)
+    error = per_photon.std() / np.sqrt(256)
+    assert abs(per_photon.mean() - 0.5 * chandrasekhar_h_at_one(0.5) ** 2 / 8) < 3 * error
 
 
 def test_stack_kernel_equals_the_cpu_stacks(tmp_path):

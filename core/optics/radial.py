@@ -164,11 +164,6 @@ def compile_walk(jit, steps: Steps, add):
     return jit(trace_photon)
 
 
-def view_constant(n: float) -> float:
-    """``T_entry pi T_F(0) / n^2``: the beam's entry weight times the camera's view factor."""
-    return (1.0 - CPU.exit_fresnel(n, 1.0)) * (math.pi * (1.0 - CPU.exit_fresnel(n, 1.0)) / (n * n))
-
-
 _CPU_JIT = numba.njit(cache=True, inline="always")
 _trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(add_to_cell))
 

@@ -21,7 +21,8 @@ from numba import cuda, uint64
 
 from ..simulate.steps import cuda_steps
 from ..simulate.streams import seed_state
-from .radial import LONGEST, PATH_CELLS, RHO_CELLS, RadialRun, compile_walk, traced_photons, view_constant
+from ..inversion.white_mc import view_constant
+from .radial import LONGEST, PATH_CELLS, RHO_CELLS, RadialRun, compile_walk, traced_photons
 
 STREAMS = 1 << 16
 """Threads (one random stream each) of a CUDA run: enough to fill a data-centre GPU."""
