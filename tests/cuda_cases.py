@@ -77,9 +77,10 @@ def run_case(case: str, out: Path, argument: str = "") -> dict[str, np.ndarray] 
 
 if __name__ == "__main__":
     try:
-        from numba import cuda  # noqa: F401 - the simulator (or numba-cuda's) must import
+        import numba.cuda  # the simulator (numba's own, or numba-cuda's) must import
     except ImportError:
         sys.exit(UNAVAILABLE)
+    assert numba.cuda.is_available()  # True in the simulator
     # The simulator adds the generator's uint64 words as numpy scalars, whose wrap-around (intended:
     # arithmetic modulo 2^64, as on the device) numpy reports as an overflow.
     warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)

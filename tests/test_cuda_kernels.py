@@ -113,3 +113,17 @@ def test_stack_command_says_which_device_summed_the_rings(tmp_path, capsys):
     error = capsys.readouterr().err
     assert status == 2 and "--device cuda" in error and "--interpolate" in error
     assert not (tmp_path / "gpu").exists()
+
+
+@pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
+@pytest.mark.parametrize("command", [["layers", "DATASET", "--method", "inverse"], ["optics", "DATASET", "--json", "OUT"]])
+def test_device_cuda_without_a_gpu_stops_the_white_runs_commands_in_one_line(tmp_path, capsys, command):
+    from ringlight.app.main import main
+
+    arguments = [str(tmp_path / "out.json") if part == "OUT" else str(tmp_path / "missing") if part == "DATASET"
+                 else part for part in command]
+    assert main([*arguments, "--device", "cuda"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.endswith("--device cuda: no usable NVIDIA GPU (install ringlight[cuda], and check the driver with "
+                          "nvidia-smi)") and "\n" not in error
+    assert not (tmp_path / "out.json").exists()
