@@ -116,7 +116,8 @@ def test_stack_command_says_which_device_summed_the_rings(tmp_path, capsys):
 
 
 @pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
-@pytest.mark.parametrize("command", [["layers", "DATASET", "--method", "inverse"], ["optics", "DATASET", "--json", "OUT"]])
+@pytest.mark.parametrize("command", [["layers", "DATASET", "--method", "inverse"],
+                                     ["optics", "DATASET", "--json", "OUT"]])
 def test_device_cuda_without_a_gpu_stops_the_white_runs_commands_in_one_line(tmp_path, capsys, command):
     from ringlight.app.main import main
 

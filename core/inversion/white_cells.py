@@ -32,8 +32,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..device import Device
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
 from . import white_cache
 from .forward import Structure, embedded_rings, ring_matrix

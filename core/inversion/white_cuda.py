@@ -19,9 +19,9 @@ import time
 import numpy as np
 from numba import cuda, float64, uint64
 
-from ..simulate.steps import cuda_steps
+from ..simulate.steps import CPU, cuda_steps
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state
-from .white_mc import BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk, view_constant
+from .white_mc import BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk
 
 STREAMS = 1 << 15
 """Threads (one random stream each) of a CUDA run, fewer when there are fewer photons."""
@@ -99,7 +99,7 @@ def run_white_cuda(optics: SlabOptics, photons: int, seed: int = 0, streams: int
                    cuda.device_array((capacity, bins), np.float32), cuda.device_array(capacity, np.int32))
         _kernel()[-(-streams // threads), threads](
             cuda.to_device(mus), float(mus.max()), float(optics.g), float(optics.n), float(optics.depth),
-            int(optics.reach), view_constant(optics.n), traced, device_states, counter, *records)
+            int(optics.reach), CPU.camera_constant(float(optics.n)), traced, device_states, counter, *records)
         count = int(counter.copy_to_host()[0])
         if count <= capacity:
             break

@@ -36,10 +36,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..device import Device
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
-from ..simulate.camera import exit_fresnel
 from ..simulate.steps import CPU, Steps
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state
 from . import white_cache
@@ -224,11 +223,7 @@ def compile_walk(jit, steps: Steps, record):
     return jit(trace_photon)
 
 
-def view_constant(n: float) -> float:
-    """``T_entry pi T_F(0) / n^2``: the beam's entry weight times the camera's view factor."""
-    return (1.0 - CPU.exit_fresnel(n, 1.0)) * (math.pi * (1.0 - CPU.exit_fresnel(n, 1.0)) / (n * n))
-
-
+_camera_constant = CPU.camera_constant
 _CPU_JIT = numba.njit(cache=True, inline="always")
 _trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(keep_record))
 
@@ -241,9 +236,7 @@ def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, p
     majorant = mus.max()
     state = seed_state(seed, stream)
     estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
-    entry_weight = 1.0 - exit_fresnel(n, 1.0)
-    view_factor = math.pi * (1.0 - exit_fresnel(n, 1.0)) / (n * n)
-    constant = entry_weight * view_factor
+    constant = _camera_constant(n)
     lengths = np.zeros(bins)
     up = np.zeros(bins)
     count = 0

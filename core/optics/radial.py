@@ -36,11 +36,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..device import Device
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
 from ..inversion import white_cache
-from ..simulate.camera import exit_fresnel
 from ..simulate.steps import CPU, Steps
 from ..simulate.streams import seed_state
 
@@ -164,6 +163,7 @@ def compile_walk(jit, steps: Steps, add):
     return jit(trace_photon)
 
 
+_camera_constant = CPU.camera_constant
 _CPU_JIT = numba.njit(cache=True, inline="always")
 _trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(add_to_cell))
 
@@ -172,9 +172,7 @@ _trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(add_to_cell))
 def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_sum):
     """Trace ``photons`` on stream ``stream`` and add their estimates to the cell sums."""
     state = seed_state(seed, stream)
-    entry_weight = 1.0 - exit_fresnel(n, 1.0)
-    view_factor = math.pi * (1.0 - exit_fresnel(n, 1.0)) / (n * n)
-    constant = entry_weight * view_factor
+    constant = _camera_constant(n)
     for _ in range(photons):
         _trace_photon(state, g, n, longest, constant, weight, rho_sum, path_sum)
 
@@ -188,9 +186,9 @@ def _radial_blocks(g, n, longest, per_block, seed, first, weight, rho_sum, path_
 def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None,
                device: Device | None = None) -> RadialRun:
     """Trace ``photons`` (rounded up to whole :data:`BLOCKS`: :func:`traced_photons`; on a CUDA
-    ``device`` as :func:`.radial_cuda.run_radial_cuda` shares them among its streams) into a half-space of index ``n`` and anisotropy ``g`` without
-    absorption; ``progress(fraction)`` after each :data:`CHUNK` blocks (raise from it to cancel;
-    once at the end on a GPU)."""
+    ``device`` as :func:`.radial_cuda.run_radial_cuda` shares them among its streams) into a
+    half-space of index ``n`` and anisotropy ``g`` without absorption; ``progress(fraction)``
+    after each :data:`CHUNK` blocks (raise from it to cancel; once at the end on a GPU)."""
     if not abs(g) <= MOST_ANISOTROPIC:
         raise TableError(f"a white run is made for |g| <= {MOST_ANISOTROPIC:g}, not g = {g:g}")
     if device is not None and device.is_cuda:

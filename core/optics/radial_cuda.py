@@ -19,9 +19,8 @@ import time
 import numpy as np
 from numba import cuda, uint64
 
-from ..simulate.steps import cuda_steps
+from ..simulate.steps import CPU, cuda_steps
 from ..simulate.streams import seed_state
-from ..inversion.white_mc import view_constant
 from .radial import LONGEST, PATH_CELLS, RHO_CELLS, RadialRun, compile_walk, traced_photons
 
 STREAMS = 1 << 16
@@ -68,8 +67,8 @@ def run_radial_cuda(n: float, g: float, photons: int, seed: int = 0, streams: in
     states = cuda.to_device(stream_states(seed, streams))
     sums = [cuda.to_device(np.zeros((RHO_CELLS, PATH_CELLS))) for _ in range(3)]
     threads = min(THREADS_PER_BLOCK, streams)
-    _kernel()[-(-streams // threads), threads](float(g), float(n), LONGEST / (1.0 - abs(g)), view_constant(n), traced,
-                              states, *sums)
+    _kernel()[-(-streams // threads), threads](float(g), float(n), LONGEST / (1.0 - abs(g)),
+                                               CPU.camera_constant(float(n)), traced, states, *sums)
     weight, rho_sum, path_sum = (array.copy_to_host() for array in sums)
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.where(weight > 0, rho_sum / weight, 0.0)

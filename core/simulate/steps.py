@@ -81,7 +81,8 @@ class Steps(NamedTuple):
     """The steps compiled for one device (each as the plain function of the same name documents;
     ``uniform(state)`` advances a xoroshiro128+ state of 2 uint64 in place and returns the next
     float in [0, 1), ``scatter(state, uy, ux, uz, g)`` draws the polar uniform, then the
-    azimuth's)."""
+    azimuth's, ``camera_constant(n)`` is ``T_entry pi T_F(0) / n^2``: the Fresnel transmission of
+    a beam entering straight down times the view factor of a camera straight above)."""
 
     rotate_left: Callable
     uniform: Callable
@@ -90,6 +91,7 @@ class Steps(NamedTuple):
     flight_to_surface: Callable
     scattered_direction: Callable
     scatter: Callable
+    camera_constant: Callable
 
 
 def compile_steps(jit) -> Steps:
@@ -112,8 +114,13 @@ def compile_steps(jit) -> Steps:
     def scatter(state, uy, ux, uz, g):
         return direction(uy, ux, uz, g, next_uniform(state), next_uniform(state))
 
-    return Steps(rotate, next_uniform, jit(exit_fresnel), jit(henyey_greenstein), jit(flight_to_surface), direction,
-                 jit(scatter))
+    fresnel = jit(exit_fresnel)
+
+    def camera_constant(n):
+        return (1.0 - fresnel(n, 1.0)) * (math.pi * (1.0 - fresnel(n, 1.0)) / (n * n))
+
+    return Steps(rotate, next_uniform, fresnel, jit(henyey_greenstein), jit(flight_to_surface), direction,
+                 jit(scatter), jit(camera_constant))
 
 
 CPU = compile_steps(numba.njit(cache=True, inline="always"))
