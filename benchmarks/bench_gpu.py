@@ -1,8 +1,10 @@
 """Benchmark of the CUDA kernels against the CPU kernels (not a test), measured in one run:
 
-(1) The optics table's white run (a half-space of n = 1.4, g = 0.8 in mean free paths,
-    :mod:`ringlight.core.optics.radial`): photons per second on every CPU core and on the GPU,
-    after a warm-up compile of each, and their ratio.
+(1) White runs, photons per second on every CPU core and on the GPU (100 times the photons),
+    after a warm-up compile of each, and their ratio: the optics table's (a half-space of
+    n = 1.4, g = 0.8 in mean free paths, :mod:`ringlight.core.optics.radial`) and the layer
+    inversion's (the layers3 sample's search slab: 9 depth bins of mus 1 per grid step, 64 grid
+    steps deep, g 0, n 1.4, :mod:`ringlight.core.inversion.white_mc`).
 (2) The ring sums of a transient stack of radii 0..10 (rings 0..11) on a random 800 x 800 dataset
     (offsets within radius 11.5): seconds on the CPU and on the GPU (transfers included), and
     their ratio.
@@ -10,7 +12,7 @@
 Without a usable GPU (``ringlight[cuda]`` and an NVIDIA driver) the GPU part is skipped with a
 line saying so; the CPU figures are still printed.
 
-    python benchmarks/bench_gpu.py [--photons 400000] [--size 800]
+    python benchmarks/bench_gpu.py [--photons 20000] [--size 800]
 """
 
 from __future__ import annotations
@@ -20,16 +22,29 @@ import time
 
 import numpy as np
 from ringlight.core.device import cpu_device, cuda_device
+from ringlight.core.inversion.search import REACH
+from ringlight.core.inversion.white_mc import SlabOptics, run_white
 from ringlight.core.optics.radial import run_radial
 from ringlight.core.rings.stacks import _ring_sums, _ring_tables
 from ringlight.core.rings.members import ring_members, unit_weight_rings
 
 
-def white_run(photons: int, device) -> float:
-    """Photons per second of a white run on ``device`` (after one small run to compile)."""
+SLAB = SlabOptics((1.0,) * 9, 0.0, 1.4, 64.0, REACH)
+
+
+def radial_rate(photons: int, device) -> float:
+    """Photons per second of the optics table's white run on ``device`` (after one small run)."""
     run_radial(1.4, 0.8, 1000, seed=1, device=device)
     start = time.perf_counter()
     run = run_radial(1.4, 0.8, photons, seed=2, device=device)
+    return run.photons / (time.perf_counter() - start)
+
+
+def slab_rate(photons: int, device) -> float:
+    """Photons per second of the layer inversion's white run (records) on ``device``."""
+    run_white(SLAB, 64, seed=1, device=device)
+    start = time.perf_counter()
+    run = run_white(SLAB, photons, seed=2, device=device)
     return run.photons / (time.perf_counter() - start)
 
 
@@ -66,19 +81,21 @@ def stack_seconds(size: int, sums) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--photons", type=int, default=400_000)
+    parser.add_argument("--photons", type=int, default=20_000)
     parser.add_argument("--size", type=int, default=800)
     args = parser.parse_args()
     cpu, gpu = cpu_device(), cuda_device()
     if gpu is not None and gpu.name == "CUDA simulator":
         gpu = None  # the simulator runs kernels in Python: nothing to time
     print(f"CPU: {cpu.name}; GPU: {gpu.name if gpu else 'none usable: the GPU figures are skipped'}")
-    cpu_rate = white_run(args.photons, cpu)
-    print(f"white run (n 1.4, g 0.8): CPU {cpu_rate / 1e6:.3f} M photons/s", end="")
-    if gpu is not None:
-        gpu_rate = white_run(args.photons * 100, gpu)
-        print(f", GPU {gpu_rate / 1e6:.3f} M photons/s: {gpu_rate / cpu_rate:.1f}x", end="")
-    print()
+    for name, rate in (("optics table's white run (half-space, n 1.4, g 0.8)", radial_rate),
+                       ("layer inversion's white run (9 bins, 64 deep, n 1.4)", slab_rate)):
+        cpu_rate = rate(args.photons, cpu)
+        print(f"{name}: CPU {cpu_rate / 1e6:.4f} M photons/s", end="")
+        if gpu is not None:
+            gpu_rate = rate(args.photons * 100, gpu)
+            print(f", GPU {gpu_rate / 1e6:.4f} M photons/s: {gpu_rate / cpu_rate:.1f}x", end="")
+        print()
     cpu_seconds = stack_seconds(args.size, _ring_sums)
     print(f"ring sums, {args.size} x {args.size} points, 12 rings: CPU {cpu_seconds:.3f} s", end="")
     if gpu is not None:

@@ -9,10 +9,11 @@ This module imports numba's CUDA target: import it only for a CUDA run.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 from numba import cuda
+
+from .stacks import store_mean
 
 THREADS = (8, 16)
 """Threads per block, (rows, columns) of grid points."""
@@ -21,6 +22,7 @@ THREADS = (8, 16)
 @functools.cache
 def _kernel():
     """The CUDA kernel, compiled on first use."""
+    store = cuda.jit(device=True)(store_mean)
 
     @cuda.jit
     def ring_sums_kernel(responses, first, stop, weight_start, weights, counts, totals, images):
@@ -37,15 +39,7 @@ def _kernel():
                 s0 += w * responses[y, x, k, 0]
                 s1 += w * responses[y, x, k, 1]
                 s2 += w * responses[y, x, k, 2]
-            if counts[j, y, x] == 0:
-                images[j, y, x, 0] = math.nan
-                images[j, y, x, 1] = math.nan
-                images[j, y, x, 2] = math.nan
-            else:
-                total = totals[j, y, x]
-                images[j, y, x, 0] = s0 / total
-                images[j, y, x, 1] = s1 / total
-                images[j, y, x, 2] = s2 / total
+            store(images, j, y, x, counts[j, y, x], totals[j, y, x], s0, s1, s2)
 
     return ring_sums_kernel
 

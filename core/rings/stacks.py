@@ -231,6 +231,22 @@ def band_images(responses: np.ndarray, lit: np.ndarray, observed: np.ndarray, of
                images)
 
 
+def store_mean(images, j, y, x, count, total, s0, s1, s2):
+    """``images[j, y, x]`` = the ring's sums ``s0, s1, s2`` over its members' ``total`` weight;
+    NaN when it has no member (``count`` 0). Compiled for the CPU's kernel and the GPU's
+    (:mod:`.stack_cuda`)."""
+    if count == 0:
+        images[j, y, x, 0] = math.nan
+        images[j, y, x, 1] = math.nan
+        images[j, y, x, 2] = math.nan
+    else:
+        images[j, y, x, 0] = s0 / total
+        images[j, y, x, 1] = s1 / total
+        images[j, y, x, 2] = s2 / total
+
+
+_store_mean = numba.njit(cache=True, inline="always")(store_mean)
+
 LANES = 12
 """Partial sums kept while a default ring is summed (a multiple of 3): four offsets' R, G, B, which
 a compiler holds in vector registers (a pixel's responses are interleaved R, G, B, so a sum per
@@ -288,15 +304,7 @@ def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts
                         s0 += w * pixel[3 * k]
                         s1 += w * pixel[3 * k + 1]
                         s2 += w * pixel[3 * k + 2]
-                if counts[j, y, x] == 0:
-                    images[j, y, x, 0] = np.nan
-                    images[j, y, x, 1] = np.nan
-                    images[j, y, x, 2] = np.nan
-                else:
-                    total = totals[j, y, x]
-                    images[j, y, x, 0] = s0 / total
-                    images[j, y, x, 1] = s1 / total
-                    images[j, y, x, 2] = s2 / total
+                _store_mean(images, j, y, x, counts[j, y, x], totals[j, y, x], s0, s1, s2)
 
 
 def warm_up_kernels() -> None:
