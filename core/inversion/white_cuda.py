@@ -35,7 +35,7 @@ PILOT_PHOTONS = 64
 def _kernel():
     """The CUDA kernel, compiled on first use."""
 
-    def record(counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+    def record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
         row = cuda.atomic.add(counter, 0, 1)
         if row < pixel.shape[0]:
             pixel[row] = cell
@@ -43,7 +43,7 @@ def _kernel():
             for b in range(lengths_out.shape[1]):
                 lengths_out[row, b] = lengths[b] + up[b]
             photon_out[row] = photon
-        return counter
+        return count + 1
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(record))
 
@@ -66,7 +66,7 @@ def _kernel():
         first = stream * share + min(stream, extra)
         for p in range(share + (1 if stream < extra else 0)):
             trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up, first + p,
-                         counter, pixel, value, lengths_out, photon_out)
+                         0, counter, pixel, value, lengths_out, photon_out)
 
     return white_kernel
 

@@ -125,9 +125,9 @@ def depth_bin(z, bins):
     return min(int(z), bins - 1)
 
 
-def keep_record(count, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+def keep_record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
     """The CPU's record: row ``count`` of the records while there is room; returns ``count + 1``
-    (a CUDA kernel takes its row from an atomic counter that it passes as ``count``)."""
+    (a CUDA kernel takes its row from the atomic ``counter`` instead; the CPU's is unused)."""
     if count < pixel.shape[0]:
         pixel[count] = cell
         value[count] = estimate
@@ -139,12 +139,12 @@ def keep_record(count, pixel, value, lengths_out, photon_out, cell, estimate, le
 
 def compile_walk(jit, steps: Steps, record):
     """``trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths,
-    up, photon, count, pixel, value, lengths_out, photon_out)`` compiled with ``jit`` from the
+    up, photon, count, counter, pixel, value, lengths_out, photon_out)`` compiled with ``jit`` from the
     device's ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`) and its compiled
     ``record`` (as :func:`keep_record`): photon number ``photon`` traced without absorption on
     ``state`` (its thinning on ``estimator_state``), its estimates recorded; ``constant`` =
-    ``T_entry pi T_F(0) / n^2``, ``lengths`` and ``up`` scratch of at least B. Returns ``count`` as
-    ``record`` leaves it. The one statement of the walk that the CPU and the CUDA kernels compile."""
+    ``T_entry pi T_F(0) / n^2``, ``lengths`` and ``up`` scratch of at least B. Returns ``count``
+    plus the records made. The one statement of the walk that the CPU and the CUDA kernels compile."""
     uniform, exit_fresnel, henyey_greenstein = steps.uniform, steps.exit_fresnel, steps.henyey_greenstein
     flight_to_surface, scatter, bin_of = steps.flight_to_surface, steps.scatter, jit(depth_bin)
 
@@ -167,7 +167,7 @@ def compile_walk(jit, steps: Steps, record):
     flight = jit(add_flight)
 
     def trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up, photon, count,
-                     pixel, value, lengths_out, photon_out):
+                     counter, pixel, value, lengths_out, photon_out):
         bins = mus.shape[0]
         side = 2 * reach + 1
         y = uniform(state) - 0.5
@@ -216,8 +216,8 @@ def compile_walk(jit, steps: Steps, record):
                         keep = uniform(estimator_state) * THIN_VALUE < estimate
                         estimate = THIN_VALUE
                     if keep:
-                        count = record(count, pixel, value, lengths_out, photon_out, (dy + reach) * side + dx + reach,
-                                       estimate, lengths, up, photon)
+                        count = record(count, counter, pixel, value, lengths_out, photon_out,
+                                       (dy + reach) * side + dx + reach, estimate, lengths, up, photon)
             uy, ux, uz = scatter(state, uy, ux, uz, g)
 
     return jit(trace_photon)
@@ -239,10 +239,11 @@ def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, p
     constant = _camera_constant(n)
     lengths = np.zeros(bins)
     up = np.zeros(bins)
+    unused_counter = np.zeros(1, np.int64)
     count = 0
     for p in range(photons):
         count = _trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up,
-                              first_photon + p, count, pixel, value, lengths_out, photon_out)
+                              first_photon + p, count, unused_counter, pixel, value, lengths_out, photon_out)
     return count
 
 
