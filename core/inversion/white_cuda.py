@@ -21,7 +21,8 @@ from numba import cuda, float64, uint64
 
 from ..simulate.steps import CPU, cuda_steps
 from ..simulate.streams import ESTIMATOR_STREAM, seed_state
-from .white_mc import BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk
+from .white_mc import (BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk,
+                       write_record)
 
 STREAMS = 1 << 15
 """Threads (one random stream each) of a CUDA run, fewer when there are fewer photons."""
@@ -35,14 +36,11 @@ PILOT_PHOTONS = 64
 def _kernel():
     """The CUDA kernel, compiled on first use."""
 
+    write = cuda.jit(device=True)(write_record)
+
     def record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
-        row = cuda.atomic.add(counter, 0, 1)
-        if row < pixel.shape[0]:
-            pixel[row] = cell
-            value[row] = estimate
-            for b in range(lengths_out.shape[1]):
-                lengths_out[row, b] = lengths[b] + up[b]
-            photon_out[row] = photon
+        write(cuda.atomic.add(counter, 0, 1), pixel, value, lengths_out, photon_out, cell, estimate, lengths, up,
+              photon)
         return count + 1
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(record))

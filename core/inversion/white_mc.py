@@ -125,15 +125,24 @@ def depth_bin(z, bins):
     return min(int(z), bins - 1)
 
 
-def keep_record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
-    """The CPU's record: row ``count`` of the records while there is room; returns ``count + 1``
-    (a CUDA kernel takes its row from the atomic ``counter`` instead; the CPU's is unused)."""
-    if count < pixel.shape[0]:
-        pixel[count] = cell
-        value[count] = estimate
+def write_record(row, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+    """Row ``row`` of the records, when there is room: the estimate's pixel ``cell``, its value and
+    photon, and its path length per bin (the walk's ``lengths`` plus the leg ``up``)."""
+    if row < pixel.shape[0]:
+        pixel[row] = cell
+        value[row] = estimate
         for b in range(lengths_out.shape[1]):
-            lengths_out[count, b] = lengths[b] + up[b]
-        photon_out[count] = photon
+            lengths_out[row, b] = lengths[b] + up[b]
+        photon_out[row] = photon
+
+
+_write_record = numba.njit(cache=True, inline="always")(write_record)
+
+
+def keep_record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+    """The CPU's record: row ``count`` (:func:`write_record`); returns ``count + 1`` (a CUDA
+    kernel takes its row from the atomic ``counter`` instead; the CPU's is unused)."""
+    _write_record(count, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon)
     return count + 1
 
 
