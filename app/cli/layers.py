@@ -3,6 +3,8 @@ by inversion (a layered model fitted to the region's ring-light profiles, with u
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ringlight.core import RinglightError, load_manifest, open_dataset
 from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.chroma import METHODS, require_colour
@@ -14,6 +16,7 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
+from ringlight.core.device import CHOICES, choose_device
 from ringlight.core.inversion.settings import (
     DEFAULT_DEPTH,
     DEFAULT_FINAL_PHOTONS,
@@ -64,6 +67,9 @@ def add_command(subparsers) -> None:
     inverse.add_argument("--final-photons", type=int, default=DEFAULT_FINAL_PHOTONS,
                          help="photons of the white run of each structure fitted at the end, tallied in compact "
                               f"cells (default {DEFAULT_FINAL_PHOTONS})")
+    inverse.add_argument("--device", choices=CHOICES, default="auto",
+                         help="run the white Monte Carlo on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; "
+                              "auto (default) takes a usable GPU")
     layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
     layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
     layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
@@ -86,9 +92,10 @@ def parse_radii(text: str) -> list[float]:
 
 
 def parse_inversion(args) -> InversionSettings:
-    """The inverse method's settings, checked before any dataset is loaded."""
-    return settings_from_text(args.layers, args.boundaries or "", args.mus or "", args.n, args.g, args.depth,
-                              args.photons, args.final_photons)
+    """The inverse method's settings, checked before any dataset is loaded (the device too)."""
+    settings = settings_from_text(args.layers, args.boundaries or "", args.mus or "", args.n, args.g, args.depth,
+                                  args.photons, args.final_photons)
+    return replace(settings, device=choose_device(args.device).kind)
 
 
 def run_layers(args) -> int:

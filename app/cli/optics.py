@@ -15,7 +15,9 @@ from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.regions import parse_rectangle, rectangle_region
 from ringlight.core.dataset.exr import write_exr_channels
 from ringlight.core.optics.calibration import calibrate, read_calibration, write_calibration
-from ringlight.core.optics.maps import OpticalMaps, optical_maps
+from ringlight.core.device import CHOICES, choose_device
+from ringlight.core.optics.maps import OpticalMaps, optical_maps, sample_optics
+from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.region import RegionOptics, region_optics
 from ringlight.core.optics.table import DEFAULT_PHOTONS
 
@@ -51,6 +53,9 @@ def add_command(subparsers) -> None:
     calibration.add_argument("--reference-description", default="", help="what the reference is")
     optics.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
                         help=f"photons of the white run behind the look-up table (default {DEFAULT_PHOTONS})")
+    optics.add_argument("--device", choices=CHOICES, default="auto",
+                        help="trace the table's white run on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; "
+                             "auto (default) takes a usable GPU")
     optics.add_argument("--force", action="store_true", help="replace existing output files")
     optics.add_argument("--allow-outside", action="store_true",
                         help="read frames that resolve (through symbolic links) outside the dataset folder")
@@ -84,9 +89,15 @@ def run_optics(args) -> int:
                 raise RinglightError("an output file needs a name")
             check_output_file(path, args.force, probe=True)  # refused before the work
     calibration = read_calibration(args.calibration) if args.calibration else None
+    device = choose_device(args.device)
     manifest = load_manifest(args.dataset)
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
+    if device.is_cuda:
+        # Traced here into the user cache, where the tables below find it (a run of the same photons).
+        with progress_bar(f"white run on {device.name}") as progress:
+            radial_run(*sample_optics(dataset, args.n, args.g), args.photons, progress=progress, device=device)
+    print(f"white run on {device.name} (or read from the user cache)")
     if reference is not None:
         made = calibrate(dataset, reference[0], reference[1], n=args.n, g=args.g,
                          description=args.reference_description, photons=args.photons)

@@ -13,6 +13,7 @@ from ringlight.core import (
     transient_stack,
     write_stack,
 )
+from ringlight.core.device import CHOICES, choose_device, cpu_device
 from ringlight.core.rings.coverage import coverage_warning, ring_coverage
 from ringlight.core.rings.interpolate import interpolated_stack
 from ringlight.core.rings.radii import check_reach_within
@@ -49,6 +50,9 @@ def add_command(subparsers) -> None:
                             "every worker sees at the same path")
     stack.add_argument("--allow-outside", action="store_true",
                        help="read frames that resolve (through symbolic links) outside the dataset folder")
+    stack.add_argument("--device", choices=CHOICES, default="auto",
+                       help="sum the rings on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; auto (default) "
+                            "takes a usable GPU")
     stack.set_defaults(handler=run_stack)
 
 
@@ -65,6 +69,10 @@ def run_stack(args) -> int:
     if args.scheduler and (args.no_cache or args.interpolate):
         raise StackError("--scheduler reads the dataset's store band by band: it cannot be combined with "
                          + ("--no-cache" if args.no_cache else "--interpolate"))
+    if args.device == "cuda" and (args.scheduler or args.interpolate):
+        raise StackError("--device cuda sums the default rings here: it cannot be combined with "
+                         + ("--scheduler" if args.scheduler else "--interpolate"))
+    device = cpu_device() if args.scheduler or args.interpolate else choose_device(args.device)
     check_stack_target(args.out)  # refused before anything is computed
     manifest = load_manifest(args.dataset)
     if not args.interpolate and manifest.max_radius is not None:
@@ -79,10 +87,10 @@ def run_stack(args) -> int:
             stack = interpolated_stack(dataset, radii, args.kind, step, args.thickness)
         elif args.kind == "ring":
             stack = ring_stack(dataset, radii, args.thickness, args.antialias, progress=progress,
-                               scheduler=args.scheduler)
+                               scheduler=args.scheduler, device=device)
         else:
             stack = transient_stack(dataset, radii, step, args.thickness, args.antialias, progress=progress,
-                                    scheduler=args.scheduler)
+                                    scheduler=args.scheduler, device=device)
     coverage = ring_coverage(dataset, radii, args.thickness)
     with progress_bar("writing EXR") as progress:
         folder = write_stack(stack, args.out, progress=progress, coverage=coverage)
@@ -91,6 +99,7 @@ def run_stack(args) -> int:
         f"wrote {len(radii)} {args.kind} images ({dataset.grid_shape[0]} x {dataset.grid_shape[1]}) to "
         f"{folder}; {undefined} pixel(s) undefined (NaN)"
         + ("; ring means interpolated in distance" if args.interpolate else "")
+        + ("" if args.scheduler else f"; rings summed on {device.name}")
     )
     if (warning := coverage_warning(coverage)) is not None:
         print(f"warning: {warning}")

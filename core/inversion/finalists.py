@@ -27,12 +27,13 @@ MAX_ROUNDS = 3
 
 
 def screen(settings: InversionSettings, starts: list[Candidate], bins: int, measured: MeasuredProfile,
-           report: Callable[[float, str], None], first: float, span: float) -> list[Candidate]:
+           report: Callable[[float, str], None], first: float, span: float, device=None) -> list[Candidate]:
     """Screen ``starts`` (the search's choice first, then its rivals) and the boundary neighbours
     (within ``bins`` depth bins) of the leader, round by round: each candidate's quick fit (no
     intervals) with a white run of ``settings.final_photons``. Returns every candidate screened,
     its BIC and chi-square those of that fit, best BIC first; progress goes from ``first`` over
-    ``span``."""
+    ``span``; the white runs run on ``device`` (:func:`ringlight.core.device.choose_device`'s; None:
+    the CPU)."""
     screened: dict[tuple, Candidate] = {}
     frontier = list(starts)
     for round_number in range(MAX_ROUNDS):
@@ -41,12 +42,12 @@ def screen(settings: InversionSettings, starts: list[Candidate], bins: int, meas
         todo = list({_key(c): c for c in frontier if _key(c) not in screened}.values())
         for number, candidate in enumerate(todo):
             done = first + span * (round_number + number / len(todo)) / MAX_ROUNDS
+            each = span / MAX_ROUNDS / len(todo)
             what = (f"white Monte Carlo of {settings.final_photons} photons for boundaries "
                     f"{list(candidate.structure.starts[1:]) or 'none'}")
             report(done, what)
-            cells = cell_database(candidate.optics, candidate.structure, settings.final_photons,
-                                  progress=lambda fraction: report(done + 0.5 * fraction * span / MAX_ROUNDS / len(todo),
-                                                                   what))
+            cells = cell_database(candidate.optics, candidate.structure, settings.final_photons, device=device,
+                                  progress=lambda fraction: report(done + 0.5 * fraction * each, what))
             forward = CellForward(cells, candidate.structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False, floor=measured.floor)
             chi2 = sum(f.chi2 for f in fits)

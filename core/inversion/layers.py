@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
+from ..device import choose_device
 from .fit import JOINT_CHI2, ChannelFit, fit_channels
 from .forward import Forward, weights_reach
 from .joint import JointFit, fit_jointly
@@ -120,6 +121,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     """Fit ``measured`` (R, 3) as ``settings`` say; ``progress(fraction, what)`` is called along
     the way (raise from it to cancel)."""
     settings.check()
+    device = choose_device(settings.device)
     start = time.perf_counter()
     report = progress or (lambda fraction, what: None)
     if not np.isfinite(measured.mean).any():
@@ -156,7 +158,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
             report(first + span * number / len(trials), what)
             if optics not in searched:
                 report(first + span * number / len(trials), f"white Monte Carlo for {_optics_text(optics, mus)}")
-                keep(white_database(optics, settings.photons))
+                keep(white_database(optics, settings.photons, device=device))
             forward = Forward(searched[optics], structure, measured.radii, ring_weights=measured.ring_weights)
             fits = fit_channels(forward, measured.mean, measured.standard_error, intervals=False, floor=measured.floor)
             chi2 = sum(f.chi2 for f in fits)
@@ -173,7 +175,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         optics = database_optics(settings, mus, n)
         what = f"white Monte Carlo for {_optics_text(optics, mus)}"
         report(index * share, what)
-        keep(white_database(optics, settings.photons,
+        keep(white_database(optics, settings.photons, device=device,
                             progress=lambda fraction: report((index + 0.5 * fraction) * share, what)))
         if len(structures) == 1 and len(choices) == 1:
             candidates.append(Candidate(0.0, 0.0, mus, structures[0], optics))
@@ -215,7 +217,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         # The quick fits' own noise can rank neighbouring structures wrongly: the choice, its rivals
         # and its boundary neighbours are ranked again with every photon (:mod:`.finalists`).
         screened = screen(settings, [best, *rivals], bins, measured, report,
-                          (len(choices) + 1 + base_search + refine) * share, share)
+                          (len(choices) + 1 + base_search + refine) * share, share, device)
         best = screened[0]
         rivals = [c for c in screened[1:] if c.structure.layers == best.structure.layers
                   and c.chi2 - best.chi2 <= PLAUSIBLE_CHI2][:MAX_RIVALS]
@@ -225,7 +227,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
         what = (f"white Monte Carlo of {settings.final_photons} photons for "
                 f"{'the chosen structure' if not number else 'a structure that fits as well'}")
         report(done, what)
-        cells = cell_database(candidate.optics, candidate.structure, settings.final_photons,
+        cells = cell_database(candidate.optics, candidate.structure, settings.final_photons, device=device,
                               progress=lambda fraction: report(done + 0.5 * fraction * share / (len(rivals) + 1), what))
         report(done + 0.5 * share / (len(rivals) + 1),
                "fitting the chosen structure" if not number else "fitting the structures that fit as well")
@@ -278,7 +280,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {forward.database.photons} white "
              f"photons (the search's {settings.photons} each"
-             + (f"; {len(screened)} model(s) ranked again with every photon" if screened else "") + ")"
+             + (f"; {len(screened)} model(s) ranked again with every photon" if screened else "") + f") on {device.name}"
              + (f"; regions also span {len(rivals)} other model(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
                 + (f" (n {', '.join(f'{n:g}' for n in other_indices)} among them)" if other_indices else "")
                 if rivals else "")

@@ -9,6 +9,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..dataset.sample import Sample
+from ..device import CHOICES
 from ..errors import RinglightError
 
 SEARCH_BINS = 9
@@ -74,6 +75,9 @@ class InversionSettings:
         Photons of each white database a search compares structures with (records).
     final_photons
         Photons of the white run of each structure fitted at the end (tallied in cells).
+    device
+        Where the white runs go: ``"cpu"``, ``"cuda"`` or ``"auto"``
+        (:func:`ringlight.core.device.choose_device`).
     """
 
     layers: int | None = None
@@ -84,9 +88,12 @@ class InversionSettings:
     depth: float = DEFAULT_DEPTH
     photons: int = DEFAULT_PHOTONS
     final_photons: int = DEFAULT_FINAL_PHOTONS
+    device: str = "cpu"
 
     def check(self) -> None:
         """Raise :class:`InversionError` naming the first setting that cannot work."""
+        if self.device not in CHOICES:
+            raise InversionError(f"device must be one of {', '.join(CHOICES)}, got {self.device!r}")
         if self.boundaries is not None and not all(isinstance(b, (int, np.integer)) for b in self.boundaries):
             raise InversionError(f"layer boundaries must be whole grid steps, got {self.boundaries}")
         if self.mus is not None and not isinstance(self.mus, (int, float, np.number, tuple)):

@@ -33,6 +33,7 @@ import numba
 import numpy as np
 
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
 from . import white_cache
 from .forward import Structure, embedded_rings, ring_matrix
@@ -98,10 +99,11 @@ class CellDatabase:
 
 
 def run_cells(optics: SlabOptics, structure: Structure, photons: int, seed: int = 0,
-              progress=None) -> CellDatabase:
+              progress=None, device: Device | None = None) -> CellDatabase:
     """Trace ``photons`` (rounded up to chunks of :data:`CHUNK_PHOTONS` and whole blocks) without
     absorption and tally them for ``structure``; ``progress(fraction)`` after each chunk (raise
-    from it to cancel). Chunk ``k`` runs on seed ``seed + (k << 32)``: its own random streams."""
+    from it to cancel). Chunk ``k`` runs on seed ``seed + (k << 32)``: its own random streams, on
+    ``device`` (:func:`.white_mc.run_white`)."""
     start = time.perf_counter()
     layers = structure.layers
     chunks = BATCHES * max(1, -(-photons // (CHUNK_PHOTONS * BATCHES)))
@@ -111,7 +113,7 @@ def run_cells(optics: SlabOptics, structure: Structure, photons: int, seed: int 
     cells = _Tally(1 + layers + len(pairs[0]))
     traced = 0
     for chunk in range(chunks):
-        records = run_white(optics, per_chunk, seed + (chunk << 32))
+        records = run_white(optics, per_chunk, seed + (chunk << 32), device=device)
         traced += records.photons
         lengths = np.add.reduceat(records.lengths, np.asarray(structure.starts), axis=1, dtype=np.float64)
         key = classes[records.pixel].astype(np.int64)
@@ -152,9 +154,9 @@ def cells_path(optics: SlabOptics, structure: Structure, photons: int, seed: int
 
 
 def cell_database(optics: SlabOptics, structure: Structure, photons: int, seed: int = 0, use_cache: bool = True,
-                  progress=None) -> CellDatabase:
+                  progress=None, device: Device | None = None) -> CellDatabase:
     """The cells of ``optics`` and ``structure`` from the user cache (:mod:`.white_cache`), or run
-    (:func:`run_cells`) and cached atomically, the least recently used databases then dropped down
+    (:func:`run_cells`, on ``device``) and cached atomically, the least recently used databases then dropped down
     to the cache's limit. A cached file that does not hold what this run would (damaged, another
     version's) is run again and replaced."""
     path = cells_path(optics, structure, photons, seed)
@@ -162,7 +164,7 @@ def cell_database(optics: SlabOptics, structure: Structure, photons: int, seed: 
     if use_cache and (cells := _cached(path, optics, structure)) is not None:
         white_cache.mark_used(path)
         return cells
-    cells = run_cells(optics, structure, photons, seed, progress)
+    cells = run_cells(optics, structure, photons, seed, progress, device)
     if use_cache:
         try:
             save_checked(path, path.stem, {"photons": np.int64(cells.photons), "cell_class": cells.cell_class,

@@ -37,10 +37,10 @@ import numba
 import numpy as np
 
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
-from ..simulate.camera import exit_fresnel, henyey_greenstein
-from ..simulate.phase import scatter_direction
-from ..simulate.streams import ESTIMATOR_STREAM, seed_state, uniform
+from ..simulate.steps import CPU, Steps
+from ..simulate.streams import ESTIMATOR_STREAM, seed_state
 from . import white_cache
 
 THIN_VALUE = 1e-3
@@ -120,71 +120,91 @@ class WhiteDatabase:
 
 
 
-@numba.njit(cache=True, inline="always")
-def _bin(z, bins):
+def depth_bin(z, bins):
+    """The depth bin of depth ``z`` among ``bins`` (the last one reaches the slab's depth)."""
     return min(int(z), bins - 1)
 
 
-@numba.njit(cache=True, inline="always")
-def _add_flight(lengths, z0, z1, step):
-    """Add a flight of ``step`` from depth ``z0`` to ``z1`` to ``lengths`` (B,) bin by bin."""
-    bins = lengths.shape[0]
-    b0 = _bin(z0, bins)
-    b1 = _bin(z1, bins)
-    if b0 == b1:
-        lengths[b0] += step
-        return
-    low = min(z0, z1)
-    high = max(z0, z1)
-    per_depth = step / (high - low)
-    for b in range(min(b0, b1), max(b0, b1) + 1):
-        bottom = b + 1.0 if b < bins - 1 else math.inf
-        overlap = min(high, bottom) - max(low, float(b))
-        if overlap > 0.0:
-            lengths[b] += overlap * per_depth
+def write_record(row, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+    """Row ``row`` of the records, when there is room: the estimate's pixel ``cell``, its value and
+    photon, and its path length per bin (the walk's ``lengths`` plus the leg ``up``)."""
+    if row < pixel.shape[0]:
+        pixel[row] = cell
+        value[row] = estimate
+        for b in range(lengths_out.shape[1]):
+            lengths_out[row, b] = lengths[b] + up[b]
+        photon_out[row] = photon
 
 
-@numba.njit(cache=True)
-def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, pixel, value, lengths_out, photon_out):
-    """Trace ``photons`` photons on stream ``stream`` and write their records from row 0 while there
-    is room; returns how many records they made (more than the rows: the caller retries)."""
-    bins = mus.shape[0]
-    majorant = mus.max()
-    state = seed_state(seed, stream)
-    estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
-    entry_weight = 1.0 - exit_fresnel(n, 1.0)
-    view_factor = math.pi * (1.0 - exit_fresnel(n, 1.0)) / (n * n)
-    side = 2 * reach + 1
-    capacity = pixel.shape[0]
-    lengths = np.zeros(bins)
-    up = np.zeros(bins)
-    count = 0
-    for p in range(photons):
+_write_record = numba.njit(cache=True, inline="always")(write_record)
+
+
+def keep_record(count, counter, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon):
+    """The CPU's record: row ``count`` (:func:`write_record`); returns ``count + 1`` (a CUDA
+    kernel takes its row from the atomic ``counter`` instead; the CPU's is unused)."""
+    _write_record(count, pixel, value, lengths_out, photon_out, cell, estimate, lengths, up, photon)
+    return count + 1
+
+
+def compile_walk(jit, steps: Steps, record):
+    """``trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths,
+    up, photon, count, counter, pixel, value, lengths_out, photon_out)`` compiled with ``jit`` from the
+    device's ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`) and its compiled
+    ``record`` (as :func:`keep_record`): photon number ``photon`` traced without absorption on
+    ``state`` (its thinning on ``estimator_state``), its estimates recorded; ``constant`` =
+    ``T_entry pi T_F(0) / n^2``, ``lengths`` and ``up`` scratch of at least B. Returns ``count``
+    plus the records made. The one statement of the walk that the CPU and the CUDA kernels compile."""
+    uniform, exit_fresnel, henyey_greenstein = steps.uniform, steps.exit_fresnel, steps.henyey_greenstein
+    flight_to_surface, scatter, bin_of = steps.flight_to_surface, steps.scatter, jit(depth_bin)
+
+    def add_flight(lengths, bins, z0, z1, step):
+        """Add a flight of ``step`` from depth ``z0`` to ``z1`` to ``lengths[:bins]`` bin by bin."""
+        b0 = bin_of(z0, bins)
+        b1 = bin_of(z1, bins)
+        if b0 == b1:
+            lengths[b0] += step
+            return
+        low = min(z0, z1)
+        high = max(z0, z1)
+        per_depth = step / (high - low)
+        for b in range(min(b0, b1), max(b0, b1) + 1):
+            bottom = b + 1.0 if b < bins - 1 else math.inf
+            overlap = min(high, bottom) - max(low, float(b))
+            if overlap > 0.0:
+                lengths[b] += overlap * per_depth
+
+    flight = jit(add_flight)
+
+    def trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up, photon, count,
+                     counter, pixel, value, lengths_out, photon_out):
+        bins = mus.shape[0]
+        side = 2 * reach + 1
         y = uniform(state) - 0.5
         x = uniform(state) - 0.5
         z = 0.0
         uy, ux, uz = 0.0, 0.0, 1.0
-        lengths[:] = 0.0
+        for b in range(bins):
+            lengths[b] = 0.0
         while True:
             step = -math.log(1.0 - uniform(state)) / majorant
-            if uz < 0.0 and z + step * uz <= 0.0:
-                travel = -z / uz
-                _add_flight(lengths, z, 0.0, travel)
+            travel = flight_to_surface(z, uz, step)
+            if travel >= 0.0:
+                flight(lengths, bins, z, 0.0, travel)
                 y += travel * uy
                 x += travel * ux
                 z = 0.0
                 if uniform(state) < exit_fresnel(n, -uz):
                     uz = -uz
                     continue
-                break
+                return count
             if uz > 0.0 and z + step * uz >= depth:
-                break
+                return count
             z_next = z + step * uz
-            _add_flight(lengths, z, z_next, step)
+            flight(lengths, bins, z, z_next, step)
             y += step * uy
             x += step * ux
             z = z_next
-            if uniform(state) * majorant >= mus[_bin(z, bins)]:
+            if uniform(state) * majorant >= mus[bin_of(z, bins)]:
                 continue
             dy = int(math.floor(y + 0.5))
             dx = int(math.floor(x + 0.5))
@@ -199,20 +219,40 @@ def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, p
                     up[b] = min(z, bottom) - top
                     tau += mus[b] * up[b]
                 if tau < OPTICAL_DEPTH_CUTOFF:
-                    estimate = entry_weight * view_factor * henyey_greenstein(-uz, g) * math.exp(-tau)
+                    estimate = constant * henyey_greenstein(-uz, g) * math.exp(-tau)
                     keep = True
                     if estimate < THIN_VALUE:
                         keep = uniform(estimator_state) * THIN_VALUE < estimate
                         estimate = THIN_VALUE
                     if keep:
-                        if count < capacity:
-                            pixel[count] = (dy + reach) * side + dx + reach
-                            value[count] = estimate
-                            for b in range(bins):
-                                lengths_out[count, b] = lengths[b] + up[b]
-                            photon_out[count] = first_photon + p
-                        count += 1
-            uy, ux, uz = scatter_direction(state, uy, ux, uz, g)
+                        count = record(count, counter, pixel, value, lengths_out, photon_out,
+                                       (dy + reach) * side + dx + reach, estimate, lengths, up, photon)
+            uy, ux, uz = scatter(state, uy, ux, uz, g)
+
+    return jit(trace_photon)
+
+
+_camera_constant = CPU.camera_constant
+_CPU_JIT = numba.njit(cache=True, inline="always")
+_trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(keep_record))
+
+
+@numba.njit(cache=True)
+def _white_block(mus, g, n, depth, reach, photons, first_photon, seed, stream, pixel, value, lengths_out, photon_out):
+    """Trace ``photons`` photons on stream ``stream`` and write their records from row 0 while there
+    is room; returns how many records they made (more than the rows: the caller retries)."""
+    bins = mus.shape[0]
+    majorant = mus.max()
+    state = seed_state(seed, stream)
+    estimator_state = seed_state(seed, stream + ESTIMATOR_STREAM)
+    constant = _camera_constant(n)
+    lengths = np.zeros(bins)
+    up = np.zeros(bins)
+    unused_counter = np.zeros(1, np.int64)
+    count = 0
+    for p in range(photons):
+        count = _trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up,
+                              first_photon + p, count, unused_counter, pixel, value, lengths_out, photon_out)
     return count
 
 
@@ -226,9 +266,18 @@ def _white_blocks(mus, g, n, depth, reach, per_block, seed, first, pixel, value,
                                  lengths[i], photon[i])
 
 
-def run_white(optics: SlabOptics, photons: int, seed: int = 0, progress=None) -> WhiteDatabase:
+def run_white(optics: SlabOptics, photons: int, seed: int = 0, progress=None,
+              device: Device | None = None) -> WhiteDatabase:
     """Trace ``photons`` (rounded up to a multiple of :data:`BLOCKS`) without absorption;
-    ``progress(fraction)`` after each :data:`CHUNK` blocks (raise from it to cancel)."""
+    ``progress(fraction)`` after each :data:`CHUNK` blocks (raise from it to cancel; once at the
+    end on a GPU). On a CUDA ``device`` the run is :func:`.white_cuda.run_white_cuda`'s."""
+    if device is not None and device.is_cuda:
+        from .white_cuda import run_white_cuda
+
+        database = run_white_cuda(optics, photons, seed)
+        if progress is not None:
+            progress(1.0)
+        return database
     start = time.perf_counter()
     mus = np.asarray(optics.mus, np.float64)
     per_block = -(-photons // BLOCKS)
@@ -273,16 +322,17 @@ def database_path(optics: SlabOptics, photons: int, seed: int) -> Path:
 
 
 def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: bool = True,
-                   progress=None) -> WhiteDatabase:
+                   progress=None, device: Device | None = None) -> WhiteDatabase:
     """The database of ``optics`` from the user cache (:mod:`.white_cache`), or run (and cached
     atomically, the least recently used databases then dropped down to the cache's limit);
-    ``progress`` as :func:`run_white` takes it."""
+    ``progress`` and ``device`` as :func:`run_white` takes them (a CUDA run of as many photons,
+    another sample of the same run, takes the same place in the cache)."""
     path = database_path(optics, photons, seed)
     limit = white_cache.cache_limit() if use_cache else 0  # a bad setting is told before the run
     if use_cache and (database := _cached(path, optics, photons)) is not None:
         white_cache.mark_used(path)
         return database
-    database = run_white(optics, photons, seed, progress)
+    database = run_white(optics, photons, seed, progress, device)
     if use_cache:
         try:
             save_checked(path, path.stem, {"photons": np.int64(database.photons), "pixel": database.pixel,

@@ -37,11 +37,11 @@ import numba
 import numpy as np
 
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..device import Device
 from ..errors import RinglightError
 from ..inversion import white_cache
-from ..simulate.camera import exit_fresnel, henyey_greenstein
-from ..simulate.phase import scatter_direction
-from ..simulate.streams import seed_state, uniform
+from ..simulate.steps import CPU, Steps
+from ..simulate.streams import seed_state
 
 RATIO = 1.02
 """Ratio between consecutive cells of ``rho`` and of ``L``."""
@@ -89,6 +89,9 @@ class RadialRun:
         length, mean free paths (0 where ``W`` is 0).
     seconds
         Time the run took.
+    device
+        What traced it: ``"cpu"``, or ``"cuda"`` (:mod:`.radial_cuda`: other random streams, so
+        another sample of the same run); a run read from the cache says ``"cpu"``.
     """
 
     n: float
@@ -98,23 +101,32 @@ class RadialRun:
     rho: np.ndarray
     path: np.ndarray
     seconds: float
+    device: str = "cpu"
 
 
-@numba.njit(cache=True, inline="always")
-def _cell(value, shortest, cells):
+def cell(value, shortest, cells):
+    """The log-spaced cell (ratio :data:`RATIO`) of ``value`` among ``cells`` from ``shortest``
+    (0 below it, the last one beyond the range)."""
     if value < shortest:
         return 0
     return min(1 + int(math.log(value / shortest) / math.log(RATIO)), cells - 1)
 
 
-@numba.njit(cache=True)
-def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_sum):
-    """Trace ``photons`` on stream ``stream`` and add their estimates to the cell sums."""
-    state = seed_state(seed, stream)
-    entry_weight = 1.0 - exit_fresnel(n, 1.0)
-    view_factor = math.pi * (1.0 - exit_fresnel(n, 1.0)) / (n * n)
-    constant = entry_weight * view_factor
-    for _ in range(photons):
+def add_to_cell(sums, i, j, value):
+    """``sums[i, j] += value`` (the CPU's tally; a CUDA kernel's adds atomically)."""
+    sums[i, j] += value
+
+
+def compile_walk(jit, steps: Steps, add):
+    """``trace_photon(state, g, n, longest, constant, weight, rho_sum, path_sum)``, compiled with
+    ``jit`` from the device's ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`) and
+    its compiled tally ``add`` (as :func:`add_to_cell`): one photon of the run traced on ``state``
+    (``constant`` = ``T_entry pi T_F(0) / n^2``) and its estimates added to the cell sums. The one
+    statement of the walk that the CPU and the CUDA kernels compile."""
+    uniform, exit_fresnel, henyey_greenstein = steps.uniform, steps.exit_fresnel, steps.henyey_greenstein
+    flight_to_surface, scatter, cell_of = steps.flight_to_surface, steps.scatter, jit(cell)
+
+    def trace_photon(state, g, n, longest, constant, weight, rho_sum, path_sum):
         y = 0.0
         x = 0.0
         z = 0.0
@@ -122,8 +134,8 @@ def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_su
         length = 0.0
         while length < longest:
             step = -math.log(1.0 - uniform(state))
-            if uz < 0.0 and z + step * uz <= 0.0:
-                travel = -z / uz
+            travel = flight_to_surface(z, uz, step)
+            if travel >= 0.0:
                 length += travel
                 y += travel * uy
                 x += travel * ux
@@ -141,12 +153,28 @@ def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_su
                 if rho < FARTHEST_RHO:
                     estimate = constant * henyey_greenstein(-uz, g) * math.exp(-z)
                     path = length + z
-                    i = _cell(rho, SHORTEST_RHO, RHO_CELLS)
-                    j = _cell(path, SHORTEST_PATH, PATH_CELLS)
-                    weight[i, j] += estimate
-                    rho_sum[i, j] += estimate * rho
-                    path_sum[i, j] += estimate * path
-            uy, ux, uz = scatter_direction(state, uy, ux, uz, g)
+                    i = cell_of(rho, SHORTEST_RHO, RHO_CELLS)
+                    j = cell_of(path, SHORTEST_PATH, PATH_CELLS)
+                    add(weight, i, j, estimate)
+                    add(rho_sum, i, j, estimate * rho)
+                    add(path_sum, i, j, estimate * path)
+            uy, ux, uz = scatter(state, uy, ux, uz, g)
+
+    return jit(trace_photon)
+
+
+_camera_constant = CPU.camera_constant
+_CPU_JIT = numba.njit(cache=True, inline="always")
+_trace_photon = compile_walk(_CPU_JIT, CPU, _CPU_JIT(add_to_cell))
+
+
+@numba.njit(cache=True)
+def _radial_block(g, n, longest, photons, seed, stream, weight, rho_sum, path_sum):
+    """Trace ``photons`` on stream ``stream`` and add their estimates to the cell sums."""
+    state = seed_state(seed, stream)
+    constant = _camera_constant(n)
+    for _ in range(photons):
+        _trace_photon(state, g, n, longest, constant, weight, rho_sum, path_sum)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -155,14 +183,23 @@ def _radial_blocks(g, n, longest, per_block, seed, first, weight, rho_sum, path_
         _radial_block(g, n, longest, per_block, seed, first + i, weight[i], rho_sum[i], path_sum[i])
 
 
-def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None) -> RadialRun:
-    """Trace ``photons`` (rounded up to whole :data:`BLOCKS`) into a half-space of index ``n`` and
-    anisotropy ``g`` without absorption; ``progress(fraction)`` after each :data:`CHUNK` blocks
-    (raise from it to cancel)."""
+def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None,
+               device: Device | None = None) -> RadialRun:
+    """Trace ``photons`` (rounded up to whole :data:`BLOCKS`: :func:`traced_photons`; on a CUDA
+    ``device`` as :func:`.radial_cuda.run_radial_cuda` shares them among its streams) into a
+    half-space of index ``n`` and anisotropy ``g`` without absorption; ``progress(fraction)``
+    after each :data:`CHUNK` blocks (raise from it to cancel; once at the end on a GPU)."""
     if not abs(g) <= MOST_ANISOTROPIC:
         raise TableError(f"a white run is made for |g| <= {MOST_ANISOTROPIC:g}, not g = {g:g}")
+    if device is not None and device.is_cuda:
+        from .radial_cuda import run_radial_cuda
+
+        run = run_radial_cuda(n, g, photons, seed)
+        if progress is not None:
+            progress(1.0)
+        return run
     start = time.perf_counter()
-    per_block = max(1, -(-int(photons) // BLOCKS))
+    per_block = traced_photons(photons) // BLOCKS
     weight = np.zeros((RHO_CELLS, PATH_CELLS))
     rho_sum = np.zeros_like(weight)
     path_sum = np.zeros_like(weight)
@@ -182,7 +219,8 @@ def run_radial(n: float, g: float, photons: int, seed: int = 0, progress=None) -
 
 def radial_path(n: float, g: float, photons: int, seed: int) -> Path:
     """Where the run of these optics lives in the user cache (among the inversion's white
-    databases, under their size limit: :mod:`ringlight.core.inversion.white_cache`)."""
+    databases, under their size limit: :mod:`ringlight.core.inversion.white_cache`); a CUDA run
+    of as many photons (another sample of the same run) takes the same place."""
     text = json.dumps({"radial": FORMAT_VERSION, "n": float(n), "g": float(g), "photons": int(photons),
                        "seed": int(seed), "ratio": RATIO, "rho": [SHORTEST_RHO, FARTHEST_RHO],
                        "path": [SHORTEST_PATH, LONGEST], "blocks": BLOCKS})
@@ -190,10 +228,10 @@ def radial_path(n: float, g: float, photons: int, seed: int) -> Path:
 
 
 def radial_run(n: float, g: float, photons: int, seed: int = 0, use_cache: bool = True,
-               progress=None) -> RadialRun:
-    """The run of ``n``, ``g`` from the user cache, or traced (:func:`run_radial`) and cached
-    atomically. A damaged cached file is traced again and replaced; something other than a
-    regular file in its place is a TableError naming it."""
+               progress=None, device: Device | None = None) -> RadialRun:
+    """The run of ``n``, ``g`` from the user cache, or traced (:func:`run_radial`, on ``device``)
+    and cached atomically. A damaged cached file is traced again and replaced; something other
+    than a regular file in its place is a TableError naming it."""
     path = radial_path(n, g, photons, seed)
     limit = white_cache.cache_limit() if use_cache else 0
     if use_cache:
@@ -206,7 +244,7 @@ def radial_run(n: float, g: float, photons: int, seed: int = 0, use_cache: bool 
         if arrays is not None and (run := _checked_run(arrays, n, g, photons)) is not None:
             white_cache.mark_used(path)
             return run
-    run = run_radial(n, g, photons, seed, progress)
+    run = run_radial(n, g, photons, seed, progress, device)
     if use_cache:
         try:
             save_checked(path, path.stem, {"photons": np.int64(run.photons), "weight": run.weight, "rho": run.rho,
@@ -217,10 +255,15 @@ def radial_run(n: float, g: float, photons: int, seed: int = 0, use_cache: bool 
     return run
 
 
+def traced_photons(photons: int) -> int:
+    """The photons a run of ``photons`` traces (rounded up to whole :data:`BLOCKS`, on either device)."""
+    return max(1, -(-int(photons) // BLOCKS)) * BLOCKS
+
+
 def _checked_run(arrays: dict[str, np.ndarray], n: float, g: float, photons: int) -> RadialRun | None:
     """``arrays`` as a run, or None when no run of ``photons`` could have made them."""
     shape = (RHO_CELLS, PATH_CELLS)
-    if (arrays["photons"].shape != () or int(arrays["photons"]) != max(1, -(-int(photons) // BLOCKS)) * BLOCKS
+    if (arrays["photons"].shape != () or int(arrays["photons"]) != traced_photons(photons)
             or any(arrays[name].shape != shape or arrays[name].dtype != np.float64 for name in ("weight", "rho", "path"))
             or not all(np.isfinite(arrays[name]).all() and arrays[name].min() >= 0 for name in ("weight", "rho", "path"))
             or arrays["seconds"].shape != ()):

@@ -21,6 +21,7 @@ import numpy as np
 from ..dataset.assembly import warm_up_assembly
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
 from ..dataset.manifest import Manifest
+from ..device import Device
 from ..errors import StackError
 from .geometry import ring_geometry, ring_outer_radius
 from .members import ring_members, unit_weight_rings
@@ -64,18 +65,20 @@ def ring_stack(
     antialias: bool = False,
     progress: ProgressCallback | None = None,
     scheduler=None,
+    device: Device | None = None,
 ) -> Stack:
     """Ring light images E_r for each radius in ``radii`` (grid steps).
 
     ``scheduler``: None computes here, band by band on every core; a ``dask.distributed.Client``
     or a scheduler's address computes one task per band of the dataset's store on that cluster
-    (:mod:`.distributed`), with the same result bit for bit.
+    (:mod:`.distributed`), with the same result bit for bit. ``device``: a CUDA device sums the
+    rings on the GPU (:mod:`.stack_cuda`; the same to float rounding), None or the CPU here.
 
     Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
     """
     radii = as_radii(radii)
     check_reach(dataset, radii, 0.0, thickness, antialias)
-    images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler)
+    images, counts = _ring_images(dataset, radii, thickness, antialias, progress, scheduler, device)
     return Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images, counts)
 
 
@@ -87,13 +90,15 @@ def transient_stack(
     antialias: bool = False,
     progress: ProgressCallback | None = None,
     scheduler=None,
+    device: Device | None = None,
 ) -> Stack:
     """Transient images T_r = E_r - E_{r+step} for each radius in ``radii`` (grid steps).
 
     Each distinct ring radius among ``radii`` and ``radii + step`` is computed once; ``scheduler``
-    as :func:`ring_stack` takes it. Returns a :class:`Stack` with (len(radii), H, W, 3) float32 images.
+    and ``device`` as :func:`ring_stack` takes them. Returns a :class:`Stack` with (len(radii), H, W, 3)
+    float32 images.
     """
-    return ring_and_transient_stacks(dataset, radii, step, thickness, antialias, progress, scheduler)[1]
+    return ring_and_transient_stacks(dataset, radii, step, thickness, antialias, progress, scheduler, device)[1]
 
 
 def ring_and_transient_stacks(
@@ -104,6 +109,7 @@ def ring_and_transient_stacks(
     antialias: bool = False,
     progress: ProgressCallback | None = None,
     scheduler=None,
+    device: Device | None = None,
 ) -> tuple[Stack, Stack]:
     """E_r and T_r = E_r - E_{r+step} for the same ``radii``, sharing every ring: the ring
     light stack's images are views into the computed rings whenever the radii allow it."""
@@ -113,7 +119,7 @@ def ring_and_transient_stacks(
     check_reach(dataset, radii, step, thickness, antialias)
     outer = np.round(radii + step, RADIUS_DECIMALS)
     unique = np.unique(np.concatenate([radii, outer]))
-    images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler)
+    images, counts = _ring_images(dataset, unique, thickness, antialias, progress, scheduler, device)
     inner = _as_selection(np.searchsorted(unique, radii))
     outer = _as_selection(np.searchsorted(unique, outer))
     ring = Stack("ring", radii, float(thickness), bool(antialias), dataset.colorspace, images[inner], counts[inner])
@@ -190,7 +196,7 @@ def _ring_tables(dataset: ImpulseDataset, radii: np.ndarray, thickness: float, a
             np.asarray(weight_start, np.int64), np.concatenate(weights))
 
 
-def _ring_images(dataset, radii, thickness, antialias, progress, scheduler=None):
+def _ring_images(dataset, radii, thickness, antialias, progress, scheduler=None, device=None):
     tables = _ring_tables(dataset, radii, thickness, antialias)
     if scheduler is not None:
         from .distributed import distributed_ring_images
@@ -200,25 +206,46 @@ def _ring_images(dataset, radii, thickness, antialias, progress, scheduler=None)
     images = np.empty((len(radii), height, width, 3), np.float32)
     counts = np.empty((len(radii), height, width), np.int32)
     lit = dataset.lit
+    sums = _ring_sums
+    if device is not None and device.is_cuda:
+        from .stack_cuda import cuda_ring_sums as sums
     for row0, row1 in dataset.bands():
         band_images(dataset.rows(row0, row1), lit, dataset.observed, dataset.offsets, tables, row0,
-                    images[:, row0:row1], counts[:, row0:row1])
+                    images[:, row0:row1], counts[:, row0:row1], sums)
         if progress is not None:
             progress(row1 / height)
     return images, counts
 
 
 def band_images(responses: np.ndarray, lit: np.ndarray, observed: np.ndarray, offsets: np.ndarray, tables: tuple,
-                row0: int, images: np.ndarray, counts: np.ndarray) -> None:
+                row0: int, images: np.ndarray, counts: np.ndarray, sums=None) -> None:
     """Ring images of the band of grid rows from ``row0``: fill ``images`` (n, rows, W, 3) float32 and
     ``counts`` (n, rows, W) int32 from its ``responses`` (rows, W, K, 3), the (H, W) bool ``lit`` and
-    ``observed`` points, the (K, 2) ``offsets`` and the rings' ``tables`` (:func:`_ring_tables`)."""
+    ``observed`` points, the (K, 2) ``offsets`` and the rings' ``tables`` (:func:`_ring_tables`);
+    ``sums`` the kernel that sums the rings (:func:`_ring_sums`, or the GPU's
+    :func:`.stack_cuda.cuda_ring_sums`)."""
     first, stop, weight_start, weights = tables
     unweighted = unit_weight_rings(tables)
     counts[...], totals = ring_members(lit, observed, offsets, tables, unweighted, row0, row0 + len(responses))
-    _ring_sums(np.ascontiguousarray(responses), first, stop, weight_start, weights, unweighted, counts, totals,
+    (sums or _ring_sums)(np.ascontiguousarray(responses), first, stop, weight_start, weights, unweighted, counts, totals,
                images)
 
+
+def store_mean(images, j, y, x, count, total, s0, s1, s2):
+    """``images[j, y, x]`` = the ring's sums ``s0, s1, s2`` over its members' ``total`` weight;
+    NaN when it has no member (``count`` 0). Compiled for the CPU's kernel and the GPU's
+    (:mod:`.stack_cuda`)."""
+    if count == 0:
+        images[j, y, x, 0] = math.nan
+        images[j, y, x, 1] = math.nan
+        images[j, y, x, 2] = math.nan
+    else:
+        images[j, y, x, 0] = s0 / total
+        images[j, y, x, 1] = s1 / total
+        images[j, y, x, 2] = s2 / total
+
+
+_store_mean = numba.njit(cache=True, inline="always")(store_mean)
 
 LANES = 12
 """Partial sums kept while a default ring is summed (a multiple of 3): four offsets' R, G, B, which
@@ -277,15 +304,7 @@ def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts
                         s0 += w * pixel[3 * k]
                         s1 += w * pixel[3 * k + 1]
                         s2 += w * pixel[3 * k + 2]
-                if counts[j, y, x] == 0:
-                    images[j, y, x, 0] = np.nan
-                    images[j, y, x, 1] = np.nan
-                    images[j, y, x, 2] = np.nan
-                else:
-                    total = totals[j, y, x]
-                    images[j, y, x, 0] = s0 / total
-                    images[j, y, x, 1] = s1 / total
-                    images[j, y, x, 2] = s2 / total
+                _store_mean(images, j, y, x, counts[j, y, x], totals[j, y, x], s0, s1, s2)
 
 
 def warm_up_kernels() -> None:

@@ -54,6 +54,7 @@ import math
 import numba
 import numpy as np
 
+from .steps import CPU
 from .streams import uniform
 from .tables import ANISOTROPY, MU_T
 
@@ -67,21 +68,8 @@ INDEX, DEPTH, BEAM_Y, BEAM_X, BEAM_Z, ENTRY_WEIGHT, VIEW_Y, VIEW_X, VIEW_Z, VIEW
 OPTICS_SIZE = 11
 
 
-@numba.njit(cache=True, inline="always")
-def exit_fresnel(n, cos_inside):
-    """Unpolarised Fresnel reflectance between a medium of index n and air, for the angle
-    ``arccos(cos_inside)`` inside (1.0 at total internal reflection). The same either way
-    across the surface: light from air at the matching outside angle reflects as much."""
-    if n == 1.0:
-        return 0.0
-    sin_inside = math.sqrt(max(0.0, 1.0 - cos_inside * cos_inside))
-    sin_out = n * sin_inside
-    if sin_out >= 1.0:
-        return 1.0
-    cos_out = math.sqrt(1.0 - sin_out * sin_out)
-    rs = (n * cos_inside - cos_out) / (n * cos_inside + cos_out)
-    rp = (cos_inside - n * cos_out) / (cos_inside + n * cos_out)
-    return 0.5 * (rs * rs + rp * rp)
+exit_fresnel = CPU.exit_fresnel
+"""Unpolarised Fresnel reflectance ``exit_fresnel(n, cos_inside)`` (:func:`.steps.exit_fresnel`, compiled for the CPU)."""
 
 
 def specular_reflectance(n: float, zenith_deg: float = 0.0) -> float:
@@ -133,13 +121,8 @@ def optics(n: float, depth: float, projector=(0.0, 0.0), camera=(0.0, 0.0),
     return values
 
 
-@numba.njit(cache=True, inline="always")
-def henyey_greenstein(cos_angle, g):
-    """Henyey-Greenstein phase function per steradian."""
-    if g == 0.0:
-        return 0.25 / math.pi
-    denominator = 1.0 + g * g - 2.0 * g * cos_angle
-    return (1.0 - g * g) / (4.0 * math.pi * denominator * math.sqrt(denominator))
+henyey_greenstein = CPU.henyey_greenstein
+"""Henyey-Greenstein phase function per steradian ``henyey_greenstein(cos_angle, g)`` (:func:`.steps.henyey_greenstein`, compiled for the CPU)."""
 
 
 def column_optical_depths(volume: np.ndarray, mu_t: np.ndarray, camera=(0.0, 0.0)) -> np.ndarray:

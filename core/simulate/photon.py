@@ -55,9 +55,11 @@ from .camera import (
     view_constants,
 )
 from .phase import scatter_direction
+from .steps import CPU
 from .streams import ESTIMATOR_STREAM, fresh_state, seed_state, uniform
 from .tables import ANISOTROPY, MU_T, SCATTER, WALK_MU, channel_count
 
+flight_to_surface = CPU.flight_to_surface
 ROULETTE_WEIGHT = 1e-4
 ROULETTE_SURVIVAL = 0.1
 RECORD_FIELDS = 6
@@ -182,8 +184,8 @@ def walk(state, estimator_state, walker, pending, volume, tables, majorant, opti
             pending = False
         else:
             step = -math.log(1.0 - uniform(state)) / majorant
-            if uz < 0.0 and z + step * uz <= 0.0:
-                travel = -z / uz
+            travel = flight_to_surface(z, uz, step)
+            if travel >= 0.0:
                 y += travel * uy
                 x += travel * ux
                 length += travel

@@ -10,13 +10,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .steps import CPU
+
+uniform = CPU.uniform
+"""Next float in [0, 1) from a xoroshiro128+ state (advanced in place): :mod:`.steps`, compiled for the CPU."""
+_rotl = CPU.rotate_left
+
 ESTIMATOR_STREAM = 1 << 40
 """Added to a walk's stream number to name its estimator's stream (walk streams stay below it)."""
-
-
-@numba.njit(cache=True, inline="always")
-def _rotl(x, k):
-    return (x << np.uint64(k)) | (x >> np.uint64(64 - k))
 
 
 @numba.njit(cache=True)
@@ -38,18 +39,6 @@ def seed_state(seed, stream):
     if state[0] == 0 and state[1] == 0:
         state[0] = np.uint64(1)
     return state
-
-
-@numba.njit(cache=True, inline="always")
-def uniform(state):
-    """Next float in [0, 1) from a xoroshiro128+ state (advanced in place)."""
-    s0 = state[0]
-    s1 = state[1]
-    result = s0 + s1
-    s1 ^= s0
-    state[0] = _rotl(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
-    state[1] = _rotl(s1, 37)
-    return (result >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @numba.njit(cache=True)

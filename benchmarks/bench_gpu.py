@@ -1,0 +1,110 @@
+"""Benchmark of the CUDA kernels against the CPU kernels (not a test), measured in one run:
+
+(1) White runs, photons per second on every CPU core and on the GPU (100 times the photons),
+    after a warm-up compile of each, and their ratio: the optics table's (a half-space of
+    n = 1.4, g = 0.8 in mean free paths, :mod:`ringlight.core.optics.radial`) and the layer
+    inversion's (the layers3 sample's search slab: 9 depth bins of mus 1 per grid step, 64 grid
+    steps deep, g 0, n 1.4, :mod:`ringlight.core.inversion.white_mc`).
+(2) The ring sums of a transient stack of radii 0..10 (rings 0..11) on a random 800 x 800 dataset
+    (offsets within radius 11.5): seconds on the CPU and on the GPU (transfers included), and
+    their ratio.
+
+Without a usable GPU (``ringlight[cuda]`` and an NVIDIA driver) the GPU part is skipped with a
+line saying so; the CPU figures are still printed.
+
+    python benchmarks/bench_gpu.py [--photons 20000] [--size 800]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from ringlight.core.device import cpu_device, cuda_device
+from ringlight.core.inversion.search import REACH
+from ringlight.core.inversion.white_mc import SlabOptics, run_white
+from ringlight.core.optics.radial import run_radial
+from ringlight.core.rings.stacks import _ring_sums, _ring_tables
+from ringlight.core.rings.members import ring_members, unit_weight_rings
+
+
+SLAB = SlabOptics((1.0,) * 9, 0.0, 1.4, 64.0, REACH)
+
+
+def radial_rate(photons: int, device) -> float:
+    """Photons per second of the optics table's white run on ``device`` (after one small run)."""
+    run_radial(1.4, 0.8, 1000, seed=1, device=device)
+    start = time.perf_counter()
+    run = run_radial(1.4, 0.8, photons, seed=2, device=device)
+    return run.photons / (time.perf_counter() - start)
+
+
+def slab_rate(photons: int, device) -> float:
+    """Photons per second of the layer inversion's white run (records) on ``device``."""
+    run_white(SLAB, 64, seed=1, device=device)
+    start = time.perf_counter()
+    run = run_white(SLAB, photons, seed=2, device=device)
+    return run.photons / (time.perf_counter() - start)
+
+
+class _Dataset:
+    """What :func:`_ring_tables` reads of a dataset: offsets and max_radius."""
+
+    def __init__(self, offsets, max_radius):
+        self.offsets = offsets
+        self.max_radius = max_radius
+
+
+def stack_seconds(size: int, sums) -> float:
+    """Seconds to sum the 12 rings of radii 0..11 (those of a transient stack of radii 0..10) of a
+    random dataset of ``size`` x ``size`` points with the kernel ``sums``, after one warm-up call
+    (the responses take ``size^2`` x 1.3 kB: 3.2 GB at 800)."""
+    reach = 11.5
+    grid = np.arange(-12, 13)
+    dy, dx = np.meshgrid(grid, grid, indexing="ij")
+    inside = dy**2 + dx**2 <= reach**2
+    order = np.argsort(np.hypot(dy[inside], dx[inside]), kind="stable")
+    offsets = np.stack([dy[inside][order], dx[inside][order]], 1).astype(np.int64)
+    tables = _ring_tables(_Dataset(offsets, reach), np.arange(12.0), 1.0, False)
+    rng = np.random.default_rng(0)
+    responses = rng.random((size, size, len(offsets), 3), dtype=np.float32)
+    lit = np.ones((size, size), bool)
+    counts, totals = ring_members(lit, lit, offsets, tables, unit_weight_rings(tables), 0, size)
+    images = np.empty((len(tables[0]), size, size, 3), np.float32)
+    arguments = (responses, *tables, unit_weight_rings(tables), counts, totals, images)
+    sums(*arguments)
+    start = time.perf_counter()
+    sums(*arguments)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--photons", type=int, default=20_000)
+    parser.add_argument("--size", type=int, default=800)
+    args = parser.parse_args()
+    cpu, gpu = cpu_device(), cuda_device()
+    if gpu is not None and gpu.name == "CUDA simulator":
+        gpu = None  # the simulator runs kernels in Python: nothing to time
+    print(f"CPU: {cpu.name}; GPU: {gpu.name if gpu else 'none usable: the GPU figures are skipped'}")
+    for name, rate in (("optics table's white run (half-space, n 1.4, g 0.8)", radial_rate),
+                       ("layer inversion's white run (9 bins, 64 deep, n 1.4)", slab_rate)):
+        cpu_rate = rate(args.photons, cpu)
+        print(f"{name}: CPU {cpu_rate / 1e6:.4f} M photons/s", end="")
+        if gpu is not None:
+            gpu_rate = rate(args.photons * 100, gpu)
+            print(f", GPU {gpu_rate / 1e6:.4f} M photons/s: {gpu_rate / cpu_rate:.1f}x", end="")
+        print()
+    cpu_seconds = stack_seconds(args.size, _ring_sums)
+    print(f"ring sums, {args.size} x {args.size} points, 12 rings: CPU {cpu_seconds:.3f} s", end="")
+    if gpu is not None:
+        from ringlight.core.rings.stack_cuda import cuda_ring_sums
+
+        gpu_seconds = stack_seconds(args.size, cuda_ring_sums)
+        print(f", GPU {gpu_seconds:.3f} s (transfers included): {cpu_seconds / gpu_seconds:.1f}x", end="")
+    print()
+
+
+if __name__ == "__main__":
+    main()

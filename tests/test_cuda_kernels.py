@@ -1,0 +1,130 @@
+"""The CUDA kernels against the CPU kernels: on a GPU when this machine has one, else in numba's
+CUDA simulator (tiny problems: it runs each thread in Python). Run by :mod:`cuda_cases`."""
+
+import numpy as np
+import pytest
+from cuda_cases import run_case
+from numpy.testing import assert_allclose
+from reference import random_impulses, write_dataset
+from test_adding_doubling import chandrasekhar_h_at_one
+from ringlight.core import open_dataset
+from ringlight.core.device import DeviceError, choose_device, cuda_device, simulator_enabled
+from ringlight.core.inversion import white_mc
+from ringlight.core.optics import radial
+from ringlight.core.rings.stacks import ring_and_transient_stacks
+
+
+def cuda_case(case, tmp_path, argument=""):
+    arrays = run_case(case, tmp_path / f"{case}.npz", argument)
+    if arrays is None:
+        pytest.skip("numba's CUDA simulator is not available")
+    return arrays
+
+
+def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
+    # Thread t walks stream (seed, t) with the same compiled steps: the CPU's block kernel on
+    # streams 0..3 makes the same cell sums (up to the order of the additions). 12 photons are
+    # rounded up as the CPU rounds them (whole blocks: 16), 4 on each stream.
+    gpu = cuda_case("radial", tmp_path)
+    assert int(gpu["photons"]) == radial.traced_photons(12) == 16
+    weight, rho_sum, path_sum = (np.zeros((radial.RHO_CELLS, radial.PATH_CELLS)) for _ in range(3))
+    for stream in range(4):
+        radial._radial_block(0.5, 1.4, radial.LONGEST / 0.5, 4, 3, stream, weight, rho_sum, path_sum)
+    assert weight.sum() > 0
+    assert_allclose(gpu["weight"], weight, rtol=1e-12, atol=1e-18)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert_allclose(gpu["rho"], np.where(weight > 0, rho_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
+        assert_allclose(gpu["path"], np.where(weight > 0, path_sum / weight, 0.0), rtol=1e-12, atol=1e-12)
+
+
+def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(tmp_path):
+    gpu = cuda_case("white", tmp_path)
+    # (1) Thread t walks stream (seed 2, t) and its estimator stream, photons 64 t .. 64 t + 63:
+    # the CPU's block kernel on those streams makes the same records in the same order.
+    optics = white_mc.SlabOptics((1.0,), 0.0, 1.0, 8.0, 5)
+    parts = []
+    for stream in range(4):
+        arguments = (np.array(optics.mus), optics.g, optics.n, optics.depth, optics.reach, 64, 64 * stream, 2, stream)
+        count = white_mc._white_block(*arguments, np.zeros(0, np.int32), np.zeros(0, np.float32),
+                                      np.zeros((0, 1), np.float32), np.zeros(0, np.int32))
+        records = (np.zeros(count, np.int32), np.zeros(count, np.float32), np.zeros((count, 1), np.float32),
+                   np.zeros(count, np.int32))
+        white_mc._white_block(*arguments, *records)
+        parts.append(records)
+    pixel, value, lengths, photon = (np.concatenate([part[i] for part in parts]) for i in range(4))
+    assert int(gpu["photons"]) == 256 and len(photon) > 1000
+    assert np.array_equal(gpu["pixel"], pixel) and np.array_equal(gpu["photon"], photon)
+    assert_allclose(gpu["value"], value, rtol=1e-6)
+    assert_allclose(gpu["lengths"], lengths, rtol=1e-6)
+    # (2) Reweighted for absorption mua = mus (albedo 1/2), the records' sum per photon is the
+    # normal radiance of an index-matched isotropic half-space, omega H(1)^2 / 8 (Chandrasekhar
+    # 1960; the same check as the optics table's white run): 0.09785. The slab's depth and reach
+    # cut off below 0.1 % of it (the CPU with 10^5 photons: 0.09793 +- 0.00036). 256 photons
+    # leave a standard error of about 7 % (itself uncertain: the estimates are heavy-tailed).
+    per_photon = np.bincount(gpu["photon"], gpu["value"] * np.exp(-gpu["lengths"][:, 0]), 256)
+    error = per_photon.std() / np.sqrt(256)
+    assert abs(per_photon.mean() - 0.5 * chandrasekhar_h_at_one(0.5) ** 2 / 8) < 3 * error
+
+
+def test_stack_kernel_equals_the_cpu_stacks(tmp_path):
+    # A 6 x 7 dataset with missing points: the gather kernel's ring and transient images against
+    # core.rings' (same sums in another order: float32 rounding), NaN in the same places.
+    rng = np.random.default_rng(4)
+    impulses = random_impulses(rng, 6, 7, support=40, missing=0.2)
+    write_dataset(tmp_path / "ds", 6, 7, impulses)
+    gpu = cuda_case("stacks", tmp_path, str(tmp_path / "ds"))
+    ring, transient = ring_and_transient_stacks(open_dataset(tmp_path / "ds", radius=4.5), np.arange(4.0), 1.0)
+    for name, cpu in (("ring", ring.images), ("transient", transient.images)):
+        assert np.array_equal(np.isnan(gpu[name]), np.isnan(cpu))
+        assert np.isnan(cpu).any() and not np.isnan(cpu).all()
+        assert_allclose(np.nan_to_num(gpu[name]), np.nan_to_num(cpu), rtol=1e-5, atol=1e-7)
+    assert np.array_equal(gpu["counts"], ring.counts)
+
+
+def test_cuda_device_is_the_gpu_or_the_simulator_and_auto_never_the_simulator(tmp_path):
+    arrays = cuda_case("device", tmp_path)
+    usable = cuda_device()
+    assert str(arrays["name"]) == (usable.name if usable is not None else "CUDA simulator")
+    assert str(arrays["auto"]) == ("cuda" if usable is not None else "cpu")
+
+
+@pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
+def test_without_a_gpu_auto_is_the_cpu_and_cuda_a_one_line_error():
+    assert choose_device("auto").kind == "cpu"
+    assert choose_device("cpu").name.startswith("CPU (")
+    with pytest.raises(DeviceError, match="^--device cuda: no usable NVIDIA GPU") as error:
+        choose_device("cuda")
+    assert "\n" not in str(error.value)
+    with pytest.raises(DeviceError, match="unknown device 'gpu'"):
+        choose_device("gpu")
+
+
+def test_stack_command_says_which_device_summed_the_rings(tmp_path, capsys):
+    from ringlight.app.main import main
+
+    impulses = random_impulses(np.random.default_rng(5), 5, 6, support=2.5, missing=0.0)
+    write_dataset(tmp_path / "ds", 5, 6, impulses, max_radius=2.5)
+    assert main(["stack", str(tmp_path / "ds"), "--radii", "0:1:1", "--device", "cpu", "--out",
+                 str(tmp_path / "cpu")]) == 0
+    assert "; rings summed on CPU (" in capsys.readouterr().out
+    # Without a GPU (or with one but together with --interpolate), --device cuda is one line, exit 2.
+    status = main(["stack", str(tmp_path / "ds"), "--radii", "0:1:1", "--device", "cuda", "--interpolate",
+                   "--out", str(tmp_path / "gpu")])
+    error = capsys.readouterr().err
+    assert status == 2 and "--device cuda" in error and "--interpolate" in error
+    assert not (tmp_path / "gpu").exists()
+
+
+@pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
+@pytest.mark.parametrize("command", [["layers", "DATASET", "--method", "inverse"],
+                                     ["optics", "DATASET", "--json", "OUT"]])
+def test_device_cuda_without_a_gpu_stops_the_white_runs_commands_in_one_line(tmp_path, capsys, command):
+    from ringlight.app.main import main
+
+    arguments = [str(tmp_path / "out.json") if part == "OUT" else str(tmp_path / "missing") if part == "DATASET"
+                 else part for part in command]
+    assert main([*arguments, "--device", "cuda"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.endswith("--device cuda: no usable NVIDIA GPU (install ringlight[cuda], and check the driver with "
+                          "nvidia-smi)") and "\n" not in error
+    assert not (tmp_path / "out.json").exists()
