@@ -21,17 +21,25 @@ def dataset(tmp_path):
 
 
 class CountingReads:
-    """Counts EXR frame decodes (the work the cache exists to avoid)."""
+    """Counts EXR frame decodes, alone or in a run of small frames (the work the cache exists to avoid)."""
 
     def __init__(self, monkeypatch):
-        self.count = 0
-        original = frames_module.read_exr_channels
+        from ringlight.core.dataset.frame_batch import BatchDecoder
 
-        def counted(path, *args):
+        self.count = 0
+        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
+
+        def counted(*args, **kwargs):
             self.count += 1
-            return original(path, *args)
+            return original(*args, **kwargs)
+
+        def counted_run(decoder, *args, **kwargs):
+            run, status, bad = original_run(decoder, *args, **kwargs)
+            self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
+            return run, status, bad
 
         monkeypatch.setattr(frames_module, "read_exr_channels", counted)
+        monkeypatch.setattr(BatchDecoder, "load", counted_run)
 
 
 def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):

@@ -20,8 +20,9 @@ ringlight's ``meta.json``:
   state, so that an open shows it without reading the responses), same codecs;
 - ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
   reopen need not parse its JSON;
-- ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
-  and the entry's table of files (:mod:`.store_table`).
+- ``meta.json``: the cache key (:func:`.cache.files_key`) and its manifest part
+  (:func:`.cache.manifest_key`, which tells an open whether the files need be stat'ed at all), the
+  layout version, the shape, the tile and the entry's table of files (:mod:`.store_table`).
 
 Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
 types, and the folder against the table (exactly its files, at their sizes; a symbolic link, FIFO
@@ -64,9 +65,9 @@ from .store_table import (
     table_of,
 )
 
-LAYOUT_VERSION = 5
+LAYOUT_VERSION = 6
 """3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
-5: meta.json holds the entry's table of files."""
+5: meta.json holds the entry's table of files; 6: and the key's manifest part."""
 CHUNK_BYTES = 8 * 2**20
 """Target size of one uncompressed responses chunk: big enough for compression and few files,
 small enough that a click (one point's chunk) decodes in a few milliseconds."""
@@ -98,6 +99,9 @@ class StoreWriter:
 
     def __init__(self, folder: Path, shape: tuple[int, ...], tile: int):
         self.folder, self.shape, self.tile = folder, shape, tile
+        self.key: str | None = None
+        """The entry's key (:func:`.cache.files_key`), set once the frames are read: it holds the
+        identity of each frame file as it was read."""
         group = zarr.open_group(zarr.storage.LocalStore(folder), mode="w")
         self._group = group
         self._responses = group.create_array(
@@ -139,8 +143,9 @@ class StoreWriter:
 
 
 @contextmanager
-def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> Iterator[StoreWriter]:
-    """Write an entry at ``location`` atomically: the caller fills the yielded writer; on leaving
+def write_store(location: Path, manifest_key: str, shape: tuple[int, ...], tile: int) -> Iterator[StoreWriter]:
+    """Write an entry at ``location`` atomically: the caller fills the yielded writer and sets its
+    :attr:`~StoreWriter.key` (the entry is of the manifest of key ``manifest_key``); on leaving
     without an error the entry is published, on an error (or :class:`Cancelled`) nothing is left.
 
     Raises the caller's errors, and OSError or RinglightError when the folder cannot be written
@@ -154,8 +159,10 @@ def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> 
     with atomic_folder(location) as staging:
         writer = StoreWriter(staging, shape, tile)
         yield writer
-        meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile,
-                "table": table_of(staging)}
+        if writer.key is None:
+            raise ValueError("a store entry written without its key")
+        meta = {"key": writer.key, "manifest_key": manifest_key, "layout": LAYOUT_VERSION, "shape": list(shape),
+                "tile": tile, "table": table_of(staging)}
         (staging / META).write_text(json.dumps(meta), encoding="utf-8")
 
 
@@ -163,14 +170,32 @@ def entry_file(location: Path, relative: str) -> bytes | None:
     """The bytes of one file of the entry at ``location`` (of this layout) as its table says they
     are, or None (no entry, a damaged one, or a file other than written)."""
     try:
-        if not stat.S_ISREG(os.lstat(location / META).st_mode):
-            return None
-        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
-        if not isinstance(meta, dict) or meta.get("layout") != LAYOUT_VERSION or not isinstance(meta.get("table"), dict):
+        meta = _meta(location)
+        if meta is None or not isinstance(meta.get("table"), dict):
             return None
         return read_checked(location, relative, meta["table"])
     except (OSError, ValueError, TypeError, RinglightError):
         return None
+
+
+def stored_manifest_key(location: Path) -> str | None:
+    """The manifest key (:func:`.cache.manifest_key`) of the entry at ``location``, or None (no
+    entry, a damaged one, one of another layout); stats no dataset file."""
+    try:
+        meta = _meta(location)
+    except (OSError, RinglightError):
+        return None
+    key = None if meta is None else meta.get("manifest_key")
+    return key if isinstance(key, str) else None
+
+
+def _meta(location: Path) -> dict | None:
+    """The entry's meta.json when it is a regular file of this layout, else None (raises OSError
+    or RinglightError for a file that cannot be read)."""
+    if not stat.S_ISREG(os.lstat(location / META).st_mode):
+        return None
+    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
+    return meta if isinstance(meta, dict) and meta.get("layout") == LAYOUT_VERSION else None
 
 
 class ResponseStore:
@@ -291,12 +316,8 @@ def stored_entry_bytes(location: Path, key: str) -> int | None:
 def _current_meta(location: Path, key: str) -> dict | None:
     """The entry's meta.json when it is a regular file of this layout written for ``key``, else
     None (raises OSError or RinglightError for a file that cannot be read)."""
-    if not stat.S_ISREG(os.lstat(location / META).st_mode):
-        return None
-    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
-    if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
-        return None
-    return meta
+    meta = _meta(location)
+    return meta if meta is not None and meta.get("key") == key else None
 
 
 def entry_bytes(location: Path) -> int:
