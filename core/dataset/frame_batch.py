@@ -30,9 +30,7 @@ problems of :func:`.frames._radiance` (dividing, subtracting the dark frame)."""
 class BatchDecoder:
     """Loads runs of a dataset's grid-space frames into a batch of the assembly (see the module
     docstring); :attr:`usable` is False when none can be (camera frames, which are mapped; a first
-    frame of another layout; no zlib to call), and frames are then read one by one.
-
-    ``calls`` counts the compiled calls made (one a run)."""
+    frame of another layout; no zlib to call), and frames are then read one by one."""
 
     def __init__(self, reader: FrameReader, passed: PassedHeader | None):
         self.reader = reader
@@ -43,7 +41,6 @@ class BatchDecoder:
                        and not passed.layout.tiled
                        and passed.layout.first == passed.layout.entries == -(-small.height // small.lines))
         self.picked = picked
-        self.calls = 0
 
     def load(self, start: int, stop: int, row0: int, row1: int, radiance: np.ndarray, owner: np.ndarray,
              slot: int, owner_arguments: tuple) -> tuple[FileRun, np.ndarray, np.ndarray]:
@@ -65,7 +62,6 @@ class BatchDecoder:
         image = np.empty((row1 - row0, small.width, len(reader.channels)), np.float32)
         dark = (reader.dark[row0:row1] if reader.dark is not None
                 else np.zeros((0, 0, len(reader.channels)), np.float32))
-        self.calls += 1
         _load_frames(run.data, run.starts, run.sizes, layout_array(small, self.passed.layout.table_start, row0),
                      small.width, *self.picked, _HALF_TO_FLOAT, image, np.zeros(2, LENGTH_TYPE),
                      frames.exposures[start:start + count].astype(np.float32), dark, reader.dark is not None,
