@@ -33,7 +33,6 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import OpenEXR
 
@@ -47,6 +46,7 @@ from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
 from .response_store import StoreWriter
+from .scatter import _scatter_batch, _scatter_rows, scatter, slots_to_offsets
 
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
@@ -163,7 +163,7 @@ class Assembler:
                             progress((done + loaded) / len(frames))
                     done += loaded
                     batch = batches[index % 2]
-                    _scatter(responses, steady, batch.radiance, batch.owner, loaded)
+                    scatter(responses, steady, batch.radiance, batch.owner, loaded)
                     pending = queued
             except BaseException:
                 for future in pending + queued:
@@ -172,7 +172,7 @@ class Assembler:
         if bad_values:
             raise DatasetError(f"{first_bad}: NaN or Inf radiance ({bad_values} values in {bad_frames} frame(s); "
                                "this is the first)")
-        _slots_to_offsets(responses, self.slot_of)
+        slots_to_offsets(responses, self.slot_of)
         unobserved = ~self.observed[row0:row1]
         responses[unobserved] = 0.0
         steady[unobserved] = np.nan
@@ -336,7 +336,7 @@ def warm_up_assembly() -> None:
                          np.zeros(2, LENGTH_TYPE), np.ones(1, np.float32), np.zeros((0, 0, 3), np.float32), False,
                          radiance[None], owner[None], 0, np.zeros((1, 2), np.int64), np.zeros(2, np.int64), one, one,
                          one, np.ones((1, 1), np.float32), 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    _slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
+    slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
     _put_half(np.zeros((1, 1), np.uint16), _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32), 0)
     _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
               np.zeros((1, 1, 3), np.float32))
@@ -362,56 +362,3 @@ def _decoding_threads(count: int) -> Iterator[None]:
         yield
     finally:
         OpenEXR.set_global_thread_count(before)
-
-
-def _scatter(responses, steady, radiance, owner, count) -> None:
-    """:func:`_scatter_batch` on every core when the batch is large, else on this thread: the
-    threads' start and wait cost about 15 ms of CPU a call, more than a batch of 1000 frames of 10 x
-    10 points takes alone. Both add in frame order: the sums are the same, bit for bit."""
-    if responses.shape[0] * responses.shape[1] * count < PARALLEL_SCATTER:
-        _scatter_rows(responses, steady, radiance, owner, count, 0, responses.shape[0])
-    else:
-        _scatter_batch(responses, steady, radiance, owner, count)
-
-
-PARALLEL_SCATTER = 2**22
-"""Frame points (rows x W x frames) of a batch from which :func:`_scatter` runs on every core."""
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _scatter_batch(responses, steady, radiance, owner, count):  # pragma: no cover - compiled
-    """responses[p, owner[b, p]] += radiance[b, p] (weighed, the owner a slot: see :class:`_Batch`)
-    for the first ``count`` frames b of a batch, in frame order, and the same into ``steady[p]``
-    (float64); parallel over rows (each thread owns its points)."""
-    for y in numba.prange(responses.shape[0]):
-        _scatter_rows(responses, steady, radiance, owner, count, y, y + 1)
-
-
-@numba.njit(cache=True, nogil=True)
-def _scatter_rows(responses, steady, radiance, owner, count, row0, row1):  # pragma: no cover - compiled
-    """:func:`_scatter_batch` of rows ``row0 .. row1``, on this thread."""
-    width = responses.shape[1]
-    for y in range(row0, row1):
-        for x in range(width):
-            for b in range(count):
-                k = owner[b, y, x]
-                if k >= 0:
-                    for c in range(3):
-                        light = radiance[b, y, x, c]
-                        responses[y, x, k, c] += light
-                        steady[y, x, c] += light
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _slots_to_offsets(responses, slot_of):  # pragma: no cover - compiled
-    """Put every point's (K, 3) block of ``responses`` from slot order into offset order in place:
-    offset k is slot ``slot_of[k]``. Parallel over rows, one block (K x 12 bytes) copied at a time."""
-    rows, width, count = responses.shape[0], responses.shape[1], responses.shape[2]
-    for y in numba.prange(rows):
-        block = np.empty((count, 3), np.float32)
-        for x in range(width):
-            block[:] = responses[y, x]
-            for k in range(count):
-                slot = slot_of[k]
-                for c in range(3):
-                    responses[y, x, k, c] = block[slot, c]
