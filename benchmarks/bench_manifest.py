@@ -15,9 +15,10 @@ every file's header (``find_file_problems``, what ``ringlight info`` does), the 
 (``plan_open``: with no store of this manifest, no file is stat'ed), the key a reopen makes
 (``cache.stat_key``: a stat a file) and the open itself (``open_dataset`` without the cache: every
 frame located, read, checked, decoded and scattered), each per frame and as a ratio to the parse.
-Measured on the 2-core development machine (shared with other work), 100 000 frames, before the
-runs of frames (each frame checked and decoded alone, the plan stat'ing every file), in us a frame:
-parse 2.6, check 9.6, plan 2.5, open 33.5; see the module's history for after. The commands on the
+Measured on the 2-core development machine (shared with other work), 100 000 frames, two runs
+alternated with runs of the code before the runs of frames (each frame checked and decoded alone,
+the plan stat'ing every file), in us a frame before and after: parse 2.7-3.1 and 2.7-2.9, check
+10.0-10.3 and 7.1-7.5, plan 2.6 and 0.0 (key 2.9-3.3), open 33.5-36.4 and 8.5-9.0. The commands on the
 same dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
 31.8 s (each about 1.5 s of it the start of Python and its imports).
 

@@ -200,16 +200,19 @@ def _unpack(raw, zipped, rows, top, width, starts, halves, targets, half_to_floa
 
 def _load_inflate() -> bool:
     """Make zlib's ``uncompress2`` (zlib 1.2.9 on) callable from compiled code; False when the
-    library cannot be found or loaded."""
-    name = ctypes.util.find_library("z")
-    if name is None:
-        return False
-    try:
-        ctypes.CDLL(name).uncompress2  # noqa: B018 - an older zlib lacks it
-        llvmlite.binding.load_library_permanently(name)
-    except (OSError, AttributeError, RuntimeError):
-        return False
-    return True
+    library cannot be found or loaded. Its usual names are tried first: ``find_library`` runs
+    ``ldconfig``, 40 ms at every start."""
+    for name in ("libz.so.1", "libz.1.dylib", None):
+        name = name or ctypes.util.find_library("z")
+        if name is None:
+            return False
+        try:
+            ctypes.CDLL(name).uncompress2  # noqa: B018 - an older zlib lacks it
+            llvmlite.binding.load_library_permanently(name)
+        except (OSError, AttributeError, RuntimeError):
+            continue
+        return True
+    return False
 
 
 NATIVE_INFLATE = _load_inflate()
