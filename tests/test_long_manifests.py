@@ -34,6 +34,18 @@ def long_dataset(tmp_path):
     return folder
 
 
+def counted(monkeypatch, module, name, record):
+    """Replace ``module.name`` by a wrapper that appends ``record(*args)`` to the returned list."""
+    calls, original = [], getattr(module, name)
+
+    def wrapper(*args, **kwargs):
+        calls.append(record(*args))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, wrapper)
+    return calls
+
+
 def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, monkeypatch):
     """Path.resolve walked every component of every frame's path twice (20 of the 30 s info took
     over 100 000 frames); now once per folder, and the answers are the same."""
@@ -79,7 +91,8 @@ def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_
     """check_files opened each frame three times (its magic, the library's header, its chunk
     table) and had the library parse every header (about 100 us a frame): now one open a frame,
     and the library reads the header the 1000 frames share once (the first frame's channels
-    take one more)."""
+    take one more); the chunk tables of the frames that share it are checked in one compiled call
+    a run of 1024."""
     import OpenEXR
     from ringlight.core.dataset import exr as exr_module
 
@@ -90,11 +103,15 @@ def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_
         opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
     monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (parsed.append(args[0]),
                                                                    original_file(*args, **kwargs))[1])
+    from ringlight.core.dataset import checks
+
+    tables = counted(monkeypatch, checks, "chunk_tables_fit", lambda data, starts, sizes, *args: len(sizes))
     assert check_files(manifest) == []
     frame_opens = [path for path in opened if "/frames/" in path]
     assert len(frame_opens) == 1000 + 2  # each frame once; the first one twice more (its channels, the library)
     assert len(set(frame_opens)) == 1000
     assert len(parsed) <= 2, parsed
+    assert tables == [999]  # the frames after the first, whose header they share: one compiled call
 
 
 def test_a_frame_whose_header_differs_from_the_shared_one_is_still_refused(long_dataset):
@@ -214,18 +231,6 @@ def test_an_open_visits_each_frame_file_once(long_dataset, monkeypatch):
     assert len(headers) <= 3, headers
     # Every point is lit in 10 frames of value 1: each response is their mean, 1.
     assert np.allclose(dataset.point(4, 4)[0], 1.0) and (dataset.lit_counts == 10).all()
-
-
-def counted(monkeypatch, module, name, record):
-    """Replace ``module.name`` by a wrapper that appends ``record(*args)`` to the returned list."""
-    calls, original = [], getattr(module, name)
-
-    def wrapper(*args, **kwargs):
-        calls.append(record(*args))
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(module, name, wrapper)
-    return calls
 
 
 def test_a_first_open_stats_no_frame_and_decodes_them_in_a_compiled_call_a_run(long_dataset, monkeypatch):
