@@ -20,7 +20,8 @@ asked, keeping decoded bands up to the budget. Every consumer reads through :met
 
 Long manifests. The work per frame is a few system calls and array rows: the manifest's frames are
 one table of arrays, each frame made a row as its JSON is decoded (:mod:`.frame_table`). An open is
-one pass over the files: a reopen stats each file for the store's key and opens none; a first open
+one pass over the files: a reopen stats each file for the store's key and opens none (the store
+keeps the frames' channels); a first open
 stats none (the dataset's store, if any, is of another manifest: :func:`.cache.manifest_key`) and
 visits each frame file once, per band: located and opened in one call
 (:meth:`.file_paths.FileResolver.open`), read whole in one read when small (:mod:`.file_batch`),
@@ -337,9 +338,8 @@ def open_dataset(
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"more than the {format_bytes(free)} free for its store in {location.parent}{advice}")
     offsets = disc_offsets(max_radius)
-    channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
     shape = (height, width, len(offsets), 3)
-    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels)
+    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets)
     # The store's key in two parts (module .cache): without an entry of this manifest nothing can be
     # reused and no file is stat'ed; the frames' identities then come from their reading.
     manifest_key = cache.manifest_key(manifest, max_radius) if use_cache else ""
@@ -359,8 +359,9 @@ def open_dataset(
             if progress is not None:
                 progress(1.0)
             return dataset(responses=responses, lit_counts=store.lit_counts, observed=store.observed,
-                           steady=store.steady, store=store, cache_key=key)
+                           steady=store.steady, store=store, cache_key=key, channels=store.channels)
     if store is None:
+        channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
         assembler = Assembler(manifest, offsets, allow_outside, channels)
         tile = store_tile((height, width), len(offsets))
         if fits_in_memory(needed, budget):
@@ -368,16 +369,16 @@ def open_dataset(
             key = _read_key(manifest, manifest_key, assembler) if use_cache else ""
             if use_cache:
                 try:
-                    with write_store(location, manifest_key, shape, tile) as writer:
+                    with write_store(location, manifest_key, shape, tile, channels) as writer:
                         writer.key = key
                         write_manifest_copy(writer.folder, manifest)
                         write_assembled(writer, assembled, progress, 1.0 - WRITE_SHARE)
                 except (OSError, RinglightError):  # no store: the next open assembles again
                     pass
             return dataset(responses=assembled.responses, lit_counts=assembled.lit_counts,
-                           observed=assembled.observed, steady=assembled.steady, cache_key=key)
+                           observed=assembled.observed, steady=assembled.steady, cache_key=key, channels=channels)
         try:
-            with write_store(location, manifest_key, shape, tile) as writer:
+            with write_store(location, manifest_key, shape, tile, channels) as writer:
                 write_manifest_copy(writer.folder, manifest)
                 assemble_into_store(assembler, writer, budget, progress, preview)
                 writer.key = key = _read_key(manifest, manifest_key, assembler)
@@ -390,7 +391,7 @@ def open_dataset(
     elif progress is not None:
         progress(1.0)
     return dataset(responses=None, lit_counts=store.lit_counts, observed=store.observed, steady=store.steady,
-                   store=store, cache_key=key)
+                   store=store, cache_key=key, channels=store.channels)
 
 
 def _read_key(manifest: Manifest, manifest_key: str, assembler: Assembler) -> str:

@@ -22,7 +22,8 @@ ringlight's ``meta.json``:
   reopen need not parse its JSON;
 - ``meta.json``: the cache key (:func:`.cache.files_key`) and its manifest part
   (:func:`.cache.manifest_key`, which tells an open whether the files need be stat'ed at all), the
-  layout version, the shape, the tile and the entry's table of files (:mod:`.store_table`).
+  frames' channels (which a reopen then need not read from the first frame's header), the layout
+  version, the shape, the tile and the entry's table of files (:mod:`.store_table`).
 
 Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
 types, and the folder against the table (exactly its files, at their sizes; a symbolic link, FIFO
@@ -35,6 +36,7 @@ that the next open rebuilds it. Entries are written in a temporary folder and re
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -143,9 +145,11 @@ class StoreWriter:
 
 
 @contextmanager
-def write_store(location: Path, manifest_key: str, shape: tuple[int, ...], tile: int) -> Iterator[StoreWriter]:
+def write_store(location: Path, manifest_key: str, shape: tuple[int, ...], tile: int,
+                channels: tuple[str, ...]) -> Iterator[StoreWriter]:
     """Write an entry at ``location`` atomically: the caller fills the yielded writer and sets its
-    :attr:`~StoreWriter.key` (the entry is of the manifest of key ``manifest_key``); on leaving
+    :attr:`~StoreWriter.key` (the entry is of the manifest of key ``manifest_key``, its frames
+    read with ``channels``: :func:`.frames.dataset_channels`); on leaving
     without an error the entry is published, on an error (or :class:`Cancelled`) nothing is left.
 
     Raises the caller's errors, and OSError or RinglightError when the folder cannot be written
@@ -161,8 +165,8 @@ def write_store(location: Path, manifest_key: str, shape: tuple[int, ...], tile:
         yield writer
         if writer.key is None:
             raise ValueError("a store entry written without its key")
-        meta = {"key": writer.key, "manifest_key": manifest_key, "layout": LAYOUT_VERSION, "shape": list(shape),
-                "tile": tile, "table": table_of(staging)}
+        meta = {"key": _entry_key(writer.key, list(channels)), "manifest_key": manifest_key, "channels": list(channels),
+                "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile, "table": table_of(staging)}
         (staging / META).write_text(json.dumps(meta), encoding="utf-8")
 
 
@@ -210,11 +214,14 @@ class ResponseStore:
         Side of a responses chunk (grid points): bands are read ``tile`` rows at a time.
     lit_counts, observed, steady
         The small arrays (see the module docstring).
+    channels
+        The channels the frames were read with (see :func:`write_store`).
     """
 
     def __init__(self, path: Path, responses: zarr.Array, tile: int, lit_counts: np.ndarray,
-                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int, meta_identity: tuple):
-        self.path, self.tile = path, tile
+                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int, meta_identity: tuple,
+                 channels: tuple[str, ...]):
+        self.path, self.tile, self.channels = path, tile, channels
         self._meta_identity = meta_identity  # of the meta.json it was opened by: see mark_stale
         self._responses = responses
         self.lit_counts, self.observed, self.steady = lit_counts, observed, steady
@@ -280,6 +287,10 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
         identity = _identity(location / META)
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
+        channels = meta.get("channels")
+        if not isinstance(channels, list) or len(channels) not in (1, 3) or len(set(channels)) != len(channels) \
+                or not all(isinstance(name, str) and name for name in channels):
+            return None
         table = entry_table(location, meta)
         if table is None or not chunks_listed(table, shape, meta["tile"]):
             return None
@@ -301,7 +312,7 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
     except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
         return None
     return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
-                         small["steady"], keep_bytes, identity)
+                         small["steady"], keep_bytes, identity, tuple(channels))
 
 
 def stored_entry_bytes(location: Path, key: str) -> int | None:
@@ -317,7 +328,16 @@ def _current_meta(location: Path, key: str) -> dict | None:
     """The entry's meta.json when it is a regular file of this layout written for ``key``, else
     None (raises OSError or RinglightError for a file that cannot be read)."""
     meta = _meta(location)
-    return meta if meta is not None and meta.get("key") == key else None
+    return meta if meta is not None and meta.get("key") == _entry_key(key, meta.get("channels")) else None
+
+
+def _entry_key(key: str, channels: object) -> str:
+    """What meta.json records as the key of an entry of store key ``key`` whose frames were read
+    with ``channels``: the two bound, so that edited channels fail the key as an edited key does
+    (anything but a list of names matches no key)."""
+    if not isinstance(channels, list) or not all(isinstance(name, str) for name in channels):
+        return ""
+    return hashlib.sha256(f"{key}\0{json.dumps(channels)}".encode()).hexdigest()
 
 
 def entry_bytes(location: Path) -> int:
