@@ -278,7 +278,8 @@ def linked_frames(folder: Path, frames: int = 400, files: int = 7, dark: bool = 
     for index in range(frames):
         name = f"frames/{index:06d}.exr"
         os.link(folder / "frames" / f"base{index % files}.exr", folder / name)
-        entries.append({"file": name, "lit": [[(index // 10) % 10, index % 10]], "exposure": [0.5, 1.0, 4.0][index % 3]})
+        entries.append({"file": name, "lit": [[(index // 10) % 10, index % 10]],
+                        "exposure": [0.5, 1.0, 4.0][index % 3]})
     document = {"format": "ringlight-impulse", "version": 1, "grid": {"height": 10, "width": 10}, "max_radius": 3,
                 "frames": entries}
     if dark:

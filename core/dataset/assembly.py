@@ -143,7 +143,8 @@ class Assembler:
                                     row0, row1, first if index == slot == 0 else None)
                         for slot in range(0, count, group)]
 
-            first = self.reader.read(frames[0], (row0, row1), identity=self.identities[0])  # fails before the band is allocated
+            # Fails before the band is allocated.
+            first = self.reader.read(frames[0], (row0, row1), identity=self.identities[0])
             batches = [_Batch(size, rows, self.width, len(self.offsets)) for _ in range(min(2, len(starts)))]
             responses = zeroed((rows, self.width, len(self.offsets), 3), np.float32)
             steady = np.zeros((rows, self.width, 3), np.float64)

@@ -259,5 +259,6 @@ class FrameReader:
         :func:`_radiance` returns it (1: dividing by the exposure, 2: subtracting the dark frame)."""
         path = Path(self.resolver.folder, frame.file)
         if problem == 1:
-            return DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} takes values out of float32's range")
+            return DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
+                                "takes values out of float32's range")
         return DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")
