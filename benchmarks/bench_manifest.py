@@ -12,13 +12,15 @@ per-frame work after parsing must be as cheap as the parse"): a dataset of ``--f
 frames on a 10 x 10 grid (max_radius 3), each frame a hard link to one of 50 small EXR files, then,
 in CPU seconds of the whole process (all threads): the parse (``read_manifest``), the check of
 every file's header (``find_file_problems``, what ``ringlight info`` does), the plan of the open
-(``plan_open``: the store's key stats every file) and the open itself (``open_dataset`` without
-the cache: every frame located, checked, decoded and scattered), each per frame and as a ratio to
-the parse. Measured on the 2-core development machine (shared), 100 000 frames: parse 0.3 s,
-check 1.0-1.2 s, plan 0.2 s, open 9.4-10.8 s, most of it the OpenEXR library's own decoding of
-each file (about 60 us for 10 x 10 pixels). For comparison, the commands on the same dataset
-before this work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack`` 31.8 s (each
-about 1.5 s of it the start of Python and its imports).
+(``plan_open``: with no store of this manifest, no file is stat'ed), the key a reopen makes
+(``cache.stat_key``: a stat a file) and the open itself (``open_dataset`` without the cache: every
+frame located, read, checked, decoded and scattered), each per frame and as a ratio to the parse.
+Measured on the 2-core development machine (shared with other work), 100 000 frames, two runs
+alternated with runs of the code before the runs of frames (each frame checked and decoded alone,
+the plan stat'ing every file), in us a frame before and after: parse 2.7-3.1 and 2.7-2.9, check
+10.0-10.3 and 7.1-7.5, plan 2.6 and 0.0 (key 2.9-3.3), open 33.5-36.4 and 8.5-9.0. The commands on the
+same dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
+31.8 s (each about 1.5 s of it the start of Python and its imports).
 
 With ``--hostile``, it times instead the raw JSON values the fuzz tests
 (``tests/test_fuzz_input.py``) plant in manifests (deep nesting, 5000-digit numbers, NaN, lone
@@ -127,6 +129,7 @@ def write_linked_dataset(folder: Path, frames: int, files: int = 50) -> None:
 def time_pipeline(frames: int) -> None:
     """Print the CPU time of each step of an open per frame and against the parse (module docstring)."""
     from ringlight.core import open_dataset
+    from ringlight.core.dataset import cache
     from ringlight.core.dataset.checks import find_file_problems
     from ringlight.core.dataset.open_plan import plan_open
 
@@ -144,6 +147,9 @@ def time_pipeline(frames: int) -> None:
         started = time.process_time()
         plan_open(manifest)
         steps["plan"] = time.process_time() - started
+        started = time.process_time()
+        cache.stat_key(manifest, cache.manifest_key(manifest, 3.0))
+        steps["key"] = time.process_time() - started
         started = time.process_time()
         dataset = open_dataset(manifest, use_cache=False)
         steps["open"] = time.process_time() - started

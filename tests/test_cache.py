@@ -21,17 +21,25 @@ def dataset(tmp_path):
 
 
 class CountingReads:
-    """Counts EXR frame decodes (the work the cache exists to avoid)."""
+    """Counts EXR frame decodes, alone or in a run of small frames (the work the cache exists to avoid)."""
 
     def __init__(self, monkeypatch):
-        self.count = 0
-        original = frames_module.read_exr_channels
+        from ringlight.core.dataset.frame_batch import BatchDecoder
 
-        def counted(path, *args):
+        self.count = 0
+        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
+
+        def counted(*args, **kwargs):
             self.count += 1
-            return original(path, *args)
+            return original(*args, **kwargs)
+
+        def counted_run(decoder, *args, **kwargs):
+            run, status, bad = original_run(decoder, *args, **kwargs)
+            self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
+            return run, status, bad
 
         monkeypatch.setattr(frames_module, "read_exr_channels", counted)
+        monkeypatch.setattr(BatchDecoder, "load", counted_run)
 
 
 def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):
@@ -392,3 +400,23 @@ def test_a_cache_entry_linked_elsewhere_is_neither_measured_nor_followed(tmp_pat
     link = tmp_path / "entry"
     link.symlink_to(elsewhere, target_is_directory=True)
     assert entry_bytes(elsewhere) == 4096 and entry_bytes(link) == 0
+
+
+def test_a_reopen_takes_the_channels_from_the_store_and_edited_ones_rebuild_it(dataset, monkeypatch):
+    """A reopen read the first frame's header for the frames' channels: the store keeps them, bound
+    to its key, so a reopen opens no frame, and channels edited in its meta.json (a colour
+    dataset made monochrome) fail the key and rebuild the store from the frames."""
+    first = open_dataset(dataset, radius=4)
+    opened = []
+    original = os.open
+    monkeypatch.setattr(os, "open", lambda path, *args, **kwargs: (opened.append(os.fspath(path)),
+                                                                   original(path, *args, **kwargs))[1])
+    again = open_dataset(dataset, radius=4)
+    assert again.channels == ("R", "G", "B") and [path for path in opened if path.endswith(".exr")] == []
+    meta = json.loads((dataset / CACHE_FOLDER_NAME / "meta.json").read_text())
+    meta["channels"] = ["R"]
+    (dataset / CACHE_FOLDER_NAME / "meta.json").write_text(json.dumps(meta))
+    reads = CountingReads(monkeypatch)
+    rebuilt = open_dataset(dataset, radius=4)
+    assert reads.count == 42 and rebuilt.channels == ("R", "G", "B") and not rebuilt.monochrome
+    assert rebuilt.responses.tobytes() == first.responses.tobytes()

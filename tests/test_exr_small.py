@@ -38,6 +38,24 @@ def planes_of(rng, names, shape, dtype, kind):
     return planes
 
 
+def decode_in_run(path, names, rows=None):
+    """The compiled decode of a run of frames (exr_small._decode_frame) of ``rows`` of the file,
+    or None when it hands the file back to be read alone."""
+    from ringlight.core.dataset.exr_chunks import chunk_layout
+
+    data = path.read_bytes()
+    with open(path, "rb") as handle:
+        chunks, _ = chunk_layout(handle, data, len(data))
+    small = exr_small.small_layout(data[:chunks.table_start])
+    first, stop = rows if rows is not None else (0, small.height)
+    image = np.full((stop - first, small.width, len(names)), np.nan, np.float32)
+    decoded = exr_small._decode_frame(np.frombuffer(data, np.uint8), 0, len(data),
+                                      exr_small.layout_array(small, chunks.table_start, first), small.width,
+                                      *exr_small._picked(small, tuple(names)), exr_small._HALF_TO_FLOAT, image,
+                                      np.zeros(2, exr_small.LENGTH_TYPE))
+    return image if decoded else None
+
+
 def read_both(path, names, monkeypatch, rows=None):
     """(the library's decode, this module's decode, whether this module decoded it) of ``rows``."""
     library = read_exr_channels(path, names, rows=rows)
@@ -64,9 +82,12 @@ def test_small_frames_decode_bit_for_bit_as_the_library_does(tmp_path, monkeypat
         assert taken
         assert ours.dtype == library.dtype == np.float32 and ours.shape == library.shape == (*shape, len(wanted))
         assert ours.view(np.uint32).tobytes() == library.view(np.uint32).tobytes()  # NaN payloads too
+        assert decode_in_run(path, wanted).view(np.uint32).tobytes() == library.view(np.uint32).tobytes()
     if shape[0] > 2:  # a band of rows, across chunks of 16 lines in ZIP
-        library, ours, taken = read_both(path, ("R", "G", "B"), monkeypatch, (shape[0] // 3, shape[0] - shape[0] // 4))
+        rows = (shape[0] // 3, shape[0] - shape[0] // 4)
+        library, ours, taken = read_both(path, ("R", "G", "B"), monkeypatch, rows)
         assert taken and ours.view(np.uint32).tobytes() == library.view(np.uint32).tobytes()
+        assert decode_in_run(path, ("R", "G", "B"), rows).view(np.uint32).tobytes() == library.view(np.uint32).tobytes()
 
 
 @pytest.mark.parametrize("compression", ["rle", "piz"])
@@ -89,5 +110,24 @@ def test_a_damaged_chunk_is_left_to_the_library_which_names_the_file(tmp_path):
     data = bytearray(path.read_bytes())
     data[-40] ^= 0xFF
     path.write_bytes(bytes(data))
+    assert decode_in_run(path, ("R", "G", "B")) is None  # the compiled decode of a run hands it back too
     with pytest.raises(DatasetError, match="frame.exr: truncated or corrupt OpenEXR file"):
         read_exr_channels(path, ("R", "G", "B"), headers=HeaderCache())
+
+
+@pytest.mark.parametrize("cut", [1, 8, 20])
+def test_a_run_hands_back_a_frame_whose_chunk_table_does_not_fit(tmp_path, cut):
+    """A frame cut short (its last chunk, its chunk's header) fails the compiled table check, as
+    exr_chunks.offsets_problem says of it, and is handed back to be read alone."""
+    from ringlight.core.dataset.exr_chunks import chunk_layout, offsets_problem
+
+    path = tmp_path / "frame.exr"
+    write(path, planes_of(np.random.default_rng(3), ("R", "G", "B"), (20, 9), np.float16, "smooth"), "zip")
+    assert decode_in_run(path, ("R", "G", "B")) is not None
+    data = path.read_bytes()[:-cut]
+    with open(path, "rb") as handle:
+        chunks, head = chunk_layout(handle, path.read_bytes(), len(data) + cut)
+    path.write_bytes(data)
+    with open(path, "rb") as handle:
+        assert offsets_problem(handle, data, len(data), chunks) is not None
+    assert decode_in_run(path, ("R", "G", "B")) is None

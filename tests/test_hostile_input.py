@@ -85,17 +85,25 @@ def refused(folder, *needles, **options):
 
 
 class CountingReads:
-    """Counts frame decodes (the work the cache exists to avoid)."""
+    """Counts frame decodes, alone or in a run of small frames (the work the cache exists to avoid)."""
 
     def __init__(self, monkeypatch):
+        from ringlight.core.dataset.frame_batch import BatchDecoder
+
         self.count = 0
-        original = frames_module.read_exr_channels
+        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
 
         def counted(*args, **kwargs):
             self.count += 1
             return original(*args, **kwargs)
 
+        def counted_run(decoder, *args, **kwargs):
+            run, status, bad = original_run(decoder, *args, **kwargs)
+            self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
+            return run, status, bad
+
         monkeypatch.setattr(frames_module, "read_exr_channels", counted)
+        monkeypatch.setattr(BatchDecoder, "load", counted_run)
 
 
 # Manifest: the bounded JSON reader -------------------------------------------------------------

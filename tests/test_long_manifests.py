@@ -34,6 +34,18 @@ def long_dataset(tmp_path):
     return folder
 
 
+def counted(monkeypatch, module, name, record):
+    """Replace ``module.name`` by a wrapper that appends ``record(*args)`` to the returned list."""
+    calls, original = [], getattr(module, name)
+
+    def wrapper(*args, **kwargs):
+        calls.append(record(*args))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, wrapper)
+    return calls
+
+
 def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, monkeypatch):
     """Path.resolve walked every component of every frame's path twice (20 of the 30 s info took
     over 100 000 frames); now once per folder, and the answers are the same."""
@@ -60,12 +72,12 @@ def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, mon
 
 def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys, monkeypatch):
     """A 100 000-frame dataset was opened (25 s of CPU) before its rings were found too large."""
-    from ringlight.core.dataset.frames import FrameReader
+    from ringlight.core.dataset.file_paths import FileResolver
 
-    reads = []
-    original = FrameReader.read
-    monkeypatch.setattr(FrameReader, "read", lambda self, *args, **kwargs: (reads.append(1),
-                                                                           original(self, *args, **kwargs))[1])
+    reads = []  # every frame read (alone or in a run) is opened by the resolver
+    original = FileResolver.open
+    monkeypatch.setattr(FileResolver, "open", lambda self, *args, **kwargs: (reads.append(1),
+                                                                            original(self, *args, **kwargs))[1])
     status = main(["stack", str(long_dataset), "--radii", "0:3:1", "--out", str(tmp_path / "out")])
     assert status == 2 and reads == []
     assert capsys.readouterr().err.strip() == (f"ringlight: error: {long_dataset}: the ring of radius 3 (thickness 1) "
@@ -79,7 +91,8 @@ def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_
     """check_files opened each frame three times (its magic, the library's header, its chunk
     table) and had the library parse every header (about 100 us a frame): now one open a frame,
     and the library reads the header the 1000 frames share once (the first frame's channels
-    take one more)."""
+    take one more); the chunk tables of the frames that share it are checked in one compiled call
+    a run of 1024."""
     import OpenEXR
     from ringlight.core.dataset import exr as exr_module
 
@@ -90,11 +103,15 @@ def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_
         opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
     monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (parsed.append(args[0]),
                                                                    original_file(*args, **kwargs))[1])
+    from ringlight.core.dataset import checks
+
+    tables = counted(monkeypatch, checks, "chunk_tables_fit", lambda data, starts, sizes, *args: len(sizes))
     assert check_files(manifest) == []
     frame_opens = [path for path in opened if "/frames/" in path]
     assert len(frame_opens) == 1000 + 2  # each frame once; the first one twice more (its channels, the library)
     assert len(set(frame_opens)) == 1000
     assert len(parsed) <= 2, parsed
+    assert tables == [999]  # the frames after the first, whose header they share: one compiled call
 
 
 def test_a_frame_whose_header_differs_from_the_shared_one_is_still_refused(long_dataset):
@@ -214,3 +231,118 @@ def test_an_open_visits_each_frame_file_once(long_dataset, monkeypatch):
     assert len(headers) <= 3, headers
     # Every point is lit in 10 frames of value 1: each response is their mean, 1.
     assert np.allclose(dataset.point(4, 4)[0], 1.0) and (dataset.lit_counts == 10).all()
+
+
+def test_a_first_open_stats_no_frame_and_decodes_them_in_a_compiled_call_a_run(long_dataset, monkeypatch):
+    """The store's key stat'ed every frame before the frames were read (a second visit of each),
+    and each frame took three compiled calls and 35 us of Python: now a first open stats no frame
+    (the key's file part is each frame's fstat as it is read), reads the frames after the first in
+    runs decoded in one compiled call each (a group of frames a task: 8 with 2 reader threads), and
+    a reopen stats each frame once and opens none (the store keeps the channels the first frame's
+    header told)."""
+    from ringlight.core import open_dataset
+    from ringlight.core.dataset import assembly, frame_batch
+    from ringlight.core.dataset.frames import FrameReader
+
+    monkeypatch.setattr(assembly, "_reader_count", lambda: 2)  # 1000 frames in 8 groups of 125
+    stats = counted(monkeypatch, os, "stat", lambda path, *args: os.fspath(path))
+    opens = counted(monkeypatch, os, "open", lambda path, *args: os.fspath(path))
+    runs = counted(monkeypatch, frame_batch, "_load_frames", lambda *args: len(args[2]))
+    alone = counted(monkeypatch, FrameReader, "read", lambda reader, frame, *args: frame.file)
+    first = open_dataset(long_dataset)
+    assert [path for path in stats if "/frames/" in path] == []
+    frame_opens = [path for path in opens if "/frames/" in path]
+    assert len(set(frame_opens)) == 1000 and len(frame_opens) <= 1000 + 3  # the first frame's header and channels
+    assert sorted(runs) == [124] + [125] * 7 and alone == ["frames/000000.exr"]  # read before the band is allocated
+    stats.clear(), opens.clear(), runs.clear()
+    again = open_dataset(long_dataset)
+    frame_stats = [path for path in stats if "/frames/" in path]
+    assert len(frame_stats) == len(set(frame_stats)) == 1000
+    assert [path for path in opens if "/frames/" in path] == [] and runs == []  # the channels from the store
+    assert again.cache_key == first.cache_key
+    assert again.responses.tobytes() == first.responses.tobytes()
+    # Every point is lit in 10 frames of value 1: each response is their mean, 1.
+    assert np.allclose(first.point(4, 4)[0], 1.0) and (first.lit_counts == 10).all()
+
+
+def linked_frames(folder: Path, frames: int = 400, files: int = 7, dark: bool = True) -> Path:
+    """``frames`` frames on a 10 x 10 grid (each point lit frames / 100 times, exposures 0.5-4),
+    hard links to ``files`` half-float files of random values (ZIP, the writer's), a dark frame."""
+    import json
+
+    rng = np.random.default_rng(5)
+    (folder / "frames").mkdir(parents=True)
+    for index in range(files):
+        write_rgb(folder / "frames" / f"base{index}.exr", rng.uniform(0, 2, (10, 10, 3)).astype(np.float32), half=True)
+    entries = []
+    for index in range(frames):
+        name = f"frames/{index:06d}.exr"
+        os.link(folder / "frames" / f"base{index % files}.exr", folder / name)
+        entries.append({"file": name, "lit": [[(index // 10) % 10, index % 10]],
+                        "exposure": [0.5, 1.0, 4.0][index % 3]})
+    document = {"format": "ringlight-impulse", "version": 1, "grid": {"height": 10, "width": 10}, "max_radius": 3,
+                "frames": entries}
+    if dark:
+        write_rgb(folder / "dark.exr", rng.uniform(0, 0.01, (10, 10, 3)).astype(np.float32))
+        document["dark"] = "dark.exr"
+    (folder / "dataset.json").write_text(json.dumps(document))
+    return folder
+
+
+def test_frames_decoded_in_runs_give_the_responses_of_frames_read_one_by_one(tmp_path, monkeypatch):
+    """The reference: the same open with every frame read alone (each decode checked bit for bit
+    against the OpenEXR library in test_exr_small), dark frame and exposures included."""
+    from ringlight.core import open_dataset
+    from ringlight.core.dataset import frame_batch
+
+    folder = linked_frames(tmp_path / "ds")
+    runs = counted(monkeypatch, frame_batch, "_load_frames", lambda *args: len(args[2]))
+    in_runs = open_dataset(folder, use_cache=False)
+    assert sum(runs) == 399
+    monkeypatch.setattr(frame_batch, "NATIVE_INFLATE", False)  # no run: each frame alone
+    runs.clear()
+    alone = open_dataset(folder, use_cache=False)
+    assert runs == []
+    assert in_runs.responses.tobytes() == alone.responses.tobytes()
+    assert in_runs.steady.tobytes() == alone.steady.tobytes()
+    assert np.count_nonzero(in_runs.responses) > 100 * 20  # light at every point, from every offset inside
+
+
+@pytest.mark.parametrize("damage", ["truncated", "other size", "missing", "NaN", "exposure", "truncated, then missing"])
+def test_a_frame_at_fault_in_a_run_is_named_as_when_frames_were_read_one_by_one(tmp_path, damage):
+    """A run hands back a frame it cannot take, and the frame read alone says what is wrong; a
+    frame that cannot be opened ends its run: the first frame at fault in the manifest is named,
+    as before."""
+    import json
+
+    from ringlight.core import DatasetError, open_dataset
+
+    folder = linked_frames(tmp_path / "ds", dark=False)
+    frames = folder / "frames"
+    data = (frames / "base0.exr").read_bytes()
+    if damage.startswith("truncated"):
+        (frames / "000300.exr").unlink()
+        (frames / "000300.exr").write_bytes(data[:-20])
+        expected = (f"{frames}/000300.exr: truncated or corrupt OpenEXR file (the file ends at byte "
+                    f"{len(data) - 20}, before the end of its last chunk)")
+    if damage.endswith("missing"):
+        (frames / "000333.exr").unlink()
+        if damage == "missing":
+            expected = f"{frames}/000333.exr: file not found"
+    if damage == "other size":
+        (frames / "000300.exr").unlink()
+        write_rgb(frames / "000300.exr", np.ones((10, 11, 3), np.float32), half=True)
+        expected = f"{frames}/000300.exr: frame is 10 x 11, expected 10 x 10 (the size of the grid)"
+    if damage == "NaN":
+        (frames / "000300.exr").unlink()
+        write_rgb(frames / "000300.exr", np.full((10, 10, 3), np.nan, np.float32), half=True)
+        expected = f"{frames}/000300.exr: NaN or Inf radiance (300 values in 1 frame(s); this is the first)"
+    if damage == "exposure":
+        (frames / "000300.exr").unlink()
+        write_rgb(frames / "000300.exr", np.full((10, 10, 3), 10, np.float32), half=True)
+        document = json.loads((folder / "dataset.json").read_text())
+        document["frames"][300]["exposure"] = 1.2e-38  # 10 / 1.2e-38 is beyond float32's 3.4e38
+        (folder / "dataset.json").write_text(json.dumps(document))
+        expected = f"{frames}/000300.exr: dividing by the exposure 1.2e-38 takes values out of float32's range"
+    message = str(pytest.raises(DatasetError, open_dataset, folder, use_cache=False).value)
+    assert message == expected

@@ -33,7 +33,6 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import OpenEXR
 
@@ -41,10 +40,13 @@ from ..errors import DatasetError, ProgressCallback
 from ..phases import phase
 from .exr import whole_file_reader
 from .exr_header import quiet_library
+from .cache import IDENTITY_FIELDS
+from .frame_batch import READ_ALONE, BatchDecoder, owners
 from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
 from .response_store import StoreWriter
+from .scatter import _scatter_batch, _scatter_rows, scatter, slots_to_offsets
 
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
@@ -68,18 +70,24 @@ class Assembled:
 
 
 class Assembler:
-    """Reads a dataset's frames into responses over the offsets ``offsets`` ((K, 2) int64)."""
+    """Reads a dataset's frames into responses over the offsets ``offsets`` ((K, 2) int64), with the
+    frames' ``channels`` (:func:`.frames.dataset_channels`) when the caller knows them."""
 
-    def __init__(self, manifest: Manifest, offsets: np.ndarray, allow_outside: bool = False):
+    def __init__(self, manifest: Manifest, offsets: np.ndarray, allow_outside: bool = False,
+                 channels: tuple[str, ...] | None = None):
         self.manifest = manifest
         self.height, self.width = manifest.height, manifest.width
         self.offsets = offsets
-        self.reader = FrameReader(manifest, allow_outside)
+        self.reader = FrameReader(manifest, allow_outside, channels)
         # A manifest whose frames are missing or of the wrong size fails before anything of the
         # grid's size is allocated.
-        first = self.reader.check(manifest.frames[0])
+        first, passed = self.reader.check(manifest.frames[0])
         # Whether frames read whole decode side by side (the first frame's header stands for all).
         self.whole_file_reader = whole_file_reader(first, self.reader.channels)
+        # Runs of small frames of the first frame's header decode in one compiled call each.
+        self.batches = BatchDecoder(self.reader, passed)
+        self.identities = np.full((len(manifest.frames), IDENTITY_FIELDS), -1, np.int64)
+        """(F, 4) int64: each frame file's identity as it was read (:func:`.cache.files_key`)."""
         self.lit_counts = manifest.lit_counts()
         self.inverse_counts = np.zeros(self.lit_counts.shape, np.float32)
         np.divide(1, self.lit_counts, out=self.inverse_counts, where=self.lit_counts > 0)
@@ -131,11 +139,12 @@ class Assembler:
                 batch, start = batches[index % 2], starts[index]
                 count = min(size, len(frames) - start)
                 group = max(1, -(-count // (4 * readers)))
-                return [pool.submit(self._load_group, batch, slot, frames[start + slot:start + min(slot + group, count)],
+                return [pool.submit(self._load_group, batch, slot, start + slot, start + min(slot + group, count),
                                     row0, row1, first if index == slot == 0 else None)
                         for slot in range(0, count, group)]
 
-            first = self.reader.read(frames[0], (row0, row1))  # fails before the band is allocated
+            # Fails before the band is allocated.
+            first = self.reader.read(frames[0], (row0, row1), identity=self.identities[0])
             batches = [_Batch(size, rows, self.width, len(self.offsets)) for _ in range(min(2, len(starts)))]
             responses = zeroed((rows, self.width, len(self.offsets), 3), np.float32)
             steady = np.zeros((rows, self.width, 3), np.float64)
@@ -155,7 +164,7 @@ class Assembler:
                             progress((done + loaded) / len(frames))
                     done += loaded
                     batch = batches[index % 2]
-                    _scatter_batch(responses, steady, batch.radiance, batch.owner, loaded)
+                    scatter(responses, steady, batch.radiance, batch.owner, loaded)
                     pending = queued
             except BaseException:
                 for future in pending + queued:
@@ -164,7 +173,7 @@ class Assembler:
         if bad_values:
             raise DatasetError(f"{first_bad}: NaN or Inf radiance ({bad_values} values in {bad_frames} frame(s); "
                                "this is the first)")
-        _slots_to_offsets(responses, self.slot_of)
+        slots_to_offsets(responses, self.slot_of)
         unobserved = ~self.observed[row0:row1]
         responses[unobserved] = 0.0
         steady[unobserved] = np.nan
@@ -177,26 +186,53 @@ class Assembler:
                                f"frames' values, exposures and dark frame{dark}")
         return responses, steady.astype(np.float32)
 
-    def _load_group(self, batch: _Batch, slot: int, frames, row0: int, row1: int,
+    def _load_group(self, batch: _Batch, slot: int, start: int, stop: int, row0: int, row1: int,
                     decoded: tuple[np.ndarray, int] | None = None) -> list[int]:
-        """:meth:`_load` of consecutive ``frames`` into slots from ``slot`` on (the first from
-        ``decoded`` when given), the library silenced once for all of them; their bad counts."""
+        """Frames ``start .. stop`` into ``batch`` from ``slot`` on (the first from ``decoded`` when
+        given), the library silenced once for all of them; their counts of NaN or Inf values.
+        Runs of small frames decode in one compiled call (:class:`.frame_batch.BatchDecoder`), the
+        others (and any frame it hands back) one by one (:meth:`_load`), in order: the first frame
+        at fault is the one named."""
+        bad: list[int] = []
+        arguments = (self.dy, self.dx, self.offset_index, self.inverse_counts)
         with quiet_library():
-            return [self._load(batch, slot + at, frame, row0, row1, decoded if at == 0 else None)
-                    for at, frame in enumerate(frames)]
+            if decoded is not None:
+                bad.append(self._load(batch, slot, start, row0, row1, decoded))
+            while start + len(bad) < stop:
+                index = start + len(bad)
+                at = slot + len(bad)
+                if not self.batches.usable:
+                    bad.append(self._load(batch, at, index, row0, row1))
+                    continue
+                run, status, counts = self.batches.load(index, stop, row0, row1, batch.radiance, batch.owner, at,
+                                                        arguments)
+                self.identities[index:index + len(run)] = run.identities
+                if not status.any():
+                    bad += counts.tolist()
+                else:
+                    for offset, (state, count) in enumerate(zip(status.tolist(), counts.tolist())):
+                        if state == READ_ALONE:
+                            count = self._load(batch, at + offset, index + offset, row0, row1)
+                        elif state:
+                            raise self.reader.scaling_error(self.manifest.frames[index + offset], state)
+                        bad.append(count)
+                if run.error is not None:
+                    raise run.error
+        return bad
 
-    def _load(self, batch: _Batch, slot: int, frame, row0: int, row1: int,
+    def _load(self, batch: _Batch, slot: int, index: int, row0: int, row1: int,
               decoded: tuple[np.ndarray, int] | None = None) -> int:
-        """Decode ``frame``'s rows ``row0 .. row1`` (unless ``decoded`` holds what
+        """Decode frame ``index``'s rows ``row0 .. row1`` (unless ``decoded`` holds what
         :meth:`.FrameReader.read` gave) into ``batch`` at ``slot``, mark which offset each point
         takes from it and weigh the point's radiance; returns its count of NaN or Inf values."""
+        frame = self.manifest.frames[index]
         if decoded is not None:
             batch.radiance[slot], bad = decoded
         else:
-            _, bad = self.reader.read(frame, (row0, row1), batch.radiance[slot])
+            _, bad = self.reader.read(frame, (row0, row1), batch.radiance[slot], self.identities[index])
         batch.owner[slot] = -1
-        _owners(batch.owner[slot], batch.radiance[slot], frame.lit, self.dy, self.dx, self.offset_index,
-                self.inverse_counts, row0)
+        owners(batch.owner[slot], batch.radiance[slot], frame.lit, self.dy, self.dx, self.offset_index,
+               self.inverse_counts, row0)
         return bad
 
 
@@ -284,16 +320,24 @@ def warm_up_assembly() -> None:
     arrays of the types an open passes, so that a first open in a worker does not hold the GIL
     while numba loads them (see :func:`ringlight.core.rings.stacks.warm_up_kernels`)."""
     from .exr import _HALF_TO_FLOAT, _put_half
-    from .exr_small import _unpack
+    from .exr_small import LAYOUT_FIELDS, LENGTH_TYPE, NATIVE_INFLATE, _unpack
+    from .frame_batch import _load_frames
     from .frames import _radiance
     from .spacing import close_pair
 
     one = np.zeros(1, np.int64)
     for owner_type in (np.int16, np.int32):
         owner, radiance = np.full((1, 1), -1, owner_type), np.zeros((1, 1, 3), np.float32)
-        _owners(owner, radiance, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
+        owners(owner, radiance, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
         _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
-    _slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
+        _scatter_rows(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1, 0, 1)
+        if NATIVE_INFLATE:  # one frame, marked to be read alone: loads the kernel, runs nothing
+            _load_frames(np.frombuffer(b"", np.uint8), one, np.full(1, -1, np.int64), np.zeros(LAYOUT_FIELDS, np.int64),
+                         1, one, np.ones(1, np.bool_), one, _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32),
+                         np.zeros(2, LENGTH_TYPE), np.ones(1, np.float32), np.zeros((0, 0, 3), np.float32), False,
+                         radiance[None], owner[None], 0, np.zeros((1, 2), np.int64), np.zeros(2, np.int64), one, one,
+                         one, np.ones((1, 1), np.float32), 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
+    slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
     _put_half(np.zeros((1, 1), np.uint16), _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32), 0)
     _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
               np.zeros((1, 1, 3), np.float32))
@@ -319,62 +363,3 @@ def _decoding_threads(count: int) -> Iterator[None]:
         yield
     finally:
         OpenEXR.set_global_thread_count(before)
-
-
-@numba.njit(cache=True, nogil=True)
-def _owners(owner, radiance, lit, dy, dx, offset_index, inverse_counts, row0):  # pragma: no cover - compiled
-    """For each point p of the band (rows row0 ..) within reach of a lit point q of a frame:
-    ``owner[p - row0]`` = the slot ``offset_index[j]`` of d = q - p = (dy[j], dx[j]), and
-    ``radiance[p - row0]`` (3,) float32 weighed by 1 / (frames lighting q); other points keep
-    ``owner`` -1. One q per p:
-    multiplexed points are more than ``2 max_radius`` apart (checked with the manifest), and other
-    frames light one point."""
-    rows, width = owner.shape
-    reach = 0
-    for j in range(dy.size):
-        reach = max(reach, abs(dy[j]))
-    for i in range(lit.shape[0]):
-        qy = lit[i, 0]
-        qx = lit[i, 1]
-        if qy + reach < row0 or qy - reach >= row0 + rows:
-            continue  # no point of the band within reach
-        for j in range(dy.size):
-            py = qy - dy[j] - row0
-            px = qx - dx[j]
-            if py >= 0 and py < rows and px >= 0 and px < width:
-                owner[py, px] = offset_index[j]
-                weight = inverse_counts[qy, qx]
-                for c in range(3):
-                    radiance[py, px, c] *= weight
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _scatter_batch(responses, steady, radiance, owner, count):  # pragma: no cover - compiled
-    """responses[p, owner[b, p]] += radiance[b, p] (weighed, the owner a slot: see :class:`_Batch`)
-    for the first ``count`` frames b of a batch, in frame order, and the same into ``steady[p]``
-    (float64); parallel over rows (each thread owns its points)."""
-    rows, width = responses.shape[0], responses.shape[1]
-    for y in numba.prange(rows):
-        for x in range(width):
-            for b in range(count):
-                k = owner[b, y, x]
-                if k >= 0:
-                    for c in range(3):
-                        light = radiance[b, y, x, c]
-                        responses[y, x, k, c] += light
-                        steady[y, x, c] += light
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _slots_to_offsets(responses, slot_of):  # pragma: no cover - compiled
-    """Put every point's (K, 3) block of ``responses`` from slot order into offset order in place:
-    offset k is slot ``slot_of[k]``. Parallel over rows, one block (K x 12 bytes) copied at a time."""
-    rows, width, count = responses.shape[0], responses.shape[1], responses.shape[2]
-    for y in numba.prange(rows):
-        block = np.empty((count, 3), np.float32)
-        for x in range(width):
-            block[:] = responses[y, x]
-            for k in range(count):
-                slot = slot_of[k]
-                for c in range(3):
-                    responses[y, x, k, c] = block[slot, c]

@@ -1,10 +1,17 @@
 """Where a dataset's store lives and the key that tells whether it is current.
 
 The store itself (chunked, compressed, checksummed responses) is :mod:`.response_store`; an entry
-is used only when its key matches: a hash of everything in the manifest the responses depend on;
-the size, mtime, inode and ctime of every frame, dark and mapping file; the effective max radius
-and the layout version. The ctime changes whenever a file is replaced or its mtime is set back,
-so a frame swapped for another of the same size is noticed.
+is used only when its key matches: a hash of everything in the manifest the responses depend on
+(:func:`manifest_key`: the effective max radius and the layout version with it), and of the size,
+mtime, inode and ctime of every frame, dark and mapping file (:func:`files_key`). The ctime
+changes whenever a file is replaced or its mtime is set back, so a frame swapped for another of the
+same size is noticed.
+
+The key is made in two parts so that each frame file is visited once by an open. An entry records
+its manifest key too: when the dataset's entry is of another manifest (or there is none), nothing
+can be reused and no file is stat'ed; a first open reads the frames, and the files' part of the key
+comes from the ``fstat`` of each file as it was read (:mod:`.file_batch`). Only when the entry is of
+this manifest are the files stat'ed (:func:`frame_identities`), to tell whether it is current.
 
 Entries live in ``DATASET/.ringlight-cache`` when the dataset folder is writable, else under the
 user cache folder (``$RINGLIGHT_CACHE_DIR``, else ``$XDG_CACHE_HOME/ringlight``, else
@@ -24,6 +31,8 @@ from .manifest import Manifest
 from .response_store import LAYOUT_VERSION
 
 CACHE_FOLDER_NAME = ".ringlight-cache"
+IDENTITY_FIELDS = 4
+"""Columns of a file's identity (:func:`file_identity`)."""
 
 
 def user_cache_root() -> Path:
@@ -34,8 +43,15 @@ def user_cache_root() -> Path:
     return Path(base) / "ringlight"
 
 
-def cache_key(manifest: Manifest, max_radius: float) -> str:
-    """Hash of everything the response array depends on (see the module docstring).
+def stat_key(manifest: Manifest, manifest_digest: str) -> str:
+    """The key of a store of ``manifest`` (of :func:`manifest_key` ``manifest_digest``), every
+    referenced file stat'ed: whether an entry of this manifest is current."""
+    return files_key(manifest_digest, frame_identities(manifest), other_identities(manifest))
+
+
+def manifest_key(manifest: Manifest, max_radius: float) -> str:
+    """Hash of everything in the manifest the response array depends on, and of the radius and the
+    store's layout; no file is read.
 
     The manifest is hashed by content, not by its file, so a :class:`Manifest` built in memory
     or a manifest file replaced since it was read cannot reuse another dataset's entry.
@@ -49,14 +65,58 @@ def cache_key(manifest: Manifest, max_radius: float) -> str:
     digest.update(np.ascontiguousarray(frames.counts, np.int64).tobytes())
     digest.update(np.ascontiguousarray(frames.lit, np.int64).tobytes())
     digest.update(np.ascontiguousarray(frames.exposures, np.float64).tobytes())
-    prefix = os.path.join(str(manifest.folder), "")
-    for name in manifest.referenced_files():
-        try:
-            info = os.stat(prefix + name)
-            digest.update(f"\n{name} {info.st_size} {info.st_mtime_ns} {info.st_ino} {info.st_ctime_ns}".encode())
-        except OSError:
-            digest.update(f"\n{name} missing".encode())
     return digest.hexdigest()
+
+
+def files_key(manifest_digest: str, frames: np.ndarray, others: np.ndarray) -> str:
+    """The key of a store: ``manifest_digest`` (:func:`manifest_key`) and the identities of the
+    frame files ((F, 4) int64, :func:`file_identity`) and of the dark and mapping files
+    (:func:`other_identities`)."""
+    digest = hashlib.sha256(manifest_digest.encode())
+    digest.update(np.ascontiguousarray(frames, np.int64).tobytes())
+    digest.update(np.ascontiguousarray(others, np.int64).tobytes())
+    return digest.hexdigest()
+
+
+def file_identity(info: os.stat_result) -> tuple[int, int, int, int]:
+    """Which file a status is of, as the key holds it: size, mtime (ns), inode, ctime (ns)."""
+    return info.st_size, info.st_mtime_ns, info.st_ino, info.st_ctime_ns
+
+
+def frame_identities(manifest: Manifest) -> np.ndarray:
+    """(F, 4) int64 :func:`file_identity` of every frame file, stat'ed (following links, as
+    reading does); -1 for one that cannot be."""
+    return _identities(manifest.folder, manifest.frames.files)
+
+
+def other_identities(manifest: Manifest) -> np.ndarray:
+    """(2, 4) int64 :func:`file_identity` of the dark and mapping files; 0 for one the manifest
+    does not name, -1 for one that cannot be stat'ed."""
+    identities = np.zeros((2, IDENTITY_FIELDS), np.int64)
+    for row, name in enumerate((manifest.dark, manifest.mapping)):
+        if name is not None:
+            identities[row] = _identities(manifest.folder, [name])[0]
+    return identities
+
+
+def _identities(folder: Path, names: list[str]) -> np.ndarray:
+    """(len(names), 4) int64 identities of the files ``names`` of ``folder``, stat'ed; rows made
+    :data:`STAT_ROWS` at a time (a Python tuple a file took 200 bytes: 200 MB for a million)."""
+    prefix = os.path.join(str(folder), "")
+    identities = np.empty((len(names), IDENTITY_FIELDS), np.int64)
+    for start in range(0, len(names), STAT_ROWS):
+        rows = []
+        for name in names[start:start + STAT_ROWS]:
+            try:
+                rows.append(file_identity(os.stat(prefix + name)))
+            except OSError:
+                rows.append((-1,) * IDENTITY_FIELDS)
+        identities[start:start + len(rows)] = rows
+    return identities
+
+
+STAT_ROWS = 4096
+"""Files stat'ed into one block of rows of :func:`_identities`."""
 
 
 def cache_location(dataset_folder: Path) -> Path:

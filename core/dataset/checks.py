@@ -8,13 +8,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+
 from ..errors import DatasetError
 from .exr import visit_exr
-from .exr_seen import HeaderCache
+from .exr_chunks import chunk_tables_fit
+from .exr_seen import HeaderCache, PassedHeader
 from .exr_header import RGB, quiet_library
+from .file_batch import read_run
 from .file_paths import FileResolver
 from .frames import dataset_channels
 from .manifest import Manifest
+
+
+RUN_FILES = 1024
+"""Frames read in one run (:func:`.file_batch.read_run`): at most 64 MiB of small files' bytes."""
 
 
 def check_files(manifest: Manifest, allow_outside: bool = False,
@@ -56,33 +64,42 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
 
     Notes
     -----
-    Each file is opened once (:func:`.exr.visit_exr`); the library reads a header only when it
-    differs from those already checked (:mod:`.exr_seen`), and every folder on the way is resolved
-    once (:class:`.file_paths.FileResolver`): the work a frame is a few system calls.
+    Each file is opened once; the library reads a header only when it differs from those already
+    checked (:mod:`.exr_seen`), and every folder on the way is resolved once
+    (:class:`.file_paths.FileResolver`). Frames are read in runs (:func:`.file_batch.read_run`):
+    those that share the first good frame's header and are small have their chunk tables checked
+    in one compiled call a run (:func:`.exr_chunks.chunk_tables_fit`); any other frame, and one
+    whose table does not fit, is checked alone (:func:`.exr.visit_exr`), which says what is wrong.
+    The work a frame is a few system calls.
     """
     problems: list[str] = []
     total = 0
     resolver = FileResolver(manifest.folder, allow_outside)
     headers = HeaderCache()
 
-    def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None, frame=True):
+    def problem(error: DatasetError) -> None:
         nonlocal total
+        total += 1
+        if keep is None or len(problems) < keep:
+            problems.append(str(error))
+
+    def check(name: str, channels: tuple[str, ...], shape, what: str, size_of: str | None,
+              frame=True) -> tuple[PassedHeader | None, tuple[int, int]] | None:
+        """Check one file: its header's entry in ``headers`` and its size, or None when it failed."""
         try:
-            descriptor, path = resolver.open(name)
-            header = visit_exr(path, channels, shape, what, size_of, manifest.part if frame else None,
-                               manifest.colorspace if frame else None, headers, descriptor=descriptor)[0]
+            descriptor, path, _ = resolver.open(name)
+            header, _, passed = visit_exr(path, channels, shape, what, size_of, manifest.part if frame else None,
+                                          manifest.colorspace if frame else None, headers, descriptor=descriptor)
         except DatasetError as error:
-            total += 1
-            if keep is None or len(problems) < keep:
-                problems.append(str(error))
+            problem(error)
             return None
-        return header.height, header.width
+        return passed, (header.height, header.width)
 
     frame_shape, size_of = (manifest.height, manifest.width), "the grid"
     if manifest.frame_space == "camera":
         # A broken mapping leaves the frames' size unknown: they are then checked for all else.
-        frame_shape = check(manifest.mapping, ("y", "x"), None, "mapping", None, frame=False)
-        size_of = "the mapping"
+        checked = check(manifest.mapping, ("y", "x"), None, "mapping", None, frame=False)
+        frame_shape, size_of = checked[1] if checked else None, "the mapping"
     try:
         channels = dataset_channels(manifest, allow_outside)
     except DatasetError:  # the first frame's own problem is reported below
@@ -91,11 +108,29 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
         check(manifest.dark, channels, frame_shape, "dark frame", size_of)
     truth = manifest.ground_truth.path_length_images if manifest.ground_truth else ()
     files = len(manifest.frames) + len(truth)
+    names = manifest.frames.files
+    done, shared = 0, None
     with quiet_library():  # silenced once for all frames, not redirected and restored once a frame
-        for done, name in enumerate(manifest.frames.files):
-            check(name, channels, frame_shape, "frame", size_of)
-            if progress is not None and done % 256 == 255:
-                progress((done + 1) / files)
+        while done < len(names):
+            if shared is None:  # frames one by one until one passes: its header is the one shared
+                checked = check(names[done], channels, frame_shape, "frame", size_of)
+                passed = checked[0] if checked else None
+                if passed is not None and not passed.layout.tiled \
+                        and passed.layout.first == passed.layout.entries:
+                    shared = passed
+                done += 1
+            else:
+                run = read_run(resolver, names[done:done + RUN_FILES], shared.header_bytes)
+                fits = np.zeros(len(run), np.bool_)
+                chunk_tables_fit(run.data, run.starts, run.sizes, shared.layout.table_start, shared.layout.first, fits)
+                for at in np.flatnonzero(~fits).tolist():  # checked alone, in order: its problem said as ever
+                    check(names[done + at], channels, frame_shape, "frame", size_of)
+                done += len(run)
+                if run.error is not None:
+                    problem(run.error)
+                    done += 1
+            if progress is not None:
+                progress(done / files)
     for image in truth:
         check(image.file, RGB, (manifest.height, manifest.width), "ground-truth image", "the grid", frame=False)
     if progress is not None:

@@ -11,6 +11,7 @@ import struct
 from dataclasses import dataclass
 from typing import BinaryIO
 
+import numba
 import numpy as np
 
 MAX_PIXELS = 2**26
@@ -193,3 +194,43 @@ def offsets_problem(handle: BinaryIO, head: bytes, size: int, layout: ChunkLayou
     if data_size < 0 or last + prefix + data_size > size:
         return f"the file ends at byte {size}, before the end of its last chunk"
     return None
+
+
+@numba.njit(cache=True, nogil=True)
+def int_at(data, at, count):  # pragma: no cover - compiled
+    """The little-endian integer of ``count`` bytes (4 or 8) at ``data[at]``, signed."""
+    value = np.int64(0)
+    for i in range(count):
+        value |= np.int64(data[at + i]) << np.int64(8 * i)
+    if count == 4 and value >= 2**31:
+        value -= 2**32
+    return value
+
+
+@numba.njit(cache=True, nogil=True)
+def chunks_fit(data, start, size, table_start, chunks):  # pragma: no cover - compiled
+    """Whether the scanline chunk table of the file ``data[start:start + size]`` (``chunks`` offsets
+    from byte ``table_start``) fits the file, as :func:`.exr_chunks.offsets_problem` checks it:
+    every offset past the table and inside the file, the last chunk ending within it. An offset of
+    2^63 or more reads negative, and fails."""
+    table_end = table_start + 8 * chunks
+    if table_end > size or chunks < 1:
+        return False
+    lowest, last = size, np.int64(-1)
+    for index in range(chunks):
+        offset = int_at(data, start + table_start + 8 * index, 8)
+        lowest = min(lowest, offset)
+        last = max(last, offset)
+    if lowest < table_end or last >= size or last + 8 > size:
+        return False
+    length = int_at(data, start + last + 4, 4)
+    return length >= 0 and last + 8 + length <= size
+
+
+@numba.njit(cache=True, nogil=True)
+def chunk_tables_fit(data, starts, sizes, table_start, chunks, fits):  # pragma: no cover - compiled
+    """``fits[b]``: whether file ``b`` of a run (bytes ``data[starts[b]:starts[b] + sizes[b]]``;
+    size -1: not read, False) has a scanline chunk table of ``chunks`` offsets from byte
+    ``table_start`` that fits it (:func:`chunks_fit`)."""
+    for b in range(sizes.size):
+        fits[b] = sizes[b] >= 0 and chunks_fit(data, starts[b], sizes[b], table_start, chunks)

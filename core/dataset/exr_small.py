@@ -9,19 +9,27 @@ most :data:`SMALL_BYTES` of pixels) is decoded here from those bytes with zlib a
 OpenEXR file layout specifies. Anything else, or anything unexpected in its chunks (a y that is
 not the chunk's, a size that does not match, data zlib refuses), is left to the library
 (:func:`decode_small` returns None), which then says what is wrong.
+
+A run of such frames is decoded in one compiled call (:mod:`.frame_batch`), each frame by
+:func:`_decode_frame`, which checks its chunk table as :func:`.exr_chunks.offsets_problem` does
+and inflates its chunks with the zlib library's ``uncompress2`` called from compiled code
+(:data:`NATIVE_INFLATE`; where that library cannot be loaded, frames are decoded one by one).
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import struct
 import zlib
 from dataclasses import dataclass
 from functools import lru_cache
 
+import llvmlite.binding
 import numba
 import numpy as np
 
-from .exr_chunks import ChunkLayout, _attributes
+from .exr_chunks import ChunkLayout, _attributes, chunks_fit, int_at
 
 SMALL_BYTES = 2**20
 """Most bytes of decoded pixels (all channels) of a file decoded here."""
@@ -188,3 +196,80 @@ def _unpack(raw, zipped, rows, top, width, starts, halves, targets, half_to_floa
                     bits[0] = (np.uint32(data[b]) | (np.uint32(data[b + 1]) << np.uint32(8))
                                | (np.uint32(data[b + 2]) << np.uint32(16)) | (np.uint32(data[b + 3]) << np.uint32(24)))
                     image[y, x, k] = as_float[0]
+
+
+def _load_inflate() -> bool:
+    """Make zlib's ``uncompress2`` (zlib 1.2.9 on) callable from compiled code; False when the
+    library cannot be found or loaded. Its usual names are tried first: ``find_library`` runs
+    ``ldconfig``, 40 ms at every start."""
+    for name in ("libz.so.1", "libz.1.dylib", None):
+        name = name or ctypes.util.find_library("z")
+        if name is None:
+            return False
+        try:
+            ctypes.CDLL(name).uncompress2  # noqa: B018 - an older zlib lacks it
+            llvmlite.binding.load_library_permanently(name)
+        except (OSError, AttributeError, RuntimeError):
+            continue
+        return True
+    return False
+
+
+NATIVE_INFLATE = _load_inflate()
+"""Whether :func:`_decode_frame` can inflate ZIP and ZIPS chunks (zlib's ``uncompress2``)."""
+LENGTH_TYPE = np.uint64 if ctypes.sizeof(ctypes.c_ulong) == 8 else np.uint32
+"""zlib's ``uLong``: the type of the two lengths ``uncompress2`` reads and writes."""
+_uncompress2 = numba.types.ExternalFunction(
+    "uncompress2", numba.types.intc(numba.types.voidptr, numba.types.voidptr, numba.types.voidptr,
+                                    numba.types.voidptr))
+LAYOUT_FIELDS = 8
+"""Length of the int64 array :func:`layout_array` makes of a :class:`SmallLayout` for compiled code."""
+
+
+def layout_array(layout: SmallLayout, table_start: int, first: int) -> np.ndarray:
+    """(LAYOUT_FIELDS,) int64: what :func:`_decode_frame` needs of a file's layout and chunk table
+    (its start), and ``first``, the first row decoded."""
+    return np.array([table_start, -(-layout.height // layout.lines), layout.lines, layout.y_min, layout.height,
+                     layout.line_bytes, layout.compression, first], np.int64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _decode_frame(data, start, size, layout, width, starts, halves, targets, half_to_float, image,
+                  lengths):  # pragma: no cover - compiled
+    """:func:`decode_small` of the file ``data[start:start + size]`` compiled: rows ``layout[7] ..
+    layout[7] + len(image)`` of the picked channels into ``image`` ((rows, width, C) float32);
+    ``layout`` from :func:`layout_array`; ``lengths`` (2,) :data:`LENGTH_TYPE` scratch for zlib.
+    Returns False when the chunk table does not fit the file (:func:`chunks_fit`) or anything is
+    not as :func:`decode_small` requires; the frame is then read alone, which says why."""
+    table_start, chunks, lines, y_min, height, line_bytes, compression, first = (
+        layout[0], layout[1], layout[2], layout[3], layout[4], layout[5], layout[6], layout[7])
+    if not chunks_fit(data, start, size, table_start, chunks):
+        return False
+    stop = first + image.shape[0]
+    for index in range(chunks):
+        offset = int_at(data, start + table_start + 8 * index, 8)
+        top = index * lines
+        rows = min(lines, height - top)
+        if top + rows <= first or top >= stop:
+            continue  # no row of the band
+        y = int_at(data, start + offset, 4)
+        length = int_at(data, start + offset + 4, 4)
+        raw_size = rows * line_bytes
+        if y != y_min + top or length < 0 or offset + 8 + length > size:
+            return False
+        at = start + offset + 8
+        if length == raw_size:  # stored as it is: no compression, or none that made it smaller
+            _unpack(data[at:at + length], False, rows, top - first, width, starts, halves, targets, half_to_float,
+                    image)
+            continue
+        if compression == _NONE:
+            return False
+        raw = np.empty(raw_size, np.uint8)
+        lengths[0] = raw_size
+        lengths[1] = length
+        # Z_OK only for a stream that ends within its bytes, inflating to at most raw_size bytes.
+        if _uncompress2(raw.ctypes.data, lengths[0:].ctypes.data, data[at:].ctypes.data, lengths[1:].ctypes.data) != 0 \
+                or lengths[0] != raw_size:
+            return False
+        _unpack(raw, True, rows, top - first, width, starts, halves, targets, half_to_float, image)
+    return True

@@ -28,6 +28,7 @@ class FileResolver:
         self._prefix = os.path.join(str(self.folder), "")
         self._root: str | None = None
         self._folders: dict[str, str] = {}
+        self._inside: set[str] = set()  # folders whose real path is the dataset folder or inside it
 
     def __call__(self, name: str) -> Path:
         return Path(self.locate(name))
@@ -68,14 +69,24 @@ class FileResolver:
         """``path`` with its folder resolved (once per folder): its real path when it is no link."""
         parent, _, base = path.rpartition("/")
         if parent not in self._folders:
-            self._folders[parent] = str(Path(parent).resolve())
+            real = self._folders[parent] = str(Path(parent).resolve())
+            if real == self._root or real.startswith(os.path.join(self._root, "")):
+                self._inside.add(parent)
         return os.path.join(self._folders[parent], base)
 
-    def open(self, name: str) -> tuple[int, str]:
-        """``(descriptor, path)``: the dataset file ``name`` opened for reading (never waiting on a
-        FIFO), checked as :meth:`locate` checks it, in one system call for a file that is not a
-        link: opened without following a last link, its real path is its folder's, resolved once.
-        Raises DatasetError naming it: outside the folder, not found, not readable, not a file."""
+    def _check_in_folder(self, path: str) -> None:
+        """:meth:`_check_inside` of a file that is no link, whose real path is its folder's: a
+        set lookup for a file of a folder already known to be inside."""
+        if path.rpartition("/")[0] not in self._inside:
+            self._check_inside(path, self._in_real_folder)
+
+    def open(self, name: str) -> tuple[int, str, os.stat_result]:
+        """``(descriptor, path, status)``: the dataset file ``name`` opened for reading (never
+        waiting on a FIFO), checked as :meth:`locate` checks it, in one system call for a file that
+        is not a link: opened without following a last link, its real path is its folder's,
+        resolved once. ``status`` is the open file's ``fstat`` (its size, and its identity for the
+        store's key: :func:`.cache.file_identity`). Raises DatasetError naming it: outside the
+        folder, not found, not readable, not a file."""
         path = self._prefix + name
         flags = os.O_RDONLY | os.O_NONBLOCK
         if self.allow_outside:
@@ -84,20 +95,21 @@ class FileResolver:
             try:
                 descriptor = os.open(path, flags | os.O_NOFOLLOW)
             except FileNotFoundError:  # no such file (nor link): said once its folder is known inside
-                self._check_inside(path, self._in_real_folder)
+                self._check_in_folder(path)
                 raise DatasetError(f"{os.path.normpath(path)}: file not found") from None
             except OSError:  # a link (ELOOP) and the like: resolved first, as locate does
                 descriptor = _opened(self.locate(name), flags)
             else:
                 try:
-                    self._check_inside(path, self._in_real_folder)
+                    self._check_in_folder(path)
                 except BaseException:
                     os.close(descriptor)
                     raise
-        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+        status = os.fstat(descriptor)
+        if not stat.S_ISREG(status.st_mode):
             os.close(descriptor)
             raise DatasetError(f"{os.path.normpath(path)}: not a file")
-        return descriptor, path
+        return descriptor, path, status
 
 
 def _opened(path: str, flags: int) -> int:

@@ -13,8 +13,9 @@ import numba
 import numpy as np
 
 from ..errors import DatasetError
-from .exr import check_exr, read_exr_channels
-from .exr_seen import HeaderCache
+from .cache import file_identity
+from .exr import check_exr, read_exr_channels, visit_exr
+from .exr_seen import HeaderCache, PassedHeader
 from .exr_header import ExrHeader, frame_channels
 from .file_paths import FileResolver
 from .manifest import FrameEntry, Manifest
@@ -153,7 +154,7 @@ class FrameReader:
     is checked against the size it must have before its pixels are decoded.
     """
 
-    def __init__(self, manifest: Manifest, allow_outside: bool = False):
+    def __init__(self, manifest: Manifest, allow_outside: bool = False, channels: tuple[str, ...] | None = None):
         self.manifest = manifest
         self.allow_outside = allow_outside
         self.resolver = FileResolver(manifest.folder, allow_outside)  # each folder resolved once
@@ -162,7 +163,8 @@ class FrameReader:
         self.grid_shape = (manifest.height, manifest.width)
         self.mapping: CameraMapping | None = None
         self.frame_shape, self.size_of = self.grid_shape, "the grid"
-        self.channels = dataset_channels(manifest, allow_outside)
+        # The caller's when it knows them: the first frame's header is not read again for them.
+        self.channels = channels or dataset_channels(manifest, allow_outside)
         if manifest.frame_space == "camera":
             mapping_path = manifest.file_path(manifest.mapping, allow_outside)
             header = check_exr(mapping_path, ("y", "x"), what="mapping")
@@ -215,23 +217,28 @@ class FrameReader:
     def _to_grid(self, image: np.ndarray) -> np.ndarray:
         return image if self.mapping is None else self.mapping.to_grid(image)
 
-    def check(self, frame: FrameEntry) -> ExrHeader:
-        """Check a frame's header (size, channels, part, colourspace) without decoding it; returns it."""
-        return check_exr(self.file_path(frame.file), self.channels, self.frame_shape,
-                         "frame", self.size_of, self.manifest.part, self.manifest.colorspace, self.headers)
+    def check(self, frame: FrameEntry) -> tuple[ExrHeader, PassedHeader | None]:
+        """Check a frame's header (size, channels, part, colourspace) without decoding it; returns
+        it and its entry in :attr:`headers` (the header that frames sharing its bytes have)."""
+        header, _, passed = visit_exr(self.file_path(frame.file), self.channels, self.frame_shape, "frame",
+                                      self.size_of, self.manifest.part, self.manifest.colorspace, self.headers)
+        return header, passed
 
     def read(self, frame: FrameEntry, rows: tuple[int, int] | None = None,
-             out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+             out: np.ndarray | None = None, identity: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Return ``(radiance, bad)``: the frame's (H, W, 3) float32 grid radiance (R = G = B for a
         monochrome camera), written into ``out`` when given, and how many of its pixel values were
         NaN or Inf (the caller decides how to report them). With ``rows`` = ``(first, stop)``, only
         those grid rows (a grid-space frame decodes only them; a camera frame is decoded whole and
-        mapped, then cut).
+        mapped, then cut). ``identity``: a (4,) int64 row that receives the file's identity
+        (:func:`.cache.file_identity` of the file read).
 
         Raises DatasetError when scaling by the exposure or subtracting the dark frame takes a
         finite value out of float32's range (to Inf, or a non-zero value to 0).
         """
-        descriptor, path = self.resolver.open(frame.file)  # located, opened and checked in one visit
+        descriptor, path, status = self.resolver.open(frame.file)  # located, opened and checked in one visit
+        if identity is not None:
+            identity[:] = file_identity(status)
         first, stop = rows if rows is not None else (0, self.grid_shape[0])
         image = self._read_file(path, "frame", rows if self.mapping is None else None, descriptor)
         camera_bad = 0
@@ -243,9 +250,15 @@ class FrameReader:
         dark = self.dark[first:stop] if self.dark is not None else np.zeros((0, 0, grid.shape[2]), np.float32)
         radiance = out if out is not None else np.empty((*grid.shape[:2], 3), np.float32)
         bad, problem = _radiance(grid, np.float32(frame.exposure), dark, self.dark is not None, radiance)
-        if problem == 1:
-            raise DatasetError(f"{Path(path)}: dividing by the exposure {frame.exposure:g} "
-                               "takes values out of float32's range")
-        if problem == 2:
-            raise DatasetError(f"{Path(path)}: subtracting the dark frame takes values out of float32's range")
+        if problem:
+            raise self.scaling_error(frame, problem)
         return radiance, camera_bad if self.mapping is not None else int(bad)
+
+    def scaling_error(self, frame: FrameEntry, problem: int) -> DatasetError:
+        """The error of a frame whose scaling took values out of float32's range: ``problem`` as
+        :func:`_radiance` returns it (1: dividing by the exposure, 2: subtracting the dark frame)."""
+        path = Path(self.resolver.folder, frame.file)
+        if problem == 1:
+            return DatasetError(f"{path}: dividing by the exposure {frame.exposure:g} "
+                                "takes values out of float32's range")
+        return DatasetError(f"{path}: subtracting the dark frame takes values out of float32's range")

@@ -19,12 +19,17 @@ asked, keeping decoded bands up to the budget. Every consumer reads through :met
 (or :meth:`~ImpulseDataset.point`, :meth:`~ImpulseDataset.window`), so both work alike.
 
 Long manifests. The work per frame is a few system calls and array rows: the manifest's frames are
-one table of arrays, each frame made a row as its JSON is decoded (:mod:`.frame_table`); the store's
-key stats each file; a first open then visits each frame file once, per band (located and opened in
-one call, :meth:`.file_paths.FileResolver.open`; its header, chunk table and, for a small frame, its
-pixels from one read, :func:`.exr.visit_exr`, the header the frames share read by the OpenEXR
-library once, :mod:`.exr_seen`, :mod:`.exr_small`). ``benchmarks/bench_manifest.py --pipeline``
-measures each step per frame against the parse.
+one table of arrays, each frame made a row as its JSON is decoded (:mod:`.frame_table`). An open is
+one pass over the files: a reopen stats each file for the store's key and opens none (the store
+keeps the frames' channels); a first open
+stats none (the dataset's store, if any, is of another manifest: :func:`.cache.manifest_key`) and
+visits each frame file once, per band: located and opened in one call
+(:meth:`.file_paths.FileResolver.open`), read whole in one read when small (:mod:`.file_batch`),
+its ``fstat`` the identity the store's key is made of. Runs of small frames that share the first
+frame's header are checked, decoded, weighed and marked in one compiled call a run
+(:mod:`.frame_batch`); other frames are read one by one (:func:`.exr.visit_exr`, the header the
+frames share read by the OpenEXR library once, :mod:`.exr_seen`). ``benchmarks/bench_manifest.py
+--pipeline`` measures each step per frame against the parse.
 """
 
 from __future__ import annotations
@@ -48,7 +53,7 @@ from .frames import dataset_channels
 from .manifest import Manifest, read_manifest
 from .manifest_copy import load_manifest, write_manifest_copy
 from .memory import format_bytes, memory_budget
-from .response_store import ResponseStore, entry_bytes, open_store, store_tile, write_store
+from .response_store import ResponseStore, entry_bytes, open_store, store_tile, stored_manifest_key, write_store
 
 SteadyPreview = Callable[[int, int, np.ndarray], None]
 """Called with the fraction of work done in [0, 1]; may raise :class:`Cancelled` to stop."""
@@ -88,7 +93,7 @@ class ImpulseDataset:
     steady
         (H, W, 3) float32 steady state when known at open (a store holds it), else None.
     cache_key
-        The key of the dataset's store (:func:`.cache.cache_key`: its manifest, the identity of
+        The key of the dataset's store (:func:`.cache.files_key`: its manifest, the identity of
         every frame file and the radius), which what is derived from the responses is cached
         under (:mod:`ringlight.core.rings.stack_cache`); empty when opened without the cache.
     """
@@ -333,14 +338,17 @@ def open_dataset(
         raise DatasetError(f"{manifest.path}: responses up to radius {max_radius:g} need {format_bytes(needed)}, "
                            f"more than the {format_bytes(free)} free for its store in {location.parent}{advice}")
     offsets = disc_offsets(max_radius)
-    channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
     shape = (height, width, len(offsets), 3)
-    key = cache.cache_key(manifest, max_radius) if use_cache else ""
-    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets, channels=channels,
-                      cache_key=key)
+    dataset = partial(ImpulseDataset, manifest=manifest, max_radius=max_radius, offsets=offsets)
+    # The store's key in two parts (module .cache): without an entry of this manifest nothing can be
+    # reused and no file is stat'ed; the frames' identities then come from their reading.
+    manifest_key = cache.manifest_key(manifest, max_radius) if use_cache else ""
+    key, store = "", None
     if use_cache:
         sweep_abandoned(location)  # what a killed open left, gigabytes at paper scale
-    store = open_store(location, key, shape, budget // 2) if use_cache else None
+        if stored_manifest_key(location) == manifest_key:
+            key = cache.stat_key(manifest, manifest_key)
+            store = open_store(location, key, shape, budget // 2)
     if store is not None and needed <= min(budget, WHOLE_READ_BYTES):
         phase("reading the store")
         try:
@@ -351,25 +359,29 @@ def open_dataset(
             if progress is not None:
                 progress(1.0)
             return dataset(responses=responses, lit_counts=store.lit_counts, observed=store.observed,
-                           steady=store.steady, store=store)
+                           steady=store.steady, store=store, cache_key=key, channels=store.channels)
     if store is None:
-        assembler = Assembler(manifest, offsets, allow_outside)
+        channels = dataset_channels(manifest, allow_outside)  # from the first frame's header alone
+        assembler = Assembler(manifest, offsets, allow_outside, channels)
         tile = store_tile((height, width), len(offsets))
         if fits_in_memory(needed, budget):
             assembled = assemble_in_memory(assembler, budget, progress, 1.0 - WRITE_SHARE if use_cache else 1.0)
+            key = _read_key(manifest, manifest_key, assembler) if use_cache else ""
             if use_cache:
                 try:
-                    with write_store(location, key, shape, tile) as writer:
+                    with write_store(location, manifest_key, shape, tile, channels) as writer:
+                        writer.key = key
                         write_manifest_copy(writer.folder, manifest)
                         write_assembled(writer, assembled, progress, 1.0 - WRITE_SHARE)
                 except (OSError, RinglightError):  # no store: the next open assembles again
                     pass
             return dataset(responses=assembled.responses, lit_counts=assembled.lit_counts,
-                           observed=assembled.observed, steady=assembled.steady)
+                           observed=assembled.observed, steady=assembled.steady, cache_key=key, channels=channels)
         try:
-            with write_store(location, key, shape, tile) as writer:
+            with write_store(location, manifest_key, shape, tile, channels) as writer:
                 write_manifest_copy(writer.folder, manifest)
                 assemble_into_store(assembler, writer, budget, progress, preview)
+                writer.key = key = _read_key(manifest, manifest_key, assembler)
         except OSError as error:
             raise DatasetError(f"{location}: cannot write the store that a dataset of "
                                f"{format_bytes(needed)} is read from ({error.strerror or error})") from None
@@ -379,7 +391,13 @@ def open_dataset(
     elif progress is not None:
         progress(1.0)
     return dataset(responses=None, lit_counts=store.lit_counts, observed=store.observed, steady=store.steady,
-                   store=store)
+                   store=store, cache_key=key, channels=store.channels)
+
+
+def _read_key(manifest: Manifest, manifest_key: str, assembler: Assembler) -> str:
+    """The store's key of what ``assembler`` read: the frames' identities as they were read (each
+    file's ``fstat``), the dark and mapping files stat'ed."""
+    return cache.files_key(manifest_key, assembler.identities, cache.other_identities(manifest))
 
 
 def fits_in_memory(response_bytes: int, budget: int) -> bool:

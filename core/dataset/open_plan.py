@@ -16,7 +16,7 @@ from .impulse_dataset import (
 )
 from .manifest import Manifest
 from .memory import format_bytes, memory_budget
-from .response_store import stored_entry_bytes
+from .response_store import stored_entry_bytes, stored_manifest_key
 
 
 @dataclass(frozen=True)
@@ -67,10 +67,14 @@ class OpenPlan:
 
 
 def plan_open(manifest: Manifest, radius: float | None = None, budget: int | None = None) -> OpenPlan:
-    """The :class:`OpenPlan` of :func:`.impulse_dataset.open_dataset` with the same arguments."""
+    """The :class:`OpenPlan` of :func:`.impulse_dataset.open_dataset` with the same arguments; the
+    files are stat'ed only when the dataset's store is of this manifest (:mod:`.cache`)."""
     max_radius = effective_max_radius(manifest, radius)
     offsets = disc_offset_count(max_radius)
     location = cache.cache_location(manifest.folder)
-    stored = stored_entry_bytes(location, cache.cache_key(manifest, max_radius))
+    manifest_key = cache.manifest_key(manifest, max_radius)
+    stored = None
+    if stored_manifest_key(location) == manifest_key:  # else no file need be stat'ed: nothing is stored
+        stored = stored_entry_bytes(location, cache.stat_key(manifest, manifest_key))
     return OpenPlan(max_radius, offsets, response_memory_bytes((manifest.height, manifest.width), max_radius),
                     memory_budget() if budget is None else budget, location, stored)

@@ -20,8 +20,10 @@ ringlight's ``meta.json``:
   state, so that an open shows it without reading the responses), same codecs;
 - ``manifest.npz``: the manifest the entry was built from (:mod:`.manifest_copy`), so that a
   reopen need not parse its JSON;
-- ``meta.json``: the cache key (:func:`.cache.cache_key`), the layout version, the shape, the tile
-  and the entry's table of files (:mod:`.store_table`).
+- ``meta.json``: the cache key (:func:`.cache.files_key`) and its manifest part
+  (:func:`.cache.manifest_key`, which tells an open whether the files need be stat'ed at all), the
+  frames' channels (which a reopen then need not read from the first frame's header), the layout
+  version, the shape, the tile and the entry's table of files (:mod:`.store_table`).
 
 Opening validates lazily. Up front, without reading a chunk: the key, the arrays' shapes and
 types, and the folder against the table (exactly its files, at their sizes; a symbolic link, FIFO
@@ -34,6 +36,7 @@ that the next open rebuilds it. Entries are written in a temporary folder and re
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -64,9 +67,9 @@ from .store_table import (
     table_of,
 )
 
-LAYOUT_VERSION = 5
+LAYOUT_VERSION = 6
 """3: chunks offset-major; 4: the entry also holds the manifest's copy (:mod:`.manifest_copy`);
-5: meta.json holds the entry's table of files."""
+5: meta.json holds the entry's table of files; 6: and the key's manifest part."""
 CHUNK_BYTES = 8 * 2**20
 """Target size of one uncompressed responses chunk: big enough for compression and few files,
 small enough that a click (one point's chunk) decodes in a few milliseconds."""
@@ -98,6 +101,9 @@ class StoreWriter:
 
     def __init__(self, folder: Path, shape: tuple[int, ...], tile: int):
         self.folder, self.shape, self.tile = folder, shape, tile
+        self.key: str | None = None
+        """The entry's key (:func:`.cache.files_key`), set once the frames are read: it holds the
+        identity of each frame file as it was read."""
         group = zarr.open_group(zarr.storage.LocalStore(folder), mode="w")
         self._group = group
         self._responses = group.create_array(
@@ -139,8 +145,11 @@ class StoreWriter:
 
 
 @contextmanager
-def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> Iterator[StoreWriter]:
-    """Write an entry at ``location`` atomically: the caller fills the yielded writer; on leaving
+def write_store(location: Path, manifest_key: str, shape: tuple[int, ...], tile: int,
+                channels: tuple[str, ...]) -> Iterator[StoreWriter]:
+    """Write an entry at ``location`` atomically: the caller fills the yielded writer and sets its
+    :attr:`~StoreWriter.key` (the entry is of the manifest of key ``manifest_key``, its frames
+    read with ``channels``: :func:`.frames.dataset_channels`); on leaving
     without an error the entry is published, on an error (or :class:`Cancelled`) nothing is left.
 
     Raises the caller's errors, and OSError or RinglightError when the folder cannot be written
@@ -154,8 +163,10 @@ def write_store(location: Path, key: str, shape: tuple[int, ...], tile: int) -> 
     with atomic_folder(location) as staging:
         writer = StoreWriter(staging, shape, tile)
         yield writer
-        meta = {"key": key, "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile,
-                "table": table_of(staging)}
+        if writer.key is None:
+            raise ValueError("a store entry written without its key")
+        meta = {"key": _entry_key(writer.key, list(channels)), "manifest_key": manifest_key, "channels": list(channels),
+                "layout": LAYOUT_VERSION, "shape": list(shape), "tile": tile, "table": table_of(staging)}
         (staging / META).write_text(json.dumps(meta), encoding="utf-8")
 
 
@@ -163,14 +174,32 @@ def entry_file(location: Path, relative: str) -> bytes | None:
     """The bytes of one file of the entry at ``location`` (of this layout) as its table says they
     are, or None (no entry, a damaged one, or a file other than written)."""
     try:
-        if not stat.S_ISREG(os.lstat(location / META).st_mode):
-            return None
-        meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
-        if not isinstance(meta, dict) or meta.get("layout") != LAYOUT_VERSION or not isinstance(meta.get("table"), dict):
+        meta = _meta(location)
+        if meta is None or not isinstance(meta.get("table"), dict):
             return None
         return read_checked(location, relative, meta["table"])
     except (OSError, ValueError, TypeError, RinglightError):
         return None
+
+
+def stored_manifest_key(location: Path) -> str | None:
+    """The manifest key (:func:`.cache.manifest_key`) of the entry at ``location``, or None (no
+    entry, a damaged one, one of another layout); stats no dataset file."""
+    try:
+        meta = _meta(location)
+    except (OSError, RinglightError):
+        return None
+    key = None if meta is None else meta.get("manifest_key")
+    return key if isinstance(key, str) else None
+
+
+def _meta(location: Path) -> dict | None:
+    """The entry's meta.json when it is a regular file of this layout, else None (raises OSError
+    or RinglightError for a file that cannot be read)."""
+    if not stat.S_ISREG(os.lstat(location / META).st_mode):
+        return None
+    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
+    return meta if isinstance(meta, dict) and meta.get("layout") == LAYOUT_VERSION else None
 
 
 class ResponseStore:
@@ -185,11 +214,14 @@ class ResponseStore:
         Side of a responses chunk (grid points): bands are read ``tile`` rows at a time.
     lit_counts, observed, steady
         The small arrays (see the module docstring).
+    channels
+        The channels the frames were read with (see :func:`write_store`).
     """
 
     def __init__(self, path: Path, responses: zarr.Array, tile: int, lit_counts: np.ndarray,
-                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int, meta_identity: tuple):
-        self.path, self.tile = path, tile
+                 observed: np.ndarray, steady: np.ndarray, keep_bytes: int, meta_identity: tuple,
+                 channels: tuple[str, ...]):
+        self.path, self.tile, self.channels = path, tile, channels
         self._meta_identity = meta_identity  # of the meta.json it was opened by: see mark_stale
         self._responses = responses
         self.lit_counts, self.observed, self.steady = lit_counts, observed, steady
@@ -255,6 +287,10 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
         identity = _identity(location / META)
         if meta.get("shape") != list(shape) or not isinstance(meta.get("tile"), int) or meta["tile"] < 1:
             return None
+        channels = meta.get("channels")
+        if not isinstance(channels, list) or len(channels) not in (1, 3) or len(set(channels)) != len(channels) \
+                or not all(isinstance(name, str) and name for name in channels):
+            return None
         table = entry_table(location, meta)
         if table is None or not chunks_listed(table, shape, meta["tile"]):
             return None
@@ -276,7 +312,7 @@ def open_store(location: Path, key: str, shape: tuple[int, ...], keep_bytes: int
     except (OSError, ValueError, KeyError, TypeError, RuntimeError, RinglightError):
         return None
     return ResponseStore(location, responses, meta["tile"], small["lit_counts"], small["observed"],
-                         small["steady"], keep_bytes, identity)
+                         small["steady"], keep_bytes, identity, tuple(channels))
 
 
 def stored_entry_bytes(location: Path, key: str) -> int | None:
@@ -291,12 +327,17 @@ def stored_entry_bytes(location: Path, key: str) -> int | None:
 def _current_meta(location: Path, key: str) -> dict | None:
     """The entry's meta.json when it is a regular file of this layout written for ``key``, else
     None (raises OSError or RinglightError for a file that cannot be read)."""
-    if not stat.S_ISREG(os.lstat(location / META).st_mode):
-        return None
-    meta = read_json(location / META, _StoreInvalid, "cache meta.json", max_bytes=MAX_META_BYTES)
-    if not isinstance(meta, dict) or meta.get("key") != key or meta.get("layout") != LAYOUT_VERSION:
-        return None
-    return meta
+    meta = _meta(location)
+    return meta if meta is not None and meta.get("key") == _entry_key(key, meta.get("channels")) else None
+
+
+def _entry_key(key: str, channels: object) -> str:
+    """What meta.json records as the key of an entry of store key ``key`` whose frames were read
+    with ``channels``: the two bound, so that edited channels fail the key as an edited key does
+    (anything but a list of names matches no key)."""
+    if not isinstance(channels, list) or not all(isinstance(name, str) for name in channels):
+        return ""
+    return hashlib.sha256(f"{key}\0{json.dumps(channels)}".encode()).hexdigest()
 
 
 def entry_bytes(location: Path) -> int:

@@ -5,7 +5,7 @@ A request's stacks (:func:`.stack_request.compute_stacks`), their standard error
 each, on every open, where the store itself reopens in a fraction of a second. Both are saved, a
 folder each, under ``stacks/`` of the user cache folder (:func:`..dataset.cache.user_cache_root`),
 named by a hash of what they depend on: the dataset's store key (its manifest, the identity of
-every frame file and the radius: :func:`..dataset.cache.cache_key`), the request, the kind and
+every frame file and the radius: :func:`..dataset.cache.files_key`), the request, the kind and
 :data:`VERSION`, which changes whenever the stacks' or the noise's arithmetic does. A dataset
 opened without the cache (no key) is never cached.
 
