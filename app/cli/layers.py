@@ -17,6 +17,7 @@ from ringlight.core.colour.layer_report import (
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
 from ringlight.core.device import CHOICES, choose_device
+from ringlight.core.phases import phase
 from ringlight.core.inversion.settings import (
     DEFAULT_DEPTH,
     DEFAULT_FINAL_PHOTONS,
@@ -141,8 +142,12 @@ def run_layers(args) -> int:
 
 
 def _run_inverse(args, dataset, region, description: str, settings: InversionSettings) -> int:
+    def report(fraction: float, what: str) -> None:
+        phase(what)  # the fit's own steps name the bar's phase ("reading the frames" stayed on for minutes)
+        progress(fraction)
+
     with progress_bar("fitting layers") as progress:
-        result = invert_region(dataset, region, description, settings, lambda fraction, what: progress(fraction))
+        result = invert_region(dataset, region, description, settings, report)
     inversion = result.inversion
     print(f"{dataset.path}: {description}, method inverse: {inversion.notes}")
     print(f"fit: chi-square {inversion.chi2:.1f} for {inversion.dof} degrees of freedom, rings used R/G/B "
