@@ -54,7 +54,8 @@ COMMANDS = {
         "--roi": ["0,0,0,0", "a,b,c,d", "0,0,99,99", "-1,-1,2,2", "1,2,3", "0,0,6,5"],
         "--json": ["", "{folder}/a-file", "{folder}", "{folder}/a-file/x.json", "/proc/x.json"],
     }),
-    "layers inverse": (["layers", "{ds}", "--method", "inverse", "--photons", "1000", "--layers", "1"], {
+    "layers inverse": (["layers", "{ds}", "--method", "inverse", "--photons", "1000", "--final-photons", "1000",
+                        "--layers", "1"], {
         "--depth": NUMBERS + ["1000000", "9", "1025"], "--photons": ["0", "-1", "999", "1000001", "1e3", "abc"],
         "--n": NUMBERS + ["0.5", "4"], "--g": NUMBERS + ["1", "-1"], "--mus": NUMBERS + ["101", "1,2,3", ","],
         "--boundaries": ["0", "-1", "2,1", "1.5", "64", "a", "1,1"], "--layers": ["0", "5", "-1", "x", "1e3"],
