@@ -26,7 +26,7 @@ def ring_sigma(images: np.ndarray, errors: np.ndarray, counts: np.ndarray, floor
     >>> images = np.array([4.0, 2.0, 1.0]).reshape(3, 1, 1, 1)
     >>> errors = np.array([np.nan, 0.2, 0.2]).reshape(3, 1, 1, 1)
     >>> counts = np.array([1, 4, 8]).reshape(3, 1, 1)
-    >>> ring_sigma(images, errors, counts, 0.0).ravel().round(3).tolist()  # r = 0: 10 % x sqrt(4 / 1)
+    >>> ring_sigma(images, errors, counts, 0.0).ravel().astype(float).round(3).tolist()  # r = 0: 10 % x sqrt(4)
     [0.8, 0.2, 0.2]
     """
     rings, height, width, channels = images.shape
