@@ -11,8 +11,8 @@ relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what 
 show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma`, made by each fit.
 
 Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a loaded two-core machine, CPU
-time): the stack with its errors 1.1-1.6 x the stack alone (the errors in a pass of their own took
-3.4-3.9 x), the 1.9 million fits 2.1-2.6 x, about 0.4 us each.
+time): the stack with its errors 1.3-1.6 x the stack alone (the errors in a pass of their own took
+2.6-3.9 x), the 1.9 million fits 1.9-2.6 x, about 0.4 us each.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
