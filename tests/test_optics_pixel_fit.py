@@ -1,12 +1,14 @@
 """The per-pixel fits against scipy's least squares on the same table, and each fit's ring sigma
 against the maps' array of them."""
 
+import doctest
 import math
 
 import numpy as np
 import pytest
 from optics_helpers import TEST_PHOTONS
 from ringlight.core.optics import radial
+from ringlight.core.optics import ring_sigma as ring_sigma_module
 from ringlight.core.optics.maps import MODEL_FLOOR
 from ringlight.core.optics.pixel_fit import CONVERGED, fit_profiles
 from ringlight.core.optics.ring_sigma import ring_sigma
@@ -89,3 +91,8 @@ def test_ring_sigma_borrows_the_nearest_rings_relative_error():
     sigma = ring_sigma(images, errors, counts, 0.01).ravel()
     own = np.array([8.0 * 0.1 * math.sqrt(8.0), 0.4, 2.0 * 0.1 * math.sqrt(8 / 12), 0.3])
     np.testing.assert_allclose(sigma, np.hypot(own, 0.01 * images.ravel()), rtol=1e-6)
+
+
+def test_ring_sigma_docstring_example_runs():
+    failures, _ = doctest.testmod(ring_sigma_module)
+    assert failures == 0
