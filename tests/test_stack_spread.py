@@ -14,21 +14,34 @@ from ringlight.core.rings.stacks import ring_stack
 from test_noise import brute_ring_se
 
 
-@pytest.fixture(scope="module")
-def random_dataset(tmp_path_factory):
-    # Missing lit points and the grid's edges cut rings: the kernel's slow path is exercised.
+def random_dataset_with(tmp_path_factory, missing):
     rng = np.random.default_rng(5)
     height, width = 10, 11
-    impulses = random_impulses(rng, height, width, support=4.0, missing=0.15)
+    impulses = random_impulses(rng, height, width, support=4.0, missing=missing)
     folder = tmp_path_factory.mktemp("spread") / "random"
     write_dataset(folder, height, width, impulses, max_radius=4.0)
     return impulses, open_dataset(folder, use_cache=False)
 
 
-def test_one_pass_equals_the_stack_and_its_ring_spread(random_dataset):
-    _, dataset = random_dataset
+@pytest.fixture(scope="module")
+def random_dataset(tmp_path_factory):
+    # Missing lit points and the grid's edges cut rings: the kernel's path that checks members.
+    return random_dataset_with(tmp_path_factory, 0.15)
+
+
+@pytest.fixture(scope="module")
+def lit_dataset(tmp_path_factory):
+    # Every point lit: the pixels 3 or more from the edges have whole rings to r = 2 (no checks).
+    return random_dataset_with(tmp_path_factory, 0.0)
+
+
+@pytest.mark.parametrize("name", ["random_dataset", "lit_dataset"])
+def test_one_pass_equals_the_stack_and_its_ring_spread(name, request):
+    _, dataset = request.getfixturevalue(name)
     radii = np.arange(3.0)  # stack_noise also reads each ring's next one (r + 1 <= 3)
     stack, errors = ring_stack_and_errors(dataset, radii)
+    if name == "lit_dataset":
+        assert (stack.counts[:, 3:-3, 3:-3] == np.array([1, 8, 12])[:, None, None]).all()
     expected = ring_stack(dataset, radii)
     np.testing.assert_array_equal(stack.counts, expected.counts)
     np.testing.assert_allclose(stack.images, expected.images, rtol=1e-6, equal_nan=True)

@@ -23,7 +23,6 @@ import numba
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
-from ..errors import StackError
 from .members import ring_members, unit_weight_rings
 from .radii import as_radii, check_reach
 from .stacks import LANES, Stack, _ring_tables
@@ -42,11 +41,9 @@ def ring_stack_and_errors(dataset: ImpulseDataset, radii, progress: ProgressCall
     radii = as_radii(radii)
     check_reach(dataset, radii, 0.0, 1.0, False)
     tables = _ring_tables(dataset, radii, 1.0, False)
-    unweighted = unit_weight_rings(tables)
-    if not unweighted.all():
-        raise StackError("one-pass ring errors need rings of unit weights (the default rings)")
+    unweighted = unit_weight_rings(tables)  # every default ring's weights are 1
     first, stop = tables[0], tables[1]
-    group_start, ring_groups = _ring_distance_groups(dataset.offsets, first, stop)
+    groups, ring_groups = _ring_distance_groups(dataset.offsets, first, stop)
     height, width = dataset.grid_shape
     images = np.empty((len(radii), height, width, 3), np.float32)
     errors = np.empty((len(radii), height, width, 3), np.float32)
@@ -58,7 +55,7 @@ def ring_stack_and_errors(dataset: ImpulseDataset, radii, progress: ProgressCall
         counts[:, row0:row1], _ = ring_members(dataset.lit, dataset.observed, dataset.offsets, tables, unweighted,
                                                row0, row1)
         _stack_spread_kernel(np.ascontiguousarray(dataset.rows(row0, row1)), lit, dy, dx, row0, first, stop,
-                             group_start, ring_groups, counts[:, row0:row1], images[:, row0:row1],
+                             groups, ring_groups, counts[:, row0:row1], images[:, row0:row1],
                              errors[:, row0:row1])
         if progress is not None:
             progress(row1 / height)
