@@ -36,7 +36,8 @@ from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import RinglightError
 from ..inversion.measured import measured_profile
 from ..validation import Validator, read_json
-from .maps import MODEL_FLOOR, profile_radii, ring_sigma, sample_optics
+from .maps import MODEL_FLOOR, profile_radii, sample_optics
+from .ring_sigma import ring_sigma
 from .table import DEFAULT_PHOTONS, table_for
 
 FORMAT = "ringlight-calibration"

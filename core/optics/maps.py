@@ -3,11 +3,16 @@ profile E_p(r) fitted as a homogeneous semi-infinite medium (:mod:`.pixel_fit` o
 
 The profile is the ring light stack at radii 0, 1, ... (thickness 1, every ring within the
 dataset's max_radius), its standard errors the noise of the stack (:mod:`ringlight.core.rings.noise`:
-the replicates' spread where the dataset holds replicates, else the spread of each ring's members).
+the replicates' spread where the dataset holds replicates, else the spread of each ring's members,
+computed with the stack in one pass over the responses, :mod:`ringlight.core.rings.stack_spread`).
 Ring 0 has one member, so no spread: its standard error is the relative error of the nearest ring
 that has one, scaled by the square root of their member counts (independent members of equal
 relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what the noise does not
-show (the table's own Monte Carlo noise, a rig's calibration).
+show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma`, made by each fit.
+
+Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a loaded two-core machine): the
+stack with its errors 1.3-1.7 x the stack alone (the errors in a pass of their own took 2.6-4.3 x),
+the 1.9 million fits 1.9-2.8 x, about 0.4 us of CPU each.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
@@ -29,6 +34,7 @@ from ..errors import Cancelled, RinglightError
 from ..rings.geometry import ring_geometry
 from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
+from ..rings.stack_spread import ring_stack_and_errors
 from ..rings.stacks import Stack, ring_stack
 from .pixel_fit import CONVERGED, fit_profiles
 from .table import DEFAULT_PHOTONS, ProfileTable, table_for
@@ -127,31 +133,6 @@ def sample_optics(dataset: ImpulseDataset, n: float | None, g: float | None) -> 
     return float(n), float(g)
 
 
-def ring_sigma(images: np.ndarray, errors: np.ndarray, counts: np.ndarray, floor: float = MODEL_FLOOR) -> np.ndarray:
-    """(R, H, W, C) float32 standard deviation of each ring's E: its standard error ``errors``
-    (R, H, W, C), a ring without one (NaN: fewer than 2 members) given the relative error of the
-    nearest ring that has one times sqrt(that ring's members / its own), and the relative
-    ``floor`` added in quadrature. ``counts`` (R, H, W) the rings' members."""
-    images = images.astype(np.float32, copy=False)
-    sigma = errors.astype(np.float32, copy=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        relative = np.abs(sigma / images)
-    known = np.isfinite(relative)
-    for r in range(len(images)):
-        missing = ~known[r] & np.isfinite(images[r])
-        if not missing.any():
-            continue
-        for other in sorted(range(len(images)), key=lambda k: abs(k - r)):
-            usable = missing & known[other]
-            if usable.any():
-                ratio = np.sqrt(counts[other] / np.maximum(counts[r], 1))[..., None]
-                sigma[r][usable] = (np.abs(images[r]) * relative[other] * ratio)[usable]
-                missing &= ~usable
-            if not missing.any():
-                break
-    return np.sqrt(sigma * sigma + (floor * images) ** 2)
-
-
 def error_freedom(dataset: ImpulseDataset, radii: np.ndarray, noise_source: str) -> np.ndarray:
     """(R,) degrees of freedom of each ring's standard error: replicates - 1, or for the ring
     spread its members less its groups of equal distance (:mod:`ringlight.core.rings.noise`, whole
@@ -228,7 +209,13 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     n, g = sample_optics(dataset, n, g)
     radii = profile_radii(dataset)
     report = _Phases(progress, cancelled)
-    if stack is None:
+    inflation = np.ones(len(radii))  # errors given are taken as they are
+    if stack is None and errors is None and len(dataset.manifest.replicates) <= 1:
+        # The rings and their spread in one pass over the responses (one read of them, not two).
+        stack, errors = ring_stack_and_errors(dataset, radii, progress=report.part(0.0, 0.6))
+        noise_source = "ring spread"
+        inflation = t_inflation(error_freedom(dataset, radii, noise_source))
+    elif stack is None:
         stack = ring_stack(dataset, radii, progress=report.part(0.0, 0.3))
     elif not np.array_equal(stack.radii, radii) or stack.thickness != 1.0 or stack.antialias:
         raise OpticsError(f"the stack given holds radii {stack.radii.tolist()}, not the rings 0..{radii[-1]:g} "
@@ -236,13 +223,13 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     if errors is None:
         errors, noise_source = ring_errors(dataset, radii, progress=report.part(0.3, 0.6))
-        errors = errors * t_inflation(error_freedom(dataset, radii, noise_source))[:, None, None, None]
+        inflation = t_inflation(error_freedom(dataset, radii, noise_source))
     report.check()
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
     scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
-    sigma = ring_sigma(stack.images, errors, stack.counts, floor)
-    fitted = fit_profiles(table, stack.images, sigma, scale, cancelled=report.cancelled)
+    fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
+                          floor=floor, inflation=inflation)
     report.progress(1.0)
     whole = np.asarray([_ring_members(r) for r in radii])
     complete = (stack.counts == whole[:, None, None]).all(axis=0)

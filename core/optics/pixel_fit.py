@@ -9,9 +9,12 @@ scale ``s`` (1 for a simulated dataset, :mod:`ringlight.core.optics.calibration`
 
 over the rings with a finite value and sigma (at least :data:`MIN_RINGS`). The standard errors are
 those of the linearised fit, ``C = (J^T W J)^-1`` at the minimum (the delta method carries them to
-mus' = (1 - g) e^u and mua = e^(u + v)). A fit starts from the previous pixel's result in its row
-(neighbours are alike), or, for the first pixel of a row and whenever that start does not converge,
-from the best node of a coarse search of the table.
+mus' = (1 - g) e^u and mua = e^(u + v)). A fit starts where the previous pixel's fit in its row
+ended (neighbours are alike; the model there is known, so the start costs no look-up), or, for the
+first pixel of a row and whenever that start does not converge, from the best node of a coarse
+search of the table. Near the minimum the last Gauss-Newton step is taken without a look-up
+after it (:data:`FINAL_DECREMENT`): a fit costs about one look-up of the table
+(``benchmarks/bench_optics.py``: 2.6 before, on a homogeneous map at 3 % noise per response).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import math
 import numba
 import numpy as np
 
+from .ring_sigma import profile_sigma
 from .table import ProfileTable, interpolate
 
 MIN_RINGS = 3
@@ -30,6 +34,17 @@ TOLERANCE = 1e-5
 DECREMENT = 1e-4
 """Newton decrement (chi2 units) at which a fit has converged: the step left is below 1 % of a
 standard error."""
+FINAL_DECREMENT = 1e-2
+"""Newton decrement (chi2 units) below which the Gauss-Newton step is taken as the fit's last step,
+unchecked (no look-up after it), when it is also below :data:`FINAL_STEP`: the start lies within a
+tenth of a standard error of the minimum, where the model is linear to far better than the fit's
+precision, so the step lands on the minimum within :data:`DECREMENT`'s precision (the fits equal
+scipy's least squares to 3 % of a standard error, ``tests/test_optics_pixel_fit.py``). Its chi2 is
+the quadratic model's (chi2 less the decrement), its covariance the curvature at the start."""
+FINAL_STEP = 1e-2
+"""Largest unchecked last step in u and in v (log units): the curvature at the start is the
+minimum's within about 1 % (a step of 0.04 in v, a tenth of a poorly determined v's standard error,
+gave v's variance 3 % high)."""
 COARSE_STRIDE = 6
 """Table nodes between the points of the coarse search (in u and in v)."""
 CONVERGED, NO_DATA, NOT_CONVERGED, AT_EDGE = 0, 1, 2, 3
@@ -38,9 +53,16 @@ the minimum lies on the table's edge (beyond the scattering or absorption it spa
 
 
 def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, scale: np.ndarray,
-                 cancelled=None) -> dict[str, np.ndarray]:
+                 cancelled=None, counts: np.ndarray | None = None, floor: float = 0.0,
+                 inflation: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Fit every pixel and channel of ``measured`` (R, H, W, C) with ``sigma`` (R, H, W, C) and the
     rig's ``scale`` (C,).
+
+    With the rings' members ``counts`` (R, H, W), ``sigma`` holds the standard errors of
+    ``measured`` instead, which each fit turns into its rings' standard deviations
+    (:func:`.ring_sigma.profile_sigma`, with ``floor`` and each ring's error times ``inflation``
+    (R,), default 1): the maps' way, without an (R, H, W, C) array of them (it took as long as
+    the stack, ``benchmarks/bench_optics.py``).
 
     Returns a dict of (H, W, C) float64 arrays ``u``, ``v``, ``cuu``, ``cuv``, ``cvv`` (the fit and
     its covariance in the table's coordinates), ``chi2``, ``rings`` (used) and int8 ``status``
@@ -56,67 +78,98 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     measured = np.ascontiguousarray(measured, np.float32)
     sigma = np.ascontiguousarray(sigma, np.float32)
     scale = np.asarray(scale, np.float64)
+    errors_given = counts is not None
+    counts = np.ascontiguousarray(counts, np.int32) if errors_given else np.zeros((rings, 1, 1), np.int32)
+    inflation = np.ones(rings) if inflation is None else np.asarray(inflation, np.float64)
     band = max(1, (1 << 16) // max(1, width * channels))
     for row0 in range(0, height, band):
         if cancelled is not None and cancelled():
             raise Cancelled("cancelled")
         row1 = min(height, row0 + band)
-        _fit_rows(table.log_profile, table.u0, table.du, table.v0, table.dv, measured, sigma, scale, row0, row1,
-                  out["u"], out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+        _fit_rows(table.log_profile, table.u0, table.du, table.v0, table.dv, measured, sigma, scale, errors_given,
+                  counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
     return out
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _fit_rows(log_profile, u0, du, v0, dv, measured, sigma, scale, row0, row1, u_out, v_out, cuu, cuv, cvv, chi2_out,
-              rings_out, status):
+def _fit_rows(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, row0, row1,
+              u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+    for y in numba.prange(row0, row1):
+        _fit_row(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
+                 u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fit_row(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y, u_out,
+             v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+    """The fits of grid row ``y``, every channel, pixel after pixel (each starting where the last
+    ended). A function of its own, outside the parallel loop, so that the fit's functions are
+    inlined into it (a call passing arrays costs their reference counts: 0.2 us a fit; inlined
+    into the parallel loop itself they gave wrong covariances, numba 0.61)."""
     width = measured.shape[2]
     channels = measured.shape[3]
     rings = measured.shape[0]
-    for y in numba.prange(row0, row1):
-        # Scratch arrays once per row (an allocation per fit cost a tenth of its time).
-        result = np.empty(8)
-        used = np.empty(rings, np.bool_)
-        values = np.empty(rings)
-        slopes = np.empty((rings, 2))
-        for c in range(channels):
-            start_u = math.nan
-            start_v = math.nan
-            for x in range(width):
-                _fit_one(log_profile, u0, du, v0, dv, measured[:, y, x, c], sigma[:, y, x, c], scale[c],
-                         start_u, start_v, result, used, values, slopes)
-                code = int(result[7])
-                status[y, x, c] = code
-                rings_out[y, x, c] = int(result[6])
-                if code == NO_DATA:
-                    continue
-                u_out[y, x, c] = result[0]
-                v_out[y, x, c] = result[1]
-                cuu[y, x, c] = result[2]
-                cuv[y, x, c] = result[3]
-                cvv[y, x, c] = result[4]
-                chi2_out[y, x, c] = result[5]
-                if code == CONVERGED:
-                    start_u = result[0]
-                    start_v = result[1]
+    # Scratch arrays once per row (an allocation per fit cost a tenth of its time).
+    result = np.empty(10)
+    deviation = np.empty(rings)
+    data = np.empty(rings)
+    weight = np.empty(rings)
+    values = np.empty(rings)
+    slopes = np.empty((rings, 2))
+    for c in range(channels):
+        start_u = math.nan
+        start_v = math.nan
+        for x in range(width):
+            if errors_given:
+                profile_sigma(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, deviation)
+            else:
+                for r in range(rings):
+                    deviation[r] = sigma[r, y, x, c]
+            # ``values`` and ``slopes`` hold the model at (start_u, start_v): the previous fit's last look-up.
+            _fit_one(log_profile, u0, du, v0, dv, measured[:, y, x, c], deviation, scale[c],
+                     start_u, start_v, result, data, weight, values, slopes)
+            code = int(result[7])
+            status[y, x, c] = code
+            rings_out[y, x, c] = int(result[6])
+            if code == NO_DATA:
+                continue
+            u_out[y, x, c] = result[0]
+            v_out[y, x, c] = result[1]
+            cuu[y, x, c] = result[2]
+            cuv[y, x, c] = result[3]
+            cvv[y, x, c] = result[4]
+            chi2_out[y, x, c] = result[5]
+            if code == CONVERGED:
+                start_u = result[8]
+                start_v = result[9]
+            else:
+                start_u = math.nan
+                start_v = math.nan
 
 
-@numba.njit(cache=True)
-def _chi2(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes):
+@numba.njit(cache=True, inline="always")
+def _chi2(log_profile, u0, du, v0, dv, data, weight, scale, u, v, values, slopes):
     """chi2 at (u, v), or inf outside the table; fills ``values`` with the model's E (scale
-    included) and ``slopes`` with d log E / d(u, v)."""
+    included) and ``slopes`` with d log E / d(u, v), every ring's (the next fit may use others)."""
     if not interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
         return math.inf
+    for r in range(data.shape[0]):
+        values[r] = scale * math.exp(values[r])
+    return _residual_chi2(data, weight, values)
+
+
+@numba.njit(cache=True, inline="always")
+def _residual_chi2(data, weight, values):
+    """chi2 of the model ``values``: ``data`` and ``weight`` (1 / sigma^2) are 0 at rings not used."""
     total = 0.0
-    for r in range(measured.shape[0]):
-        if used[r]:
-            values[r] = scale * math.exp(values[r])
-            residual = (measured[r] - values[r]) / sigma[r]
-            total += residual * residual
+    for r in range(data.shape[0]):
+        residual = data[r] - values[r]
+        total += weight[r] * residual * residual
     return total
 
 
 @numba.njit(cache=True)
-def _coarse_start(log_profile, u0, du, v0, dv, measured, sigma, scale, used):
+def _coarse_start(log_profile, u0, du, v0, dv, data, weight, scale):
     """(u, v) of the coarse search's best node (interior nodes, every COARSE_STRIDE-th)."""
     best = math.inf
     best_u = u0 + du * (log_profile.shape[0] // 2)
@@ -124,10 +177,10 @@ def _coarse_start(log_profile, u0, du, v0, dv, measured, sigma, scale, used):
     for k in range(2, log_profile.shape[0] - 3, COARSE_STRIDE):
         for j in range(2, log_profile.shape[1] - 3, COARSE_STRIDE):
             total = 0.0
-            for r in range(measured.shape[0]):
-                if used[r]:
-                    residual = (measured[r] - scale * math.exp(log_profile[k, j, r])) / sigma[r]
-                    total += residual * residual
+            for r in range(data.shape[0]):
+                if weight[r] > 0.0:
+                    residual = data[r] - scale * math.exp(log_profile[k, j, r])
+                    total += weight[r] * residual * residual
             if total < best:
                 best = total
                 best_u = u0 + k * du
@@ -135,33 +188,37 @@ def _coarse_start(log_profile, u0, du, v0, dv, measured, sigma, scale, used):
     return best_u, best_v
 
 
-@numba.njit(cache=True)
-def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start_v, result, used, values, slopes):
-    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status); ``used``,
-    ``values`` and ``slopes`` are scratch of the rings' size."""
+@numba.njit(cache=True, inline="always")
+def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start_v, result, data, weight, values,
+             slopes):
+    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
+    look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
+    and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
+    model at the last look-up's (u, v) on return."""
     result[:] = math.nan
     rings = measured.shape[0]
-    used[:] = False
     count = 0
     for r in range(rings):
+        # A ring not used weighs 0 (its value 0, not NaN): the sums need no test.
         if math.isfinite(measured[r]) and math.isfinite(sigma[r]) and sigma[r] > 0.0:
-            used[r] = True
+            data[r] = measured[r]
+            weight[r] = 1.0 / (np.float64(sigma[r]) * sigma[r])
             count += 1
+        else:
+            data[r] = 0.0
+            weight[r] = 0.0
     result[6] = count
     if count < MIN_RINGS:
         result[7] = NO_DATA
         return
-    for attempt in range(2):
-        if attempt == 0 and math.isfinite(start_u):
-            u, v = start_u, start_v
-        elif attempt == 0:
-            continue
-        else:
-            u, v = _coarse_start(log_profile, u0, du, v0, dv, measured, sigma, scale, used)
-        status, u, v, a_uu, a_uv, a_vv, chi2 = _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma,
-                                                                    scale, used, u, v, values, slopes)
-        if status == CONVERGED or attempt == 1:
-            break
+    if math.isfinite(start_u):
+        fit = _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, start_u, start_v, True, values,
+                                   slopes)
+        if fit[0] != CONVERGED:
+            fit = _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes)
+    else:
+        fit = _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes)
+    status, u, v, a_uu, a_uv, a_vv, chi2, last_u, last_v = fit
     determinant = a_uu * a_vv - a_uv * a_uv
     result[0] = u
     result[1] = v
@@ -171,43 +228,62 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
         result[4] = a_uu / determinant
     result[5] = chi2
     result[7] = status
-
-
-@numba.njit(cache=True, inline="always")
-def _normal_equations(measured, sigma, used, values, slopes):
-    """``(A_uu, A_uv, A_vv, b_u, b_v)``: ``A = J^T W J`` and ``b = J^T W (measured - model)`` over the
-    rings ``used``, with the model ``values`` (R,) and its log-slopes ``slopes`` (R, 2) at the fit."""
-    a_uu = a_uv = a_vv = b_u = b_v = 0.0
-    for r in range(measured.shape[0]):
-        if used[r]:
-            model = values[r]
-            weight = 1.0 / (sigma[r] * sigma[r])
-            j_u = model * slopes[r, 0]
-            j_v = model * slopes[r, 1]
-            residual = measured[r] - model
-            a_uu += weight * j_u * j_u
-            a_uv += weight * j_u * j_v
-            a_vv += weight * j_v * j_v
-            b_u += weight * j_u * residual
-            b_v += weight * j_v * residual
-    return a_uu, a_uv, a_vv, b_u, b_v
+    result[8] = last_u
+    result[9] = last_v
 
 
 @numba.njit(cache=True)
-def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes):
-    """Minimise chi2 from (u, v). Returns (status, u, v, A_uu, A_uv, A_vv, chi2), A = J^T W J."""
+def _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes):
+    """:func:`_levenberg_marquardt` from the coarse search's best node (a row's first fit, or one
+    whose start did not converge): a call of its own, so that the usual fit's code holds one
+    inlined minimiser (with two, or a loop around one, a fit took half as long again)."""
+    u, v = _coarse_start(log_profile, u0, du, v0, dv, data, weight, scale)
+    return _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, u, v, False, values, slopes)
+
+
+@numba.njit(cache=True, inline="always")
+def _normal_equations(data, weight, values, slopes):
+    """``(A_uu, A_uv, A_vv, b_u, b_v)``: ``A = J^T W J`` and ``b = J^T W (data - model)`` with the
+    rings' ``weight`` W (0 at rings not used), the model ``values`` (R,) and its log-slopes
+    ``slopes`` (R, 2) at the fit."""
+    a_uu = a_uv = a_vv = b_u = b_v = 0.0
+    for r in range(data.shape[0]):
+        model = values[r]
+        j_u = model * slopes[r, 0]
+        j_v = model * slopes[r, 1]
+        residual = data[r] - model
+        a_uu += weight[r] * j_u * j_u
+        a_uv += weight[r] * j_u * j_v
+        a_vv += weight[r] * j_v * j_v
+        b_u += weight[r] * j_u * residual
+        b_v += weight[r] * j_v * residual
+    return a_uu, a_uv, a_vv, b_u, b_v
+
+
+@numba.njit(cache=True, inline="always")
+def _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, u, v, known, values, slopes):
+    """Minimise chi2 from (u, v) (``known``: ``values`` and ``slopes`` hold the model there, inside
+    the table's bounds). Returns (status, u, v, A_uu, A_uv, A_vv, chi2, and the (u, v) of the last
+    look-up, whose model ``values`` and ``slopes`` hold), A = J^T W J."""
     low_u = u0 + 1.0 * du
     high_u = u0 + (log_profile.shape[0] - 2.0) * du - 1e-9
     low_v = v0 + 1.0 * dv
     high_v = v0 + (log_profile.shape[1] - 2.0) * dv - 1e-9
-    u = min(max(u, low_u), high_u)
-    v = min(max(v, low_v), high_v)
+    if known:
+        chi2 = _residual_chi2(data, weight, values)
+    else:
+        u = min(max(u, low_u), high_u)
+        v = min(max(v, low_v), high_v)
+        chi2 = _chi2(log_profile, u0, du, v0, dv, data, weight, scale, u, v, values, slopes)
+    last_u, last_v = u, v
     damping = 1e-3
-    chi2 = _chi2(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes)
     a_uu = a_uv = a_vv = 0.0
     status = NOT_CONVERGED
+    # Whether the curvature A is older than the last look-up (else it is at the minimum, or at the
+    # start of the final step).
+    stale = False
     for _ in range(MAX_ITERATIONS):
-        a_uu, a_uv, a_vv, b_u, b_v = _normal_equations(measured, sigma, used, values, slopes)
+        a_uu, a_uv, a_vv, b_u, b_v = _normal_equations(data, weight, values, slopes)
         # Converged when the Gauss-Newton step itself is below the tolerance: no trial (near the
         # minimum a trial's chi2 differs from the current one by rounding only, and was refused
         # a dozen times, most of a fit's time).
@@ -217,7 +293,16 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
             newton_v = (a_uu * b_v - a_uv * b_u) / determinant
             # The Newton decrement (the chi2 the step would gain) below DECREMENT: the remaining
             # error is below a hundredth of a standard error, whatever the parameter's scale.
-            if (abs(newton_u) < TOLERANCE and abs(newton_v) < TOLERANCE) or newton_u * b_u + newton_v * b_v < DECREMENT:
+            decrement = newton_u * b_u + newton_v * b_v
+            if (abs(newton_u) < TOLERANCE and abs(newton_v) < TOLERANCE) or decrement < DECREMENT:
+                status = CONVERGED
+                break
+            final_u = u + newton_u
+            final_v = v + newton_v
+            if (decrement < FINAL_DECREMENT and abs(newton_u) < FINAL_STEP and abs(newton_v) < FINAL_STEP
+                    and low_u <= final_u <= high_u and low_v <= final_v <= high_v):
+                u, v = final_u, final_v
+                chi2 = max(chi2 - decrement, 0.0)
                 status = CONVERGED
                 break
         improved = False
@@ -233,7 +318,8 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
             step_v = (m_uu * b_v - a_uv * b_u) / determinant
             new_u = min(max(u + step_u, low_u), high_u)
             new_v = min(max(v + step_v, low_v), high_v)
-            trial = _chi2(log_profile, u0, du, v0, dv, measured, sigma, scale, used, new_u, new_v, values, slopes)
+            trial = _chi2(log_profile, u0, du, v0, dv, data, weight, scale, new_u, new_v, values, slopes)
+            last_u, last_v = new_u, new_v
             if trial <= chi2:
                 step_u = new_u - u
                 step_v = new_v - v
@@ -244,16 +330,20 @@ def _levenberg_marquardt(log_profile, u0, du, v0, dv, measured, sigma, scale, us
             damping *= 8.0
         if not improved:
             # No step lowers chi2: the minimum (to the table's precision) is here.
-            _chi2(log_profile, u0, du, v0, dv, measured, sigma, scale, used, u, v, values, slopes)
+            _chi2(log_profile, u0, du, v0, dv, data, weight, scale, u, v, values, slopes)
+            last_u, last_v = u, v
             status = CONVERGED
+            stale = True
             break
         if abs(step_u) < TOLERANCE and abs(step_v) < TOLERANCE:
             status = CONVERGED
+            stale = True
             break
     if status == CONVERGED:
-        # The curvature at the minimum (values and slopes are at (u, v) now).
-        a_uu, a_uv, a_vv, _, _ = _normal_equations(measured, sigma, used, values, slopes)
+        if stale:
+            # The curvature at the minimum: values and slopes are at (u, v) now.
+            a_uu, a_uv, a_vv, _, _ = _normal_equations(data, weight, values, slopes)
         edge = 1e-6
         if u <= low_u + edge or u >= high_u - edge or v <= low_v + edge or v >= high_v - edge:
             status = AT_EDGE
-    return status, u, v, a_uu, a_uv, a_vv, chi2
+    return status, u, v, a_uu, a_uv, a_vv, chi2, last_u, last_v

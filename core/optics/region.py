@@ -14,7 +14,8 @@ import numpy as np
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..inversion.measured import measured_profile
 from .pixel_fit import CONVERGED, fit_profiles
-from .maps import DETERMINED_RELATIVE_ERROR, MODEL_FLOOR, OpticsError, profile_radii, ring_sigma, sample_optics
+from .ring_sigma import ring_sigma
+from .maps import DETERMINED_RELATIVE_ERROR, MODEL_FLOOR, OpticsError, profile_radii, sample_optics
 from .table import DEFAULT_PHOTONS, table_for
 from .transform import diffuse_reflectance, model_tail
 
