@@ -158,7 +158,7 @@ def bench(root: Path, size: int, radius: int, repeat: int = 1) -> None:
     with tempfile.TemporaryDirectory(prefix="ringlight-view-cache-") as user_cache:
         view_first = measured("view", folder, {"RINGLIGHT_CACHE_DIR": user_cache})
         view_again = measured("view", folder, {"RINGLIGHT_CACHE_DIR": user_cache})
-    from ringlight.core.dataset.impulse_dataset import disc_offset_count
+    from ringlight.core.dataset.disc import disc_offset_count
 
     responses = size * size * disc_offset_count(radius) * 12
     budget = first["budget"]

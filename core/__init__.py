@@ -9,13 +9,8 @@
 """
 
 from .dataset.exr import read_exr_rgb, write_exr_rgb
-from .dataset.impulse_dataset import (
-    ImpulseDataset,
-    disc_offsets,
-    effective_max_radius,
-    open_dataset,
-    response_memory_bytes,
-)
+from .dataset.disc import disc_offsets, response_memory_bytes
+from .dataset.impulse_dataset import ImpulseDataset, effective_max_radius, open_dataset
 from .dataset.manifest import Manifest, read_manifest
 from .dataset.manifest_copy import load_manifest
 from .dataset.writer import DatasetWriter

@@ -244,7 +244,7 @@ def test_store_tiles_are_whole_multiples_of_16_points_once_8_or_more():
     """A chunk's side: about 8 MB of (K, 3) float32, rounded to a multiple of 16 (the EXR line
     chunks, and whole bit-shuffle blocks per offset image: at 1024 px, R 32, a 14-point side took
     the store to 0.215 of raw float32 and 16 to 0.134), kept below 8, never beyond the grid."""
-    from ringlight.core.dataset.impulse_dataset import disc_offset_count
+    from ringlight.core.dataset.disc import disc_offset_count
     from ringlight.core.dataset.response_store import store_tile
 
     assert store_tile((1024, 1024), disc_offset_count(32)) == 16  # sqrt(8 MiB / (3209 * 12)) = 14.8

@@ -13,7 +13,7 @@ from numpy.testing import assert_array_equal
 from reference import brute_ring_image, random_impulses, write_dataset
 from ringlight.core import open_dataset
 from ringlight.core.dataset import response_store
-from ringlight.core.dataset.impulse_dataset import disc_offset_count
+from ringlight.core.dataset.disc import disc_offset_count
 from ringlight.core.inversion.measured import measured_profile
 from ringlight.core.rings.coverage import ring_coverage
 from ringlight.core.rings.interpolate import interpolated_ring_stack

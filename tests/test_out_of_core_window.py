@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from reference import random_impulses, write_dataset
 from ringlight.core import open_dataset
 from ringlight.core.dataset import impulse_dataset, response_store
-from ringlight.core.dataset.impulse_dataset import disc_offset_count
+from ringlight.core.dataset.disc import disc_offset_count
 from ringlight.core.rings.profiles import pixel_profile
 
 TIMEOUT_MS = 120_000

@@ -11,7 +11,7 @@ import pytest
 from reference import random_impulses, write_dataset
 from ringlight.core import open_dataset
 from ringlight.core.dataset import response_store
-from ringlight.core.dataset.impulse_dataset import disc_offset_count
+from ringlight.core.dataset.disc import disc_offset_count
 from ringlight.core.phases import phase, reporting_phases
 from ringlight.core.rings.stack_cache import cached_noise, cached_stacks
 from ringlight.core.rings.stack_request import StackRequest

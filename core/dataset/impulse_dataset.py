@@ -5,7 +5,7 @@ radiance seen at ``p`` from every lit point within ``max_radius`` of it:
 
     responses[y, x, k, c] = I_q(p)[c]  with  p = [y, x],  q = p + offsets[k],
 
-where ``offsets`` are all integer offsets with ``|d| <= max_radius`` (``disc_offsets``).
+where ``offsets`` are all integer offsets with ``|d| <= max_radius`` (:func:`.disc.disc_offsets`).
 Invariant: entries whose ``q`` lies outside the grid or is missing (lit in no frame), and all
 entries of unobserved ``p``, hold exactly 0; ``lit_counts`` tells which ``q`` exist. Size:
 ``H * W * K * 3 * 4`` bytes with ``K ~ pi * max_radius**2``, e.g. 96 x 96 at max_radius 24
@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from ..staging_locks import sweep_abandoned
@@ -49,6 +48,7 @@ from ..errors import DatasetError, ProgressCallback, RinglightError
 from ..phases import phase
 from . import cache
 from .assembly import WRITE_SHARE, Assembler, assemble_in_memory, assemble_into_store, write_assembled
+from .disc import disc_offsets, fill_validity, response_memory_bytes
 from .frames import dataset_channels
 from .manifest import Manifest, read_manifest
 from .manifest_copy import load_manifest, write_manifest_copy
@@ -214,57 +214,6 @@ class ImpulseDataset:
             total[row0:row1] = self.rows(row0, row1).sum(axis=2, dtype=np.float64)
         total[~self.observed] = np.nan
         return total.astype(np.float32)
-
-
-def fill_validity(lit: np.ndarray, observed: np.ndarray, offsets: np.ndarray, validity: np.ndarray,
-                  row0: int) -> None:
-    """Fill ``validity`` ((rows, W, K) uint8) with the :meth:`ImpulseDataset.validity_rows` of grid rows
-    ``row0 ..``, from the (H, W) bool lit and observed points and the (K, 2) offsets."""
-    _fill_validity(np.ascontiguousarray(lit), np.ascontiguousarray(observed), np.ascontiguousarray(offsets[:, 0]),
-                   np.ascontiguousarray(offsets[:, 1]), validity, row0)
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _fill_validity(lit, observed, dy, dx, validity, row0):
-    """validity[y - row0, x, k] for the rows row0 .. row0 + len(validity) (see ``validity``)."""
-    height, width = lit.shape
-    for row in numba.prange(validity.shape[0]):
-        y = row0 + row
-        for x in range(width):
-            for k in range(dy.size):
-                qy = y + dy[k]
-                qx = x + dx[k]
-                inside = 0 <= qy < height and 0 <= qx < width
-                validity[row, x, k] = 1 if inside and observed[y, x] and lit[qy, qx] else 0
-
-
-def disc_offsets(max_radius: float) -> np.ndarray:
-    """All integer offsets with ``|d| <= max_radius``, as (K, 2) int64 ``[dy, dx]``.
-
-    Ordered by distance from the centre (then by angle): the layout of the response array's
-    offset axis, in which every default ring is one contiguous run of offsets.
-    """
-    reach = int(np.floor(max_radius))
-    dy, dx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
-    dy, dx = dy.ravel(), dx.ravel()
-    inside = dy * dy + dx * dx <= max_radius * max_radius + 1e-9
-    dy, dx = dy[inside], dx[inside]
-    order = np.lexsort((np.arctan2(dy, dx), dy * dy + dx * dx))
-    return np.stack([dy[order], dx[order]], axis=1).astype(np.int64)
-
-
-def disc_offset_count(max_radius: float) -> int:
-    """``len(disc_offsets(max_radius))``, counted row by row without building the offsets."""
-    reach = int(np.floor(max_radius))
-    rows = np.arange(-reach, reach + 1, dtype=np.float64)
-    half_widths = np.minimum(np.floor(np.sqrt(np.maximum(max_radius * max_radius + 1e-9 - rows * rows, 0.0))), reach)
-    return int((2 * half_widths + 1).sum())
-
-
-def response_memory_bytes(grid_shape: tuple[int, int], max_radius: float) -> int:
-    """Bytes of the (H, W, K, 3) float32 response array for a grid and max radius (arithmetic
-    only: a huge grid or radius is refused before anything of its size is allocated)."""
-    return int(grid_shape[0]) * int(grid_shape[1]) * disc_offset_count(max_radius) * 3 * 4
 
 
 def effective_max_radius(manifest: Manifest, radius: float | None = None) -> float:

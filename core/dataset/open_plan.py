@@ -7,13 +7,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import cache
-from .impulse_dataset import (
-    WHOLE_READ_BYTES,
-    disc_offset_count,
-    effective_max_radius,
-    fits_in_memory,
-    response_memory_bytes,
-)
+from .disc import disc_offset_count, response_memory_bytes
+from .impulse_dataset import WHOLE_READ_BYTES, effective_max_radius, fits_in_memory
 from .manifest import Manifest
 from .memory import format_bytes, memory_budget
 from .response_store import stored_entry_bytes, stored_manifest_key

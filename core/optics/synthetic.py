@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.impulse_dataset import ImpulseDataset, disc_offsets
+from ..dataset.disc import disc_offsets
+from ..dataset.impulse_dataset import ImpulseDataset
 from ..dataset.manifest import Manifest
 from ..dataset.sample import Sample
 

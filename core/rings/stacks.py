@@ -19,7 +19,8 @@ import numba
 import numpy as np
 
 from ..dataset.assembly import warm_up_assembly
-from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback, disc_offsets
+from ..dataset.disc import disc_offsets
+from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..dataset.manifest import Manifest
 from ..device import Device
 from ..errors import StackError

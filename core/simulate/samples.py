@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset.cache import user_cache_root
-from ..dataset.impulse_dataset import disc_offsets
+from ..dataset.disc import disc_offsets
 from ..dataset.writer import is_dataset_folder
 from ..errors import RinglightError
 from .presets import load_scene

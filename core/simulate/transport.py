@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.impulse_dataset import ProgressCallback, disc_offsets
+from ..dataset.disc import disc_offsets
+from ..dataset.impulse_dataset import ProgressCallback
 from ..dataset.manifest import Manifest
 from ..dataset.sample import Sample
 from ..dataset.writer import DatasetWriter
