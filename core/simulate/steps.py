@@ -79,12 +79,14 @@ def scattered_direction(uy, ux, uz, g, polar, azimuth):
 
 class Steps(NamedTuple):
     """The steps compiled for one device (each as the plain function of the same name documents;
-    ``uniform(state)`` advances a xoroshiro128+ state of 2 uint64 in place and returns the next
-    float in [0, 1), ``scatter(state, uy, ux, uz, g)`` draws the polar uniform, then the
+    ``next_raw(state)`` advances a xoroshiro128+ state of 2 uint64 in place and returns its next
+    uint64, ``uniform(state)`` the same step as a float in [0, 1) (its top 53 bits),
+    ``scatter(state, uy, ux, uz, g)`` draws the polar uniform, then the
     azimuth's, ``camera_constant(n)`` is ``T_entry pi T_F(0) / n^2``: the Fresnel transmission of
     a beam entering straight down times the view factor of a camera straight above)."""
 
     rotate_left: Callable
+    next_raw: Callable
     uniform: Callable
     exit_fresnel: Callable
     henyey_greenstein: Callable
@@ -100,14 +102,19 @@ def compile_steps(jit) -> Steps:
     rotate = jit(rotate_left)
     direction = jit(scattered_direction)
 
-    def uniform(state):
+    def next_raw(state):
         s0 = state[0]
         s1 = state[1]
         result = s0 + s1
         s1 ^= s0
         state[0] = rotate(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
         state[1] = rotate(s1, 37)
-        return (result >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+        return result
+
+    raw = jit(next_raw)
+
+    def uniform(state):
+        return (raw(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
     next_uniform = jit(uniform)
 
@@ -119,7 +126,7 @@ def compile_steps(jit) -> Steps:
     def camera_constant(n):
         return (1.0 - fresnel(n, 1.0)) * (math.pi * (1.0 - fresnel(n, 1.0)) / (n * n))
 
-    return Steps(rotate, next_uniform, fresnel, jit(henyey_greenstein), jit(flight_to_surface), direction,
+    return Steps(rotate, raw, next_uniform, fresnel, jit(henyey_greenstein), jit(flight_to_surface), direction,
                  jit(scatter), jit(camera_constant))
 
 

@@ -14,7 +14,7 @@ from .steps import CPU
 
 uniform = CPU.uniform
 """Next float in [0, 1) from a xoroshiro128+ state (advanced in place): :mod:`.steps`, compiled for the CPU."""
-_rotl = CPU.rotate_left
+_next_raw = CPU.next_raw
 
 ESTIMATOR_STREAM = 1 << 40
 """Added to a walk's stream number to name its estimator's stream (walk streams stay below it)."""
@@ -45,13 +45,7 @@ def seed_state(seed, stream):
 def fresh_state(seeder, state):
     """Reseed ``state`` (2 uint64, in place) from the next output of ``seeder`` (advanced):
     independent streams one after another, for walks that must be replayed from their start."""
-    s0 = seeder[0]
-    s1 = seeder[1]
-    value = s0 + s1
-    s1 ^= s0
-    seeder[0] = _rotl(s0, 24) ^ s1 ^ (s1 << np.uint64(16))
-    seeder[1] = _rotl(s1, 37)
-    value, state[0] = _splitmix(value)
+    value, state[0] = _splitmix(_next_raw(seeder))
     value, state[1] = _splitmix(value)
     if state[0] == 0 and state[1] == 0:
         state[0] = np.uint64(1)
