@@ -46,6 +46,25 @@ def counted(monkeypatch, module, name, record):
     return calls
 
 
+def compiled_visits(monkeypatch, module, name, folder, calls=None):
+    """Replace the compiled call ``module.name`` (:func:`ringlight.core.dataset.native_files.read_files`
+    or ``stat_files``, which visit files from compiled code, where no Python call can be counted)
+    by a wrapper that appends the path of each file it visited: the names from its ``begin``
+    argument to the index it returns (a file it hands back is visited from Python, counted there),
+    to ``calls`` when given."""
+    calls, original = [] if calls is None else calls, getattr(module, name)
+
+    def wrapper(descriptor, names, name_starts, *args):
+        result = original(descriptor, names, name_starts, *args)
+        begin, stop = (args[1], result[2]) if name == "read_files" else (args[0], result)
+        text = bytes(names).split(b"\0")
+        calls.extend(os.path.join(folder, os.fsdecode(text[index])) for index in range(begin, stop))
+        return result
+
+    monkeypatch.setattr(module, name, wrapper)
+    return calls
+
+
 def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, monkeypatch):
     """Path.resolve walked every component of every frame's path twice (20 of the 30 s info took
     over 100 000 frames); now once per folder, and the answers are the same."""
@@ -72,9 +91,11 @@ def test_each_folder_on_the_way_to_the_frames_is_resolved_once(long_dataset, mon
 
 def test_a_stack_beyond_max_radius_reads_no_frame(long_dataset, tmp_path, capsys, monkeypatch):
     """A 100 000-frame dataset was opened (25 s of CPU) before its rings were found too large."""
+    from ringlight.core.dataset import file_batch
     from ringlight.core.dataset.file_paths import FileResolver
 
-    reads = []  # every frame read (alone or in a run) is opened by the resolver
+    # Every frame read is opened by the resolver (alone) or the compiled call (in a run).
+    reads = compiled_visits(monkeypatch, file_batch, "read_files", long_dataset)
     original = FileResolver.open
     monkeypatch.setattr(FileResolver, "open", lambda self, *args, **kwargs: (reads.append(1),
                                                                             original(self, *args, **kwargs))[1])
@@ -103,9 +124,10 @@ def test_each_frame_file_is_opened_once_and_a_shared_header_read_by_the_library_
         opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
     monkeypatch.setattr(OpenEXR, "File", lambda *args, **kwargs: (parsed.append(args[0]),
                                                                    original_file(*args, **kwargs))[1])
-    from ringlight.core.dataset import checks
+    from ringlight.core.dataset import checks, file_batch
 
     tables = counted(monkeypatch, checks, "chunk_tables_fit", lambda data, starts, sizes, *args: len(sizes))
+    compiled_visits(monkeypatch, file_batch, "read_files", long_dataset, opened)
     assert check_files(manifest) == []
     frame_opens = [path for path in opened if "/frames/" in path]
     assert len(frame_opens) == 1000 + 2  # each frame once; the first one twice more (its channels, the library)
@@ -217,8 +239,10 @@ def test_an_open_visits_each_frame_file_once(long_dataset, monkeypatch):
     first frame's channels and checks), then only decodes. The responses are the frames' own."""
     import OpenEXR
     from ringlight.core import open_dataset
+    from ringlight.core.dataset import file_batch
 
-    opened, headers = [], []
+    opened = compiled_visits(monkeypatch, file_batch, "read_files", long_dataset)
+    headers = []
     original_open, original_file = os.open, OpenEXR.File
     monkeypatch.setattr(os, "open", lambda path, *args, **kwargs: (
         opened.append(os.fspath(path)), original_open(path, *args, **kwargs))[1])
@@ -241,12 +265,14 @@ def test_a_first_open_stats_no_frame_and_decodes_them_in_a_compiled_call_a_run(l
     a reopen stats each frame once and opens none (the store keeps the channels the first frame's
     header told)."""
     from ringlight.core import open_dataset
-    from ringlight.core.dataset import assembly, frame_batch
+    from ringlight.core.dataset import assembly, cache, file_batch, frame_batch
     from ringlight.core.dataset.frames import FrameReader
 
     monkeypatch.setattr(assembly, "_reader_count", lambda: 2)  # 1000 frames in 8 groups of 125
     stats = counted(monkeypatch, os, "stat", lambda path, *args: os.fspath(path))
+    compiled_visits(monkeypatch, cache, "stat_files", long_dataset, stats)
     opens = counted(monkeypatch, os, "open", lambda path, *args: os.fspath(path))
+    compiled_visits(monkeypatch, file_batch, "read_files", long_dataset, opens)
     runs = counted(monkeypatch, frame_batch, "_load_frames", lambda *args: len(args[2]))
     alone = counted(monkeypatch, FrameReader, "read", lambda reader, frame, *args: frame.file)
     first = open_dataset(long_dataset)

@@ -1,15 +1,19 @@
 """Reading a run of a dataset's small files whole, in one buffer, for one compiled pass over them.
 
 A long manifest's frames are small files that share one header (one camera, one writer): what
-each costs in Python is its system calls. :func:`read_run` opens each file of a run once
+each costs is its system calls. :func:`read_run` visits each file of a run once: it is opened
+inside the dataset folder, stat'ed (its size, and its identity for the store's key), read whole
+in one ``read`` when it has at most :data:`.exr_chunks.HEAD_BYTES` and starts with the header
+bytes the run shares, and closed. Where it can, one compiled call makes these calls for a whole
+run (:mod:`.native_files`: 100 000 frames took 13 us of CPU each from Python, 5 us so); a file it
+does not take (a link, one that cannot be opened, not a regular file) is visited from Python
 (:meth:`.file_paths.FileResolver.open`: located, checked inside the dataset folder and opened in
-one call), reads it whole in one ``read`` when it has at most :data:`.exr_chunks.HEAD_BYTES` and
-starts with the header bytes the run shares, and closes it. The bytes of all the files go into one
-array, each file's at its offset, which a compiled pass then checks (:mod:`.checks`) or decodes
-(:mod:`.frame_batch`) in one call. A file that does not start with the shared header, or is
-larger, is marked for its caller to read alone, as before (its problem, if it has one, is then
-said as it always was); a file that cannot be opened ends the run there, its error kept for the
-caller to raise or report in its place, so that problems keep the manifest's order.
+one call). The bytes of all the files go into one array, each file's at its offset, which a
+compiled pass then checks (:mod:`.checks`) or decodes (:mod:`.frame_batch`) in one call. A file
+that does not start with the shared header, or is larger, is marked for its caller to read alone,
+as before (its problem, if it has one, is then said as it always was); a file that cannot be
+opened ends the run there, its error kept for the caller to raise or report in its place, so that
+problems keep the manifest's order.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from ..errors import DatasetError
 from .cache import IDENTITY_FIELDS, file_identity
 from .exr_chunks import HEAD_BYTES
 from .file_paths import FileResolver
+from .native_files import NATIVE_FILES, encoded_names, folder_changes, new_scratch, open_folder, read_files
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,31 +63,75 @@ class FileRun:
 def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
     """Read the files ``names`` (the manifest's relative names) as the module docstring says, each
     whole when it starts with ``header`` (a file's bytes up to its chunk table)."""
-    pieces, sizes, identities = [], [], []
-    error = None
-    limit = HEAD_BYTES
-    for name in names:
-        try:
-            descriptor, _, status = resolver.open(name)
-        except DatasetError as problem:
-            error = problem
-            break
-        size = status.st_size
-        try:
-            data = os.read(descriptor, size + 1) if size <= limit else b""
-        except OSError:
-            data = b""  # read alone, which says why
-        finally:
-            os.close(descriptor)
-        if len(data) == size and data.startswith(header):
-            pieces.append(data)
-            sizes.append(size)
-        else:
-            sizes.append(-1)
-        identities.append(file_identity(status))
-    sizes = np.array(sizes, np.int64)
-    starts = np.zeros(len(sizes), np.int64)
-    if len(sizes) > 1:
-        np.cumsum(np.maximum(sizes[:-1], 0), out=starts[1:])
-    return FileRun(np.frombuffer(b"".join(pieces), np.uint8), starts, sizes,
-                   np.array(identities, np.int64).reshape(-1, IDENTITY_FIELDS), error)
+    count = len(names)
+    starts, sizes = np.zeros(count, np.int64), np.full(count, -1, np.int64)
+    identities = np.full((count, IDENTITY_FIELDS), -1, np.int64)
+    data, used, at, error = np.empty(count * 2 * (len(header) + 64), np.uint8), 0, 0, None
+    native = _native_run(resolver, names) if NATIVE_FILES and count else None
+    expected = np.frombuffer(header, np.uint8)
+    try:
+        while at < count:
+            if native is not None:  # the usual files, in one compiled call; it stops at any other
+                data, used, at = read_files(native.folder, *native.names, native.inside, at, resolver.open_flags,
+                                            HEAD_BYTES, expected, data, used, starts, sizes, identities,
+                                            native.scratch)
+                if at == count:
+                    break
+            try:  # the file the call handed back (or every file, where there is no such call)
+                whole, identities[at] = _read_alone(resolver, names[at], header)
+            except DatasetError as problem:
+                error = problem
+                break
+            starts[at] = used
+            if whole is not None:
+                if used + len(whole) > len(data):
+                    data = np.concatenate([data[:used], np.empty(max(len(data), len(whole)), np.uint8)])
+                data[used:used + len(whole)] = np.frombuffer(whole, np.uint8)
+                sizes[at] = len(whole)
+                used += len(whole)
+            at += 1
+    finally:
+        if native is not None:
+            os.close(native.folder)
+    data = data[:used]
+    data.flags.writeable = False
+    return FileRun(data, starts[:at], sizes[:at], identities[:at], error)
+
+
+@dataclass(frozen=True)
+class _NativeRun:
+    """What :func:`.native_files.read_files` takes of a run: the dataset folder's descriptor, the
+    encoded names, whether each one's folder is inside the dataset folder, and its scratch."""
+
+    folder: int
+    names: tuple[np.ndarray, np.ndarray]
+    inside: np.ndarray
+    scratch: np.ndarray
+
+
+def _native_run(resolver: FileResolver, names) -> _NativeRun | None:
+    """The :class:`_NativeRun` of ``names``, each folder checked once (the first name of each
+    stretch of names of one folder); None when the names or the folder cannot be given to the
+    compiled calls (every file is then visited from Python, which says what is wrong)."""
+    encoded = encoded_names(names)
+    if encoded is None:
+        return None
+    changes = folder_changes(*encoded)
+    verdicts = np.array([resolver.folder_inside(names[at]) for at in changes.tolist()], np.bool_)
+    inside = np.repeat(verdicts, np.diff(np.append(changes, len(names))))
+    folder = open_folder(resolver.folder)
+    return None if folder is None else _NativeRun(folder, encoded, inside, new_scratch())
+
+
+def _read_alone(resolver: FileResolver, name: str, header: bytes) -> tuple[bytes | None, tuple[int, ...]]:
+    """File ``name`` visited from Python: its bytes when it is read whole and starts with
+    ``header`` (else None), and its identity; DatasetError when it cannot be opened."""
+    descriptor, _, status = resolver.open(name)
+    size = status.st_size
+    try:
+        data = os.read(descriptor, size + 1) if size <= HEAD_BYTES else b""
+    except OSError:
+        data = b""  # read alone, which says why
+    finally:
+        os.close(descriptor)
+    return (data if len(data) == size and data.startswith(header) else None), file_identity(status)

@@ -80,6 +80,25 @@ class FileResolver:
         if path.rpartition("/")[0] not in self._inside:
             self._check_inside(path, self._in_real_folder)
 
+    @property
+    def open_flags(self) -> int:
+        """The flags :meth:`open` opens a file with: read only, never waiting on a FIFO, not
+        inherited, and not following a last link unless files may lie outside the folder."""
+        flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC
+        return flags if self.allow_outside else flags | os.O_NOFOLLOW
+
+    def folder_inside(self, name: str) -> bool:
+        """Whether the folder of ``name`` is known to resolve inside the dataset folder (resolved
+        once a folder), or files may lie outside it: a file of it that is no link is then inside.
+        False also when the folder cannot be resolved: :meth:`open` says why."""
+        if self.allow_outside:
+            return True
+        try:
+            self._check_in_folder(self._prefix + name)
+        except DatasetError:
+            return False
+        return True
+
     def open(self, name: str) -> tuple[int, str, os.stat_result]:
         """``(descriptor, path, status)``: the dataset file ``name`` opened for reading (never
         waiting on a FIFO), checked as :meth:`locate` checks it, in one system call for a file that
@@ -88,17 +107,17 @@ class FileResolver:
         store's key: :func:`.cache.file_identity`). Raises DatasetError naming it: outside the
         folder, not found, not readable, not a file."""
         path = self._prefix + name
-        flags = os.O_RDONLY | os.O_NONBLOCK
+        flags = self.open_flags
         if self.allow_outside:
             descriptor = _opened(path, flags)
         else:
             try:
-                descriptor = os.open(path, flags | os.O_NOFOLLOW)
+                descriptor = os.open(path, flags)
             except FileNotFoundError:  # no such file (nor link): said once its folder is known inside
                 self._check_in_folder(path)
                 raise DatasetError(f"{os.path.normpath(path)}: file not found") from None
             except OSError:  # a link (ELOOP) and the like: resolved first, as locate does
-                descriptor = _opened(self.locate(name), flags)
+                descriptor = _opened(self.locate(name), flags & ~os.O_NOFOLLOW)
             else:
                 try:
                     self._check_in_folder(path)
