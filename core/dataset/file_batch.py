@@ -116,9 +116,10 @@ def _native_run(resolver: FileResolver, names) -> _NativeRun | None:
     encoded = encoded_names(names)
     if encoded is None:
         return None
-    changes = folder_changes(*encoded)
-    verdicts = np.array([resolver.folder_inside(names[at]) for at in changes.tolist()], np.bool_)
-    inside = np.repeat(verdicts, np.diff(np.append(changes, len(names))))
+    inside = np.empty(len(names), np.bool_)
+    changes = folder_changes(*encoded).tolist()
+    for at, stop in zip(changes, changes[1:] + [len(names)]):
+        inside[at:stop] = resolver.folder_inside(names[at])
     folder = open_folder(resolver.folder)
     return None if folder is None else _NativeRun(folder, encoded, inside, new_scratch())
 
