@@ -372,3 +372,23 @@ def test_a_frame_at_fault_in_a_run_is_named_as_when_frames_were_read_one_by_one(
         expected = f"{frames}/000300.exr: dividing by the exposure 1.2e-38 takes values out of float32's range"
     message = str(pytest.raises(DatasetError, open_dataset, folder, use_cache=False).value)
     assert message == expected
+
+
+def test_missing_frames_are_said_in_order_without_a_run_each(long_dataset, monkeypatch):
+    """A frame that could not be opened ended its run, so 10^6 missing frames made 10^6 runs (each
+    with its fixed cost): now its error is kept in its place and the run goes on, and ``info``
+    still says every missing frame, in the manifest's order, between the others' problems."""
+    from ringlight.core.dataset import checks
+
+    for index in range(100, 1000, 3):
+        (long_dataset / "frames" / f"{index:06d}.exr").unlink()
+    data = (long_dataset / "frames" / "base.exr").read_bytes()
+    (long_dataset / "frames" / "000101.exr").unlink()
+    (long_dataset / "frames" / "000101.exr").write_bytes(data[:-20])
+    runs = counted(monkeypatch, checks, "read_run", lambda resolver, names, header: len(names))
+    problems = check_files(load_manifest(long_dataset))
+    assert runs == [999]
+    truncated = (f"{long_dataset}/frames/000101.exr: truncated or corrupt OpenEXR file (the file ends at byte "
+                 f"{len(data) - 20}, before the end of its last chunk)")
+    missing = [f"{long_dataset}/frames/{index:06d}.exr: file not found" for index in range(100, 1000, 3)]
+    assert problems == missing[:1] + [truncated] + missing[1:]

@@ -214,13 +214,13 @@ class Assembler:
                     bad += counts.tolist()
                 else:
                     for offset, (state, count) in enumerate(zip(status.tolist(), counts.tolist())):
+                        if offset in run.errors:  # could not be opened: the first frame at fault so far
+                            raise run.errors[offset]
                         if state == READ_ALONE:
                             count = self._load(batch, at + offset, index + offset, row0, row1)
                         elif state:
                             raise self.reader.scaling_error(self.manifest.frames[index + offset], state)
                         bad.append(count)
-                if run.error is not None:
-                    raise run.error
         return bad
 
     def _load(self, batch: _Batch, slot: int, index: int, row0: int, row1: int,

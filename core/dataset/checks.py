@@ -124,11 +124,11 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
                 fits = np.zeros(len(run), np.bool_)
                 chunk_tables_fit(run.data, run.starts, run.sizes, shared.layout.table_start, shared.layout.first, fits)
                 for at in np.flatnonzero(~fits).tolist():  # checked alone, in order: its problem said as ever
-                    check(names[done + at], channels, frame_shape, "frame", size_of)
+                    if at in run.errors:
+                        problem(run.errors[at])
+                    else:
+                        check(names[done + at], channels, frame_shape, "frame", size_of)
                 done += len(run)
-                if run.error is not None:
-                    problem(run.error)
-                    done += 1
             if progress is not None:
                 progress(done / files)
     for image in truth:

@@ -11,9 +11,9 @@ does not take (a link, one that cannot be opened, not a regular file) is visited
 one call). The bytes of all the files go into one array, each file's at its offset, which a
 compiled pass then checks (:mod:`.checks`) or decodes (:mod:`.frame_batch`) in one call. A file
 that does not start with the shared header, or is larger, is marked for its caller to read alone,
-as before (its problem, if it has one, is then said as it always was); a file that cannot be
-opened ends the run there, its error kept for the caller to raise or report in its place, so that
-problems keep the manifest's order.
+as before (its problem, if it has one, is then said as it always was); the error of a file that
+cannot be opened is kept for the caller to raise or report in its place, so that problems keep the
+manifest's order.
 """
 
 from __future__ import annotations
@@ -32,8 +32,7 @@ from .native_files import NATIVE_FILES, encoded_names, folder_changes, new_scrat
 
 @dataclass(frozen=True, eq=False)
 class FileRun:
-    """The files of a run read (see the module docstring), ``n`` of them, fewer than asked when
-    one could not be opened.
+    """The files of a run read (see the module docstring), ``n`` of them.
 
     Attributes
     ----------
@@ -41,20 +40,22 @@ class FileRun:
         (total,) uint8, read-only: the bytes of the files read whole, one after another.
     starts, sizes
         (n,) int64: where each file's bytes start in ``data`` and how many there are; size -1 for a
-        file to read alone (larger than the limit, or not of the shared header).
+        file to read alone (larger than the limit, or not of the shared header) or that could not
+        be opened.
     identities
         (n, 4) int64: each file's identity (:func:`.cache.file_identity`) from its open file's
-        ``fstat``, for the store's key (:func:`.cache.files_key`).
-    error
-        The DatasetError of the file after the last one read (not found, outside the folder, not
-        a file), or None when the run was read to its end.
+        ``fstat``, for the store's key (:func:`.cache.files_key`); -1 for one not opened.
+    errors
+        {index: DatasetError} of the files that could not be opened (not found, outside the
+        folder, not a file), for the caller to raise or report in their place in the manifest's
+        order (each run carried its first error alone before: 10^6 missing frames made 10^6 runs).
     """
 
     data: np.ndarray
     starts: np.ndarray
     sizes: np.ndarray
     identities: np.ndarray
-    error: DatasetError | None
+    errors: dict[int, DatasetError]
 
     def __len__(self) -> int:
         return len(self.sizes)
@@ -66,7 +67,7 @@ def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
     count = len(names)
     starts, sizes = np.zeros(count, np.int64), np.full(count, -1, np.int64)
     identities = np.full((count, IDENTITY_FIELDS), -1, np.int64)
-    data, used, at, error = np.empty(count * 2 * (len(header) + 64), np.uint8), 0, 0, None
+    data, used, at, errors = np.empty(count * 2 * (len(header) + 64), np.uint8), 0, 0, {}
     native = _native_run(resolver, names) if NATIVE_FILES and count else None
     expected = np.frombuffer(header, np.uint8)
     try:
@@ -77,12 +78,12 @@ def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
                                             native.scratch)
                 if at == count:
                     break
+            starts[at] = used
             try:  # the file the call handed back (or every file, where there is no such call)
                 whole, identities[at] = _read_alone(resolver, names[at], header)
             except DatasetError as problem:
-                error = problem
-                break
-            starts[at] = used
+                errors[at] = problem
+                whole, identities[at] = None, -1
             if whole is not None:
                 if used + len(whole) > len(data):
                     data = np.concatenate([data[:used], np.empty(max(len(data), len(whole)), np.uint8)])
@@ -95,7 +96,7 @@ def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
             os.close(native.folder)
     data = data[:used]
     data.flags.writeable = False
-    return FileRun(data, starts[:at], sizes[:at], identities[:at], error)
+    return FileRun(data, starts, sizes, identities, errors)
 
 
 @dataclass(frozen=True)

@@ -48,9 +48,8 @@ class BatchDecoder:
         rows, W, 3) and (B, rows, W), the assembly's batch) from index ``slot`` on.
 
         ``owner_arguments``: ``(dy, dx, offset_index, inverse_counts)`` of :func:`owners`. Returns the
-        run read (fewer frames than asked when one could not be opened: its error is the run's), and
-        for each frame of it its status (0, 1, 2 or :data:`READ_ALONE`) and its count of NaN or Inf
-        values."""
+        run read (with the errors of frames that could not be opened), and for each frame of it its
+        status (0, 1, 2 or :data:`READ_ALONE`) and its count of NaN or Inf values."""
         frames, reader = self.reader.manifest.frames, self.reader
         run = read_run(reader.resolver, frames.files[start:stop], self.passed.header_bytes)
         count = len(run)
