@@ -14,12 +14,14 @@ in CPU seconds of the whole process (all threads): the parse (``read_manifest``)
 every file's header (``find_file_problems``, what ``ringlight info`` does), the plan of the open
 (``plan_open``: with no store of this manifest, no file is stat'ed), the key a reopen makes
 (``cache.stat_key``: a stat a file) and the open itself (``open_dataset`` without the cache: every
-frame located, read, checked, decoded and scattered), each per frame and as a ratio to the parse.
-Measured on the 2-core development machine (shared with other work), 100 000 frames, two runs
-alternated with runs of the code before the runs of frames (each frame checked and decoded alone,
-the plan stat'ing every file), in us a frame before and after: parse 2.7-3.1 and 2.7-2.9, check
-10.0-10.3 and 7.1-7.5, plan 2.6 and 0.0 (key 2.9-3.3), open 33.5-36.4 and 8.5-9.0. The commands on the
-same dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
+frame located, read, checked, decoded and scattered), each per frame (user + system: the system
+part is the kernel's, mostly the four calls that open, stat, read and close each file) and as a
+ratio to the parse. Measured on the 2-core development machine (shared with other work, load
+average about 4), 100 000 frames, two runs of the code before (the system calls made from Python)
+alternated with two of the code after (made from compiled code: ``core/dataset/native_files.py``),
+in us a frame before and after: parse 7.6-7.9 and 8.6-9.2, check 15.4-17.0 and 10.8-12.0, plan
+0.0, key 4.7 and 2.1-2.2, open 22.6-23.4 and 14.5-14.8. The commands on the same
+dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
 31.8 s (each about 1.5 s of it the start of Python and its imports).
 
 With ``--hostile``, it times instead the raw JSON values the fuzz tests
@@ -158,8 +160,9 @@ def time_pipeline(frames: int) -> None:
           "(user + system, the system's in the kernel's calls):")
     parse = sum(steps["parse"])
     for step, (user, system) in steps.items():
-        print(f"  {step:6s} {user + system:7.2f} s  {(user + system) / frames * 1e6:7.1f} us a frame "
-              f"({user / frames * 1e6:5.1f} + {system / frames * 1e6:5.1f})  {(user + system) / parse:5.1f} x the parse")
+        seconds = user + system
+        print(f"  {step:6s} {seconds:7.2f} s  {seconds / frames * 1e6:7.1f} us a frame "
+              f"({user / frames * 1e6:5.1f} + {system / frames * 1e6:5.1f})  {seconds / parse:5.1f} x the parse")
 
 
 def responses_match(dataset) -> bool:

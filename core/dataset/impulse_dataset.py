@@ -23,9 +23,9 @@ one table of arrays, each frame made a row as its JSON is decoded (:mod:`.frame_
 one pass over the files: a reopen stats each file for the store's key and opens none (the store
 keeps the frames' channels); a first open
 stats none (the dataset's store, if any, is of another manifest: :func:`.cache.manifest_key`) and
-visits each frame file once, per band: located and opened in one call
-(:meth:`.file_paths.FileResolver.open`), read whole in one read when small (:mod:`.file_batch`),
-its ``fstat`` the identity the store's key is made of. Runs of small frames that share the first
+visits each frame file once, per band: opened inside the dataset folder, stat'ed, read whole in one
+read when small and closed, a run of files in one compiled call (:mod:`.file_batch`,
+:mod:`.native_files`), its ``fstat`` the identity the store's key is made of. Runs of small frames that share the first
 frame's header are checked, decoded, weighed and marked in one compiled call a run
 (:mod:`.frame_batch`); other frames are read one by one (:func:`.exr.visit_exr`, the header the
 frames share read by the OpenEXR library once, :mod:`.exr_seen`). ``benchmarks/bench_manifest.py
