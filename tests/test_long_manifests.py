@@ -49,16 +49,19 @@ def counted(monkeypatch, module, name, record):
 def compiled_visits(monkeypatch, module, name, folder, calls=None):
     """Replace the compiled call ``module.name`` (:func:`ringlight.core.dataset.native_files.read_files`
     or ``stat_files``, which visit files from compiled code, where no Python call can be counted)
-    by a wrapper that appends the path of each file it visited: the names from its ``begin``
-    argument to the index it returns (a file it hands back is visited from Python, counted there),
-    to ``calls`` when given."""
+    by a wrapper that appends the path of each file it visited (not those it hands back, which are
+    visited from Python and counted there), to ``calls`` when given."""
+    from ringlight.core.dataset.native_files import HANDED_BACK
+
     calls, original = [] if calls is None else calls, getattr(module, name)
 
     def wrapper(descriptor, names, name_starts, *args):
         result = original(descriptor, names, name_starts, *args)
-        begin, stop = (args[1], result[2]) if name == "read_files" else (args[0], result)
+        # read_files(..., inside, flags, limit, header, data, used, starts, sizes, identities, scratch);
+        # stat_files(..., identities, missed, scratch)
+        visited = args[7] != HANDED_BACK if name == "read_files" else ~args[1]
         text = bytes(names).split(b"\0")
-        calls.extend(os.path.join(folder, os.fsdecode(text[index])) for index in range(begin, stop))
+        calls.extend(os.path.join(folder, os.fsdecode(text[index])) for index in np.flatnonzero(visited))
         return result
 
     monkeypatch.setattr(module, name, wrapper)

@@ -56,8 +56,12 @@ def runs_of(folder: Path, names: list[str], header: bytes, monkeypatch, allow_ou
 
 
 def assert_same_run(compiled, python) -> None:
-    assert compiled.data.tobytes() == python.data.tobytes()
-    assert compiled.starts.tolist() == python.starts.tolist() and compiled.sizes.tolist() == python.sizes.tolist()
+    """The same bytes of each file read whole (the files visited from Python come after the others
+    in the compiled call's buffer), sizes, identities and errors."""
+    assert compiled.sizes.tolist() == python.sizes.tolist()
+    for start, other, size in zip(compiled.starts.tolist(), python.starts.tolist(), compiled.sizes.tolist()):
+        assert compiled.data[start:start + max(size, 0)].tobytes() == python.data[other:other + max(size, 0)].tobytes()
+    assert len(compiled.data) == len(python.data)
     assert compiled.identities.tolist() == python.identities.tolist()
     assert {at: str(error) for at, error in compiled.errors.items()} == \
         {at: str(error) for at, error in python.errors.items()}
@@ -157,3 +161,15 @@ def test_each_frame_file_is_visited_once_by_the_system_calls_themselves(tmp_path
         assert [name for name in phases[step]["stated"] if name != "000000.exr"] == [], step
         assert phases[step]["opened"].count("000000.exr") <= 8, step  # 5 and 6 here, the library's opens with them
     assert sorted(phases["reopen"]["stated"]) == ["000000.exr"] + every and phases["reopen"]["opened"] == []
+
+
+def test_files_handed_back_do_not_split_the_compiled_call(tmp_path, monkeypatch):
+    """A run of frames that are links inside the folder (each opened from Python, as a link must
+    be resolved) takes one compiled call, not one a link, and the rest of the run stays in it."""
+    folder, _, header = mixed_folder(tmp_path)
+    calls = []
+    original = file_batch.read_files
+    monkeypatch.setattr(file_batch, "read_files", lambda *args: (calls.append(1), original(*args))[1])
+    run = file_batch.read_run(FileResolver(folder), ["frames/link.exr", "frames/a.exr"] * 50, header)
+    assert calls == [1] and run.errors == {} and (run.sizes > 0).all()
+    assert len(run.data) == 50 * (os.stat(folder / "frames/a.exr").st_size + os.stat(folder / "frames/b.exr").st_size)

@@ -113,17 +113,14 @@ def _identities(folder: Path, names: list[str]) -> np.ndarray:
         for start in range(0, len(names), STAT_ROWS):
             block, rows = names[start:start + STAT_ROWS], identities[start:start + STAT_ROWS]
             encoded = encoded_names(block) if descriptor is not None else None
-            at = 0
-            while at < len(block):
-                if encoded is not None:
-                    at = stat_files(descriptor, *encoded, at, rows, scratch)
-                    if at == len(block):
-                        break
+            missed = np.ones(len(block), np.bool_)
+            if encoded is not None:
+                stat_files(descriptor, *encoded, rows, missed, scratch)
+            for at in np.flatnonzero(missed).tolist():
                 try:
                     rows[at] = file_identity(os.stat(prefix + block[at]))
                 except OSError:
                     rows[at] = -1
-                at += 1
     finally:
         if descriptor is not None:
             os.close(descriptor)

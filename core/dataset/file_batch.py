@@ -27,7 +27,8 @@ from ..errors import DatasetError
 from .cache import IDENTITY_FIELDS, file_identity
 from .exr_chunks import HEAD_BYTES
 from .file_paths import FileResolver
-from .native_files import NATIVE_FILES, encoded_names, folder_changes, new_scratch, open_folder, read_files
+from .native_files import (HANDED_BACK, NATIVE_FILES, encoded_names, folder_changes, new_scratch, open_folder,
+                           read_files)
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,7 +38,8 @@ class FileRun:
     Attributes
     ----------
     data
-        (total,) uint8, read-only: the bytes of the files read whole, one after another.
+        (total,) uint8, read-only: the bytes of the files read whole, one after another (those
+        visited from Python after the others).
     starts, sizes
         (n,) int64: where each file's bytes start in ``data`` and how many there are; size -1 for a
         file to read alone (larger than the limit, or not of the shared header) or that could not
@@ -65,35 +67,30 @@ def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
     """Read the files ``names`` (the manifest's relative names) as the module docstring says, each
     whole when it starts with ``header`` (a file's bytes up to its chunk table)."""
     count = len(names)
-    starts, sizes = np.zeros(count, np.int64), np.full(count, -1, np.int64)
+    starts, sizes = np.zeros(count, np.int64), np.full(count, HANDED_BACK, np.int64)
     identities = np.full((count, IDENTITY_FIELDS), -1, np.int64)
-    data, used, at, errors = np.empty(count * 2 * (len(header) + 64), np.uint8), 0, 0, {}
+    data, used, errors = np.empty(count * 2 * (len(header) + 64), np.uint8), 0, {}
     native = _native_run(resolver, names) if NATIVE_FILES and count else None
-    expected = np.frombuffer(header, np.uint8)
-    try:
-        while at < count:
-            if native is not None:  # the usual files, in one compiled call; it stops at any other
-                data, used, at = read_files(native.folder, *native.names, native.inside, at, resolver.open_flags,
-                                            HEAD_BYTES, expected, data, used, starts, sizes, identities,
-                                            native.scratch)
-                if at == count:
-                    break
-            starts[at] = used
-            try:  # the file the call handed back (or every file, where there is no such call)
-                whole, identities[at] = _read_alone(resolver, names[at], header)
-            except DatasetError as problem:
-                errors[at] = problem
-                whole, identities[at] = None, -1
-            if whole is not None:
-                if used + len(whole) > len(data):
-                    data = np.concatenate([data[:used], np.empty(max(len(data), len(whole)), np.uint8)])
-                data[used:used + len(whole)] = np.frombuffer(whole, np.uint8)
-                sizes[at] = len(whole)
-                used += len(whole)
-            at += 1
-    finally:
-        if native is not None:
+    if native is not None:  # the usual files, in one compiled call; it hands back any other
+        try:
+            data, used = read_files(native.folder, *native.names, native.inside, resolver.open_flags, HEAD_BYTES,
+                                    np.frombuffer(header, np.uint8), data, used, starts, sizes, identities,
+                                    native.scratch)
+        finally:
             os.close(native.folder)
+    for at in np.flatnonzero(sizes == HANDED_BACK).tolist():  # (every file, where there is no such call)
+        starts[at], sizes[at] = used, -1
+        try:
+            whole, identities[at] = _read_alone(resolver, names[at], header)
+        except DatasetError as problem:
+            errors[at] = problem
+            continue
+        if whole is not None:
+            if used + len(whole) > len(data):
+                data = np.concatenate([data[:used], np.empty(max(len(data), len(whole)), np.uint8)])
+            data[used:used + len(whole)] = np.frombuffer(whole, np.uint8)
+            sizes[at] = len(whole)
+            used += len(whole)
     data = data[:used]
     data.flags.writeable = False
     return FileRun(data, starts, sizes, identities, errors)

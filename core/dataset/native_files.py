@@ -9,8 +9,8 @@ through libc's functions as :mod:`.exr_small` calls zlib's. :func:`stat_files` g
 key the identity of each file (``statx`` by name, following links as ``os.stat`` does).
 
 Only the usual case is taken here: a file that cannot be opened or stat'ed, or is not a regular
-file, is handed back (the call returns its index) for Python's calls to visit it as before, which
-say what is wrong in the same words. :data:`NATIVE_FILES` is False where ``statx`` is missing
+file, is handed back (marked) for Python's calls to visit it as before, which say what is wrong in
+the same words. :data:`NATIVE_FILES` is False where ``statx`` is missing
 (not Linux, a C library before glibc 2.28) or does not give what ``os.stat`` gives; the files are
 then visited from Python.
 """
@@ -129,10 +129,14 @@ def _identity(status, identity):  # pragma: no cover - compiled
     return mode & 0o170000 == 0o100000
 
 
+HANDED_BACK = -2
+"""Size :func:`read_files` gives a file it does not take, for Python's calls to visit."""
+
+
 @numba.njit(cache=True, nogil=True)
-def read_files(folder, names, name_starts, inside, begin, flags, limit, header, data, used, starts, sizes,
-               identities, scratch):  # pragma: no cover - compiled
-    """Visit files ``begin ..`` of a run (see the module docstring) until one is handed back.
+def read_files(folder, names, name_starts, inside, flags, limit, header, data, used, starts, sizes, identities,
+               scratch):  # pragma: no cover - compiled
+    """Visit the files of a run (see the module docstring).
 
     Parameters
     ----------
@@ -153,30 +157,33 @@ def read_files(folder, names, name_starts, inside, begin, flags, limit, header, 
     data, used
         The buffer and how many of its bytes hold files; it is grown (a new array) when full.
     starts, sizes, identities
-        (n,), (n,) int64 and (n, 4) int64, written for each file visited: where its bytes start in
-        ``data`` and how many there are (-1: larger than ``limit``, not of ``header``, or not read
-        whole; the caller reads it alone), and its identity (:func:`.cache.file_identity`).
+        (n,), (n,) int64 and (n, 4) int64 (-1 on the way in), written for each file: where its
+        bytes start in ``data`` and how many there are (-1: larger than ``limit``, not of
+        ``header``, or not read whole, for the caller to read alone; :data:`HANDED_BACK`: a file
+        this does not take, a link, one that cannot be opened or stat'ed or is not a regular
+        file), and its identity (:func:`.cache.file_identity`).
     scratch
         :func:`new_scratch`.
 
     Returns
     -------
-    ``(data, used, stop)``: the buffer, its bytes used, and the index of the file handed back
-    (n when the run was visited to its end).
+    ``(data, used)``: the buffer and its bytes used.
     """
     status = scratch[:STATX_BYTES]
     empty = scratch[STATX_BYTES:]
-    for i in range(begin, sizes.size):
+    for i in range(sizes.size):
+        sizes[i] = HANDED_BACK
         name = names[name_starts[i]:]
         if not inside[i] or name[0] == 47:  # '/': no name of a dataset, but not relative to folder
-            return data, used, i
+            continue
         descriptor = _openat(folder, name.ctypes.data, flags, 0)
         if descriptor < 0:
-            return data, used, i
+            continue
         if _statx(descriptor, empty.ctypes.data, _AT_EMPTY_PATH, _MASK, status.ctypes.data) != 0 \
                 or not _identity(status, identities[i]):
+            identities[i] = -1
             _close(descriptor)
-            return data, used, i
+            continue
         size = identities[i, 0]
         starts[i] = used
         sizes[i] = -1
@@ -191,22 +198,21 @@ def read_files(folder, names, name_starts, inside, begin, flags, limit, header, 
                 sizes[i] = size
                 used += size
         _close(descriptor)
-    return data, used, sizes.size
+    return data, used
 
 
 @numba.njit(cache=True, nogil=True)
-def stat_files(folder, names, name_starts, begin, identities, scratch):  # pragma: no cover - compiled
-    """``identities[i]`` (:func:`.cache.file_identity`) of files ``begin ..`` (names relative to the
-    descriptor ``folder``, :func:`encoded_names`), links followed; returns the index of the first
-    that ``statx`` cannot answer in full (n when none), for ``os.stat`` to say."""
+def stat_files(folder, names, name_starts, identities, missed, scratch):  # pragma: no cover - compiled
+    """``identities[i]`` (:func:`.cache.file_identity`) of each file (names relative to the
+    descriptor ``folder``, :func:`encoded_names`), links followed; ``missed[i]`` True for one that
+    ``statx`` cannot answer in full, for ``os.stat`` to say."""
     status = scratch[:STATX_BYTES]
-    for i in range(begin, identities.shape[0]):
+    for i in range(identities.shape[0]):
         name = names[name_starts[i]:]
-        if name[0] == 47 or _statx(folder, name.ctypes.data, 0, _MASK, status.ctypes.data) != 0 \
-                or int_at(status, 0, 4) & _MASK != _MASK:
-            return i
-        _identity(status, identities[i])
-    return identities.shape[0]
+        missed[i] = name[0] == 47 or _statx(folder, name.ctypes.data, 0, _MASK, status.ctypes.data) != 0 \
+            or int_at(status, 0, 4) & _MASK != _MASK
+        if not missed[i]:
+            _identity(status, identities[i])
 
 
 @numba.njit(cache=True, nogil=True)
