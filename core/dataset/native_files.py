@@ -10,9 +10,8 @@ key the identity of each file (``statx`` by name, following links as ``os.stat``
 
 Only the usual case is taken here: a file that cannot be opened or stat'ed, or is not a regular
 file, is handed back (marked) for Python's calls to visit it as before, which say what is wrong in
-the same words. :data:`NATIVE_FILES` is False where ``statx`` is missing
-(not Linux, a C library before glibc 2.28) or does not give what ``os.stat`` gives; the files are
-then visited from Python.
+the same words. :data:`NATIVE_FILES` is False where ``statx`` is missing (not Linux, a C library
+before glibc 2.28) or does not give what ``os.stat`` gives; the files are then visited from Python.
 """
 
 from __future__ import annotations
@@ -37,8 +36,9 @@ _MODE, _INO, _SIZE, _CTIME, _MTIME = 28, 32, 40, 96, 112
 """Byte offsets in ``struct statx`` of stx_mode (u16), stx_ino, stx_size (u64) and the change and
 modification times (i64 seconds, then u32 nanoseconds)."""
 
-# openat is variadic in C (a mode follows for O_CREAT): declared here with that mode, which the
-# x86-64 and AArch64 Linux calling conventions pass as a fixed argument is passed.
+# openat is variadic in C (a mode follows for O_CREAT): declared here with the mode as a fourth
+# fixed argument, which the x86-64 and AArch64 Linux calling conventions pass as they pass a
+# variadic one.
 _openat = numba.types.ExternalFunction("openat", numba.types.intc(numba.types.intc, numba.types.voidptr,
                                                                  numba.types.intc, numba.types.intc))
 _statx = numba.types.ExternalFunction("statx", numba.types.intc(numba.types.intc, numba.types.voidptr,
@@ -64,7 +64,7 @@ def _native_files() -> bool:
     if not sys.platform.startswith("linux") or sys.byteorder != "little":
         return False
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
+        libc = ctypes.CDLL(None)
         for name in ("openat", "read", "close"):
             getattr(libc, name)
         call = libc.statx
