@@ -20,7 +20,8 @@ ratio to the parse. Measured on the 2-core development machine (shared with othe
 average about 4), 100 000 frames, two runs of the code before (the system calls made from Python)
 alternated with two of the code after (made from compiled code: ``core/dataset/native_files.py``),
 in us a frame before and after: parse 7.6-7.9 and 8.6-9.2, check 15.4-17.0 and 10.8-12.0, plan
-0.0, key 4.7 and 2.1-2.2, open 22.6-23.4 and 14.5-14.8. The commands on the same
+0.0, key 4.7 and 2.1-2.2, open 22.6-23.4 and 14.5-14.8 (two more pairs at load 8-9: check 12.6-15.9
+and 9.1-10.4, open 19.3-21.5 and 12.9-13.2). The commands on the same
 dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
 31.8 s (each about 1.5 s of it the start of Python and its imports).
 
