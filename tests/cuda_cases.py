@@ -82,18 +82,25 @@ def simulate_differences(out: Path, argument: str) -> None:
     :func:`simulator_volume` against its layered reference, camera straight down, 5 photons for
     points 0 and 2, point 1 scored whole (direct), seed 4."""
     from ringlight.core.device import choose_device
+
+    windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((1, 8, 5, 5, 2))
+    touches = run_differences(windows, truth, choose_device("cuda"))
+    np.savez(out, windows=windows, truth=truth[0], touches=touches)
+
+
+def run_differences(windows, truth, device=None):
+    """:func:`simulate_differences`' run on ``device`` (the CPU when None) into ``windows``
+    (3, 5, 5, 2) and ``truth`` (blocks, 8, 5, 5, 2); returns the touches."""
     from ringlight.core.simulate.camera import optics
     from ringlight.core.simulate.reference import mixed_voxels, reference_optics, reference_volume, \
         simulate_point_differences
 
     volume, tables, majorant, lit, streams = simulator_volume()
     base = reference_volume(volume)
-    windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((1, 8, 5, 5, 2))
-    touches = simulate_point_differences(
+    return simulate_point_differences(
         volume, base, mixed_voxels(volume, base, 1.4, (0.0, 0.0)), tables, majorant, optics(1.4, 6.0),
         reference_optics(1.4, 6.0, (0.0, 0.0), (0.0, 0.0), base), True, (0.0, 0.0), lit, [5, 5, 5],
-        [False, True, False], 4, streams, 1.0, windows, truth, choose_device("cuda"))
-    np.savez(out, windows=windows, truth=truth[0], touches=touches)
+        [False, True, False], 4, streams, 1.0, windows, truth, device)
 
 
 def mcml_slab(out: Path, argument: str) -> None:

@@ -104,19 +104,11 @@ def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_
 def test_simulator_differences_kernel_equals_the_cpus_correlated_differences(tmp_path):
     # The scene's walk, its save at the first marked voxel and the reference walk from there on the
     # saved streams: the CPU's differences and touch counts, a direct point scored whole.
-    from cuda_cases import simulator_volume
-    from ringlight.core.simulate.camera import optics
-    from ringlight.core.simulate.reference import mixed_voxels, reference_optics, reference_volume, \
-        simulate_point_differences
+    from cuda_cases import run_differences
 
     gpu = cuda_case("simulate_differences", tmp_path)
-    volume, tables, majorant, lit, streams = simulator_volume()
-    base = reference_volume(volume)
     windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((2, 8, 5, 5, 2))
-    touches = simulate_point_differences(
-        volume, base, mixed_voxels(volume, base, 1.4, (0.0, 0.0)), tables, majorant, optics(1.4, 6.0),
-        reference_optics(1.4, 6.0, (0.0, 0.0), (0.0, 0.0), base), True, (0.0, 0.0), lit, [5, 5, 5],
-        [False, True, False], 4, streams, 1.0, windows, truth)
+    touches = run_differences(windows, truth)
     assert touches[1] == 0 and touches.sum() > 0 and np.count_nonzero(windows) > 10
     assert np.array_equal(gpu["touches"], touches)
     assert_allclose(gpu["windows"], windows, rtol=1e-12, atol=1e-15)

@@ -27,6 +27,10 @@ from .tables import MU_T
 THREADS_PER_BLOCK = 64
 MOST_CHANNELS = 3
 """Channels a walk carries at most (its scratch lives in each thread's local memory)."""
+WALKER_SIZE = WEIGHTS + MOST_CHANNELS
+BUFFERS_SHAPE = (3, MOST_CHANNELS)
+"""Local arrays take shapes known when the kernel compiles: a walker's, and
+:func:`.photon.walk_buffers`' rows."""
 
 
 def atomic_add(array, index, value):
@@ -38,6 +42,14 @@ def no_record(records, count, photon, entry_y, entry_x, surface_y, surface_x, le
     """The device keeps no event list (the CPU's is for tests and inspection)."""
 
 
+def thread_streams(states, i, count, state, estimator_state):
+    """Thread ``i``'s walk state (row ``i`` of ``states``) and its estimator's (row ``count + i``),
+    copied into ``state`` and ``estimator_state`` (2 uint64 each)."""
+    for k in range(2):
+        state[k] = states[i, k]
+        estimator_state[k] = states[count + i, k]
+
+
 @functools.cache
 def _kernels():
     """``(points_kernel, differences_kernel)``, compiled on first use."""
@@ -45,7 +57,17 @@ def _kernels():
     steps = cuda_steps()
     _, camera_estimate = compile_estimate(device, device, steps)
     walk, _ = compile_walk(device, device, steps, camera_estimate, device(atomic_add), device(no_record))
-    uniform, fresh_state, enter = steps.uniform, steps.fresh_state, device(fill_walker)
+    uniform, fresh_state, enter, streams_of = steps.uniform, steps.fresh_state, device(fill_walker), \
+        device(thread_streams)
+
+    @device
+    def enter_point(walker, state, ly, lx, optics, channels):
+        """A photon entering uniformly over pixel ``(ly, lx)`` (two uniforms of ``state``, as the
+        CPU draws them), into ``walker``; returns where it entered."""
+        entry_y = ly + uniform(state) - 0.5
+        entry_x = lx + uniform(state) - 0.5
+        enter(walker, entry_y, entry_x, optics, channels)
+        return entry_y, entry_x
 
     @cuda.jit
     def points_kernel(volume, tables, majorant, optics, columns, camera, lit, photons, states, bin_step, windows,
@@ -57,17 +79,13 @@ def _kernels():
         channels = (tables.shape[0] - MU_T) // 2
         state = cuda.local.array(2, uint64)
         estimator_state = cuda.local.array(2, uint64)
-        for k in range(2):
-            state[k] = states[i, k]
-            estimator_state[k] = states[count + i, k]
-        walker = cuda.local.array(WEIGHTS + MOST_CHANNELS, float64)
-        buffers = cuda.local.array((3, MOST_CHANNELS), float64)
+        streams_of(states, i, count, state, estimator_state)
+        walker = cuda.local.array(WALKER_SIZE, float64)
+        buffers = cuda.local.array(BUFFERS_SHAPE, float64)
         ly = lit[i, 0]
         lx = lit[i, 1]
         for _ in range(photons):
-            entry_y = ly + uniform(state) - 0.5
-            entry_x = lx + uniform(state) - 0.5
-            enter(walker, entry_y, entry_x, optics, channels)
+            entry_y, entry_x = enter_point(walker, state, ly, lx, optics, channels)
             walk(state, estimator_state, walker, False, volume, tables, majorant, optics, columns, camera, windows[i],
                  ly, lx, truth, bin_step, records, 0, 0, entry_y, entry_x, 1.0, no_map, walker, state,
                  estimator_state, buffers)
@@ -83,16 +101,14 @@ def _kernels():
         channels = (tables.shape[0] - MU_T) // 2
         seeder = cuda.local.array(2, uint64)
         estimator_seeder = cuda.local.array(2, uint64)
-        for k in range(2):
-            seeder[k] = seeders[i, k]
-            estimator_seeder[k] = seeders[count + i, k]
+        streams_of(seeders, i, count, seeder, estimator_seeder)
         state = cuda.local.array(2, uint64)
         estimator_state = cuda.local.array(2, uint64)
         saved_state = cuda.local.array(2, uint64)
         saved_estimator_state = cuda.local.array(2, uint64)
-        walker = cuda.local.array(WEIGHTS + MOST_CHANNELS, float64)
-        saved = cuda.local.array(WEIGHTS + MOST_CHANNELS, float64)
-        buffers = cuda.local.array((3, MOST_CHANNELS), float64)
+        walker = cuda.local.array(WALKER_SIZE, float64)
+        saved = cuda.local.array(WALKER_SIZE, float64)
+        buffers = cuda.local.array(BUFFERS_SHAPE, float64)
         ly = lit[i, 0]
         lx = lit[i, 1]
         share = 1.0 / photons[i]
@@ -101,9 +117,7 @@ def _kernels():
             # them up where the scene's walk reached a marked voxel.
             fresh_state(seeder, state)
             fresh_state(estimator_seeder, estimator_state)
-            entry_y = ly + uniform(state) - 0.5
-            entry_x = lx + uniform(state) - 0.5
-            enter(walker, entry_y, entry_x, optics, channels)
+            entry_y, entry_x = enter_point(walker, state, ly, lx, optics, channels)
             _, reached = walk(state, estimator_state, walker, False, volume, tables, majorant, optics, columns, camera,
                               windows[i], ly, lx, truth, bin_step, records, 0, 0, entry_y, entry_x, share,
                               no_map if direct[i] else mixed, saved, saved_state, saved_estimator_state, buffers)
