@@ -217,10 +217,11 @@ def compile_estimate(jit, inline, steps: Steps):
     values)`` is the next-event estimate toward the camera from a scattering at ``(z, y, x)``, in
     ``material``, of a photon of ``weights`` (C,) (after the collision's factor) arriving along
     ``(uy, ux, uz)``; ``tables`` is :func:`ringlight.core.simulate.tables.walk_tables`, ``view``
-    the optics' ``(VIEW_Y, VIEW_X, VIEW_Z, VIEW_FACTOR, UNIFORM_MU_T)`` as a tuple, ``columns`` :func:`column_optical_depths` (or an empty
-    array), ``state`` the estimator's own random stream (for the roulette, played on the least
-    attenuated channel). It writes into ``values`` (C,) the contribution to the reflectance factor
-    of the pixel around the point where the path to the camera leaves the surface, and returns
+    the optics' ``(VIEW_Y, VIEW_X, VIEW_Z, VIEW_FACTOR, UNIFORM_MU_T)`` as a tuple, ``columns``
+    :func:`column_optical_depths` (or an empty array), ``state`` the estimator's own random stream
+    (for the roulette, played on the least attenuated channel). It writes into ``values`` (C,) the
+    contribution to the reflectance factor of the pixel around the point where the path to the
+    camera leaves the surface, and returns
     ``(exit_y, exit_x, distance, scored)``: that point, the path's length inside,
     ``z / cos th_i``, and whether anything was scored.
     """

@@ -116,17 +116,20 @@ def fill_walker(walker, entry_y, entry_x, optics, channels):
 
 
 def compile_walk(jit, inline, steps: Steps, camera_estimate, add, record):
-    """``(walk, score)`` compiled with ``jit`` (``inline`` for the small helpers) from the device's
+    """:func:`walk` compiled with ``jit`` (``inline`` for the small helpers) from the device's
     ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`), its compiled
     ``camera_estimate`` (:func:`ringlight.core.simulate.camera.compile_estimate`), its tally
     ``add(array, index, value)`` (:func:`add_in_place`, or an atomic add) and its ``record`` (as
-    :func:`keep_record`, or nothing): the one statement of the walk (:func:`walk`, :func:`_score`)
-    that the CPU and the CUDA kernels compile."""
+    :func:`keep_record`, or nothing): the one statement of the walk and its scoring that the CPU
+    and the CUDA kernels compile."""
     uniform, exit_fresnel, flight_to_surface = steps.uniform, steps.exit_fresnel, steps.flight_to_surface
     scatter_direction = steps.scatter
 
     def score(window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x,
               surface_y, surface_x, length, values, sign, channels):
+        """Add ``sign * values`` (C,) to the lit point's window (offsets from ``(centre_y,
+        centre_x)``), to the path-length image of its bin, and to the records; returns the number
+        of events so far (it may exceed the records' rows: the caller sees the overflow)."""
         py = int(math.floor(surface_y + 0.5))
         px = int(math.floor(surface_x + 0.5))
         radius = window.shape[0] // 2
@@ -233,12 +236,12 @@ def compile_walk(jit, inline, steps: Steps, camera_estimate, add, record):
                 else:
                     return count, reached
 
-    return jit(walk), tally
+    return jit(walk)
 
 
 _CPU_INLINE = numba.njit(cache=True, inline="always")
-walk, _score = compile_walk(numba.njit(cache=True), _CPU_INLINE, CPU, camera_estimate, _CPU_INLINE(add_in_place),
-                            _CPU_INLINE(keep_record))
+walk = compile_walk(numba.njit(cache=True), _CPU_INLINE, CPU, camera_estimate, _CPU_INLINE(add_in_place),
+                    _CPU_INLINE(keep_record))
 walk.__doc__ = """``walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns,
 camera, window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign,
 mixed, saved_walker, saved_state, saved_estimator_state, buffers)``, compiled for the CPU

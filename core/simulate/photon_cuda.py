@@ -56,7 +56,7 @@ def _kernels():
     device = cuda.jit(device=True)
     steps = cuda_steps()
     _, camera_estimate = compile_estimate(device, device, steps)
-    walk, _ = compile_walk(device, device, steps, camera_estimate, device(atomic_add), device(no_record))
+    walk = compile_walk(device, device, steps, camera_estimate, device(atomic_add), device(no_record))
     uniform, fresh_state, enter, streams_of = steps.uniform, steps.fresh_state, device(fill_walker), \
         device(thread_streams)
 
