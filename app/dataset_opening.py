@@ -56,8 +56,9 @@ class DatasetOpening:
         if self.loaded is None:  # an empty view says what is coming (the status bar says how far)
             self.image_panel.clear_image()
             self.image_panel.set_title(f"{description} ...")
+        device = self.compute_device()
         self.load_jobs.start(description, lambda progress: load_for_viewing(
-            path, request, progress, sample=sample, preview=self.steady_previewed.emit))
+            path, request, progress, sample=sample, preview=self.steady_previewed.emit, device=device))
 
     def _on_open_cancelled(self) -> None:
         self._open_cancelled = True

@@ -59,6 +59,8 @@ class LayerTab(QObject):
         self.scrub_bar = scrub_bar
         self.exports = exports
         self.fits = fits
+        self.device = "cpu"
+        """Where an inverse fit's white runs go (``--device``'s choices): the window's setting."""
         self.inversion: DatasetInversion | None = None
         self._inversion_key: tuple | None = None
         self.dataset: ImpulseDataset | None = None
@@ -243,6 +245,7 @@ class LayerTab(QObject):
         try:
             settings = settings_from_text(inputs["layers"], inputs["boundaries"], inputs["mus"], inputs["n"],
                                           inputs["g"], inputs["depth"])
+            settings = replace(settings, device=self.device)
         except RinglightError as error:
             self.panel.show_message(str(error))
             return

@@ -21,6 +21,7 @@ from ringlight.core.dataset.ground_truth import (
     read_path_length_images,
     stack_correlations,
 )
+from ringlight.core.device import Device
 from ringlight.core.phases import phase
 from ringlight.core.rings.coverage import coverage_warning
 from ringlight.core.rings.profiles import ProfileRings, profile_rings
@@ -105,7 +106,8 @@ def open_radius(manifest_max_radius: float | None, height: int, width: int, requ
 
 
 def load_for_viewing(path: str | Path | None, request: StackRequest | None, progress: Progress,
-                     sample: str | None = None, preview: Preview | None = None) -> LoadedDataset:
+                     sample: str | None = None, preview: Preview | None = None,
+                     device: Device | None = None) -> LoadedDataset:
     """Open ``path`` with its stacks; with ``sample``, that bundled sample, and with neither the
     demo dataset (each written into the user cache first, the first time).
 
@@ -114,7 +116,7 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     float32 linear RGB in the dataset's ``colorspace``, its first ``rows`` rows filled and the
     rest NaN, after each band of an out-of-core build, and
     whole once the dataset is open, before the stacks are computed (the longest part of opening
-    a big dataset from its store).
+    a big dataset from its store). The stacks' rings are summed on ``device`` (the CPU when None).
     """
     if path is None:
         path = sample_dataset(sample or DEMO_SAMPLE, progress=scaled(progress, 0.0, 0.3))
@@ -136,7 +138,7 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     first_open = request is None
     if request is None or refusal is not None:
         request = default_request(dataset.max_radius)
-    stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0))
+    stacks = compute_view_stacks(dataset, truth, request, scaled(progress, 0.65, 1.0), device)
     view = None
     if first_open:
         transient = stacks.pair.transient
@@ -155,10 +157,11 @@ def _band_preview(manifest, preview: Preview):
 
 
 def compute_view_stacks(dataset: ImpulseDataset, truth: PathLengthImages | None, request: StackRequest,
-                        progress: Progress) -> ViewStacks:
-    """Stacks of ``request`` (from the cache when a previous open saved them) with profile rings
+                        progress: Progress, device: Device | None = None) -> ViewStacks:
+    """Stacks of ``request`` (from the cache when a previous open saved them, else with the rings
+    summed on ``device``: :func:`ringlight.core.rings.stack_cache.cached_stacks`) with profile rings
     and ground-truth correlations."""
-    pair = cached_stacks(dataset, request, scaled(progress, 0.0, 0.9))
+    pair = cached_stacks(dataset, request, scaled(progress, 0.0, 0.9), device)
     phase("placing the profiles' rings")
     rings = profile_rings(dataset, pair.radii, request.dr, request.thickness, request.antialias)
     correlations = None

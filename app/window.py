@@ -45,12 +45,13 @@ from .noise_view import NoiseView, ViewNoise
 from .optics_view import OpticsView
 from .session import LoadedDataset, ViewStacks, compute_view_stacks
 from .view_levels import ViewLevels
+from .window_device import WindowDevice
 from .window_menus import WindowMenus
 from .window_settings import WindowSettings, first_size
 from .window_tools import LineProfileDock
 
 class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, OpticsView, ExportActions, WindowMenus, WindowSettings,
-                 HelpDialogs, LineProfileDock, QMainWindow):
+                 WindowDevice, HelpDialogs, LineProfileDock, QMainWindow):
     """The explorer. ``settings`` holds layout and preferences (a QSettings the caller owns)."""
 
     dataset_loaded = Signal()
@@ -226,9 +227,10 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, OpticsView,
         if self.loaded is None:
             return
         loaded = self.loaded
+        device = self.compute_device()
         self.stack_jobs.start(
             f"Stacks of {len(_safe_radii(request))} radii",
-            lambda progress: compute_view_stacks(loaded.dataset, loaded.truth, request, progress),
+            lambda progress: compute_view_stacks(loaded.dataset, loaded.truth, request, progress, device),
         )
 
     def _on_stacks_ready(self, stacks: ViewStacks) -> None:

@@ -1,4 +1,4 @@
-"""The explorer's menu bar: File, View and Help, each action with its shortcut and status tip.
+"""The explorer's menu bar: File, View, Settings and Help, each action with its shortcut and status tip.
 
 A mixin of :class:`ringlight.app.window.MainWindow`: the actions call the window's own methods
 and widgets, which exist when ``_build_menus`` runs.
@@ -80,6 +80,7 @@ class WindowMenus:
         view_menu.addSeparator()
         for dock in (self.display_dock, self.stack_dock, self.profile_dock, self.line_profile_dock):
             view_menu.addAction(dock.toggleViewAction())
+        self._build_device_menu(self.menuBar().addMenu("&Settings"))
         help_menu = self.menuBar().addMenu("&Help")
         self._action(help_menu, "&Keyboard shortcuts", self._show_shortcuts, "F1")
         self._action(help_menu, "Dataset &information", self._show_dataset_information, "Ctrl+I",

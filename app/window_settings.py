@@ -1,4 +1,5 @@
-"""What the window remembers between runs: layout, display settings, the stack request, recent files.
+"""What the window remembers between runs: layout, display settings, the stack request, recent files,
+the device.
 
 A mixin of :class:`ringlight.app.window.MainWindow`, stored in the QSettings it was given.
 """
@@ -118,6 +119,7 @@ class WindowSettings:
         self.structure_view_action.setChecked(self.settings.value("structure_view", "true") == "true")
         self.scrub_bar.fps_box.setValue(int(self.settings.value("fps", 8)))
         self.scrub_bar.loop_box.setChecked(self.settings.value("loop", "true") == "true")
+        self._restore_device()
         self._rebuild_recent_menu()
 
     def save_settings(self) -> None:
@@ -131,6 +133,7 @@ class WindowSettings:
         self.settings.setValue("structure_view", "true" if self.structure_view_action.isChecked() else "false")
         self.settings.setValue("fps", self.scrub_bar.fps_box.value())
         self.settings.setValue("loop", "true" if self.scrub_bar.loop_box.isChecked() else "false")
+        self._save_device()
         self._remember_request()
         self.settings.sync()
 

@@ -5,14 +5,21 @@
     n = 1.4, g = 0.8 in mean free paths, :mod:`ringlight.core.optics.radial`) and the layer
     inversion's (the layers3 sample's search slab: 9 depth bins of mus 1 per grid step, 64 grid
     steps deep, g 0, n 1.4, :mod:`ringlight.core.inversion.white_mc`).
-(2) The ring sums of a transient stack of radii 0..10 (rings 0..11) on a random 800 x 800 dataset
+(2) The simulator (``ringlight simulate``'s walk, :mod:`ringlight.core.simulate.photon`): photons
+    per second on the CPU and the GPU for MCML's slab (manual Table 6.1: mu_a 1, mu_s 9 per grid
+    step (of 1 mm), g 0.75, n 1, 0.2 grid steps deep; one lit point, the camera measure and the exitance)
+    and for the red-bead sample (:func:`ringlight.core.simulate.transport.simulate_transport`, the
+    reference estimator, the whole grid). With ``pmcx`` installed, MCX on the same GPU for the same
+    slab: MCX scores fluence and exitance, not a next-event estimate at every scattering, so the like
+    for like figure is ringlight's exitance measure; the camera measure is the one ``simulate`` runs.
+(3) The ring sums of a transient stack of radii 0..10 (rings 0..11) on a random 800 x 800 dataset
     (offsets within radius 11.5): seconds on the CPU and on the GPU (transfers included), and
     their ratio.
 
 Without a usable GPU (``ringlight[cuda]`` and an NVIDIA driver) the GPU part is skipped with a
 line saying so; the CPU figures are still printed.
 
-    python benchmarks/bench_gpu.py [--photons 20000] [--size 800]
+    python benchmarks/bench_gpu.py [--photons 20000] [--size 800] [--bead-photons 20]
 """
 
 from __future__ import annotations
@@ -27,6 +34,11 @@ from ringlight.core.inversion.white_mc import SlabOptics, run_white
 from ringlight.core.optics.radial import run_radial
 from ringlight.core.rings.stacks import _ring_sums, _ring_tables
 from ringlight.core.rings.members import ring_members, unit_weight_rings
+from ringlight.core.simulate.camera import optics
+from ringlight.core.simulate.photon import point_kernels
+from ringlight.core.simulate.presets import load_scene
+from ringlight.core.simulate.tables import single_channel_tables
+from ringlight.core.simulate.transport import simulate_transport
 
 
 SLAB = SlabOptics((1.0,) * 9, 0.0, 1.4, 64.0, REACH)
@@ -46,6 +58,65 @@ def slab_rate(photons: int, device) -> float:
     start = time.perf_counter()
     run = run_white(SLAB, photons, seed=2, device=device)
     return run.photons / (time.perf_counter() - start)
+
+
+MCML_SLAB = {"mua": 1.0, "mus": 9.0, "g": 0.75, "n": 1.0, "depth": 0.2}
+"""MCML manual Table 6.1's slab (10 and 90 per cm, 0.02 cm) in grid steps of 1 mm."""
+
+
+def slab_simulator_rate(photons: int, device, camera: bool) -> float:
+    """Photons per second of the simulator's walk in MCML's slab, one lit point, on ``device``
+    (the photons shared among 64 streams on the CPU, 16384 on a GPU; after a warm-up run)."""
+    slab = MCML_SLAB
+    mu_t = slab["mua"] + slab["mus"]
+    tables, majorant = single_channel_tables([mu_t], [slab["mus"] / mu_t], [slab["g"]])
+    geometry = optics(slab["n"], slab["depth"])
+    streams = 1 << 14 if device.is_cuda else 64
+    simulate_points = point_kernels(device)[0]
+
+    def run(count, seed):
+        per_stream = max(1, count // streams)
+        windows = np.zeros((streams, 3, 3, 1))
+        simulate_points(np.zeros((1, 1, 1), np.uint8), tables, majorant, geometry, np.zeros((0, 0, 0, 0)), camera,
+                        np.zeros((streams, 2), np.int64), per_stream, seed, np.arange(streams), 1.0, windows,
+                        np.zeros((min(16, streams), 0, 1, 1, 1)))
+        return per_stream * streams
+
+    run(streams, 1)
+    start = time.perf_counter()
+    traced = run(photons, 2)
+    return traced / (time.perf_counter() - start)
+
+
+def bead_rate(photons: int, device) -> tuple[float, float]:
+    """``(photons per second, seconds)`` of the red-bead sample (40 x 40, ``photons`` per lit point
+    and channel, counted as ``simulate`` counts them) on ``device``, after a warm-up run on a
+    6 x 6 grid. Each run has fixed costs (the allocation's pilot, spreading the kernel): few
+    photons understate the rate."""
+    simulate_transport(load_scene("red-bead", size=(6, 6)), photons=1, seed=1, device=device)
+    scene = load_scene("red-bead")
+    run = simulate_transport(scene, photons=photons, seed=2, device=device)
+    return scene.height * scene.width * photons * (1 if scene.grey else 3) / run.seconds, run.seconds
+
+
+def mcx_rate(photons: int) -> str:
+    """MCX (``pmcx``) in MCML's slab on the GPU: its photons per second as it reports them, or a
+    plain line saying why there is none."""
+    try:
+        import pmcx
+    except ImportError:
+        return "MCX: pmcx not installed (pip install pmcx): skipped"
+    slab = MCML_SLAB
+    config = {"nphoton": photons, "vol": np.ones((200, 200, 2), np.uint8), "unitinmm": 0.1,
+              "prop": [[0, 0, 1, 1], [slab["mua"], slab["mus"], slab["g"], slab["n"]]],
+              "srcpos": [100, 100, 0], "srcdir": [0, 0, 1], "issrcfrom0": 1, "tstart": 0, "tend": 5e-9,
+              "tstep": 5e-9, "isreflect": 0, "issaveref": 1}
+    try:
+        result = pmcx.run(config)
+        seconds = float(result["stat"]["runtime"]) / 1000.0
+    except Exception as error:  # pmcx reports a missing GPU or driver in many ways
+        return f"MCX: pmcx could not run ({error}): skipped"
+    return f"MCX (pmcx), same slab, exitance and fluence: {photons / seconds / 1e6:.4f} M photons/s"
 
 
 class _Dataset:
@@ -83,6 +154,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--photons", type=int, default=20_000)
     parser.add_argument("--size", type=int, default=800)
+    parser.add_argument("--bead-photons", type=int, default=20,
+                        help="photons per lit point of the red-bead run on the CPU (100x on the GPU)")
     args = parser.parse_args()
     cpu, gpu = cpu_device(), cuda_device()
     if gpu is not None and gpu.name == "CUDA simulator":
@@ -96,6 +169,20 @@ def main() -> None:
             gpu_rate = rate(args.photons * 100, gpu)
             print(f", GPU {gpu_rate / 1e6:.4f} M photons/s: {gpu_rate / cpu_rate:.1f}x", end="")
         print()
+    for measure, camera in (("camera measure", True), ("exitance", False)):
+        cpu_rate = slab_simulator_rate(args.photons * 10, cpu, camera)
+        print(f"simulator, MCML slab, {measure}: CPU {cpu_rate / 1e6:.4f} M photons/s", end="")
+        if gpu is not None:
+            gpu_rate = slab_simulator_rate(args.photons * 1000, gpu, camera)
+            print(f", GPU {gpu_rate / 1e6:.4f} M photons/s: {gpu_rate / cpu_rate:.1f}x", end="")
+        print()
+    print(mcx_rate(args.photons * 1000) if gpu is not None else "MCX: no usable GPU: skipped")
+    cpu_rate, cpu_seconds = bead_rate(args.bead_photons, cpu)
+    print(f"simulator, red-bead sample: CPU {cpu_rate / 1e6:.4f} M photons/s ({cpu_seconds:.1f} s)", end="")
+    if gpu is not None:
+        gpu_rate, gpu_seconds = bead_rate(args.bead_photons * 100, gpu)
+        print(f", GPU {gpu_rate / 1e6:.4f} M photons/s ({gpu_seconds:.1f} s): {gpu_rate / cpu_rate:.1f}x", end="")
+    print()
     cpu_seconds = stack_seconds(args.size, _ring_sums)
     print(f"ring sums, {args.size} x {args.size} points, 12 rings: CPU {cpu_seconds:.3f} s", end="")
     if gpu is not None:

@@ -48,13 +48,100 @@ def stacks(out: Path, argument: str) -> None:
     np.savez(out, ring=ring.images, transient=transient.images, counts=ring.counts)
 
 
+def simulator_volume():
+    """``(volume, tables, majorant, lit, streams)`` of the simulator's kernel cases: a 6 x 5 x 5
+    volume with a block of a second material, two channels that scatter alike (mus 1 and 2, g 0.8
+    and 0.3), three lit points on streams 3, 7 and 11."""
+    from ringlight.core.simulate.tables import walk_tables
+
+    tables, majorant = walk_tables(np.array([1.0, 2.0]), np.array([[0.01, 0.1], [0.02, 0.05]]), np.array([0.8, 0.3]))
+    volume = np.zeros((6, 5, 5), np.uint8)
+    volume[2:4, 1:3, 2:4] = 1
+    return volume, tables, majorant, np.array([[1, 1], [2, 3], [4, 0]], np.int64), np.array([3, 7, 11])
+
+
+def simulate_points(out: Path, argument: str) -> None:
+    """The simulator's points kernel on :func:`simulator_volume`, 20 photons per point of seed 9 (bins of 4),
+    projector and camera oblique: the camera measure (``camera_*``) and the exitance
+    (``exitance_*``)."""
+    from ringlight.core.simulate.camera import optics
+    from ringlight.core.simulate.photon_cuda import simulate_points_cuda
+
+    volume, tables, majorant, lit, streams = simulator_volume()
+    arrays = {}
+    for measure in ("camera", "exitance"):
+        windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((1, 8, 5, 5, 2))
+        simulate_points_cuda(volume, tables, majorant, optics(1.4, 6.0, (20.0, 30.0), (25.0, 10.0)),
+                             np.zeros((0, 0, 0, 0)), measure == "camera", lit, 20, 9, streams, 4.0, windows, truth)
+        arrays[f"{measure}_windows"], arrays[f"{measure}_truth"] = windows, truth[0]
+    np.savez(out, **arrays)
+
+
+def simulate_differences(out: Path, argument: str) -> None:
+    """The simulator's correlated differences (:func:`.reference.simulate_point_differences`) on
+    :func:`simulator_volume` against its layered reference, camera straight down, 5 photons for
+    points 0 and 2, point 1 scored whole (direct), seed 4."""
+    from ringlight.core.device import choose_device
+
+    windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((1, 8, 5, 5, 2))
+    touches = run_differences(windows, truth, choose_device("cuda"))
+    np.savez(out, windows=windows, truth=truth[0], touches=touches)
+
+
+def run_differences(windows, truth, device=None):
+    """:func:`simulate_differences`' run on ``device`` (the CPU when None) into ``windows``
+    (3, 5, 5, 2) and ``truth`` (blocks, 8, 5, 5, 2); returns the touches."""
+    from ringlight.core.simulate.camera import optics
+    from ringlight.core.simulate.reference import mixed_voxels, reference_optics, reference_volume, \
+        simulate_point_differences
+
+    volume, tables, majorant, lit, streams = simulator_volume()
+    base = reference_volume(volume)
+    return simulate_point_differences(
+        volume, base, mixed_voxels(volume, base, 1.4, (0.0, 0.0)), tables, majorant, optics(1.4, 6.0),
+        reference_optics(1.4, 6.0, (0.0, 0.0), (0.0, 0.0), base), True, (0.0, 0.0), lit, [5, 5, 5],
+        [False, True, False], 4, streams, 1.0, windows, truth, device)
+
+
+def mcml_slab(out: Path, argument: str) -> None:
+    """The exitance of MCML's slab (mu_a 10, mu_s 90 per grid step, g 0.75, n 1, 0.02 deep) by the
+    points kernel: 1024 photons on 16 streams of seed 7, each photon's window total."""
+    from ringlight.core.simulate.camera import optics
+    from ringlight.core.simulate.photon_cuda import simulate_points_cuda
+    from ringlight.core.simulate.tables import single_channel_tables
+
+    tables, majorant = single_channel_tables([100.0], [0.9], [0.75])
+    windows, truth = np.zeros((16, 3, 3, 1)), np.zeros((1, 0, 1, 1, 1))
+    simulate_points_cuda(np.zeros((1, 1, 1), np.uint8), tables, majorant, optics(1.0, 0.02),
+                         np.zeros((0, 0, 0, 0)), False, np.zeros((16, 2), np.int64), 64, 7, np.arange(16), 1.0,
+                         windows, truth)
+    np.savez(out, windows=windows)
+
+
+def simulate_command(out: Path, argument: str) -> None:
+    """``ringlight simulate homogeneous --size 3x3 --photons 4 --device cuda --out ARGUMENT``: its
+    output and the notes it wrote."""
+    import contextlib
+    import io
+
+    from ringlight.app.main import main
+    from ringlight.core import read_manifest
+
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        status = main(["simulate", "homogeneous", "--size", "3x3", "--photons", "4", "--device", "cuda",
+                       "--out", argument])
+    np.savez(out, status=status, printed=printed.getvalue(), notes=read_manifest(argument).notes)
+
+
 def device(out: Path, argument: str) -> None:
     from ringlight.core.device import choose_device
 
     np.savez(out, name=choose_device("cuda").name, auto=choose_device("auto").kind)
 
 
-CASES = {"radial": radial, "white": white, "stacks": stacks, "device": device}
+CASES = {"radial": radial, "white": white, "stacks": stacks, "device": device, "simulate_points": simulate_points,
+         "simulate_differences": simulate_differences, "mcml_slab": mcml_slab, "simulate_command": simulate_command}
 
 
 def run_case(case: str, out: Path, argument: str = "") -> dict[str, np.ndarray] | None:

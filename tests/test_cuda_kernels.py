@@ -81,6 +81,73 @@ def test_stack_kernel_equals_the_cpu_stacks(tmp_path):
     assert np.array_equal(gpu["counts"], ring.counts)
 
 
+def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
+    # Thread i walks lit point i on stream (seed 9, streams[i]) and its estimator stream, through
+    # the same compiled walk: the CPU kernel's windows and path-length images, up to the order of
+    # the atomic sums, in a heterogeneous volume (voxel traversal of the estimate), two channels,
+    # oblique projector and camera, either measure.
+    from cuda_cases import simulator_volume
+    from ringlight.core.simulate.camera import optics
+    from ringlight.core.simulate.photon import simulate_points
+
+    gpu = cuda_case("simulate_points", tmp_path)
+    volume, tables, majorant, lit, streams = simulator_volume()
+    for measure in ("camera", "exitance"):
+        windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((2, 8, 5, 5, 2))
+        simulate_points(volume, tables, majorant, optics(1.4, 6.0, (20.0, 30.0), (25.0, 10.0)),
+                        np.zeros((0, 0, 0, 0)), measure == "camera", lit, 20, 9, streams, 4.0, windows, truth)
+        assert np.count_nonzero(windows) > 10 and np.count_nonzero(truth) > 10
+        assert_allclose(gpu[f"{measure}_windows"], windows, rtol=1e-12, atol=1e-15)
+        assert_allclose(gpu[f"{measure}_truth"], truth.sum(axis=0), rtol=1e-12, atol=1e-15)
+
+
+def test_simulator_differences_kernel_equals_the_cpus_correlated_differences(tmp_path):
+    # The scene's walk, its save at the first marked voxel and the reference walk from there on the
+    # saved streams: the CPU's differences and touch counts, a direct point scored whole.
+    from cuda_cases import run_differences
+
+    gpu = cuda_case("simulate_differences", tmp_path)
+    windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((2, 8, 5, 5, 2))
+    touches = run_differences(windows, truth)
+    assert touches[1] == 0 and touches.sum() > 0 and np.count_nonzero(windows) > 10
+    assert np.array_equal(gpu["touches"], touches)
+    assert_allclose(gpu["windows"], windows, rtol=1e-12, atol=1e-15)
+    assert_allclose(gpu["truth"], truth.sum(axis=0), rtol=1e-12, atol=1e-15)
+
+
+def test_simulator_kernel_gives_mcmls_slab_reflectance(tmp_path):
+    # MCML manual Table 6.1 (the CPU simulator's test_mcml_slab_diffuse_reflectance_matches_van_de_hulst):
+    # n = 1, mu_a = 10, mu_s = 90 per unit, g = 0.75, 0.02 deep: R_d = 0.09739 (van de Hulst 1980).
+    # 1024 photons on 16 streams, the exitance within one pixel of the lit one (the slab is 2 mean
+    # free paths deep: light leaves within 0.1 pixel of where it entered). The standard error from
+    # the spread of the 16 streams' means is about 8 %; the CPU on the same streams agrees exactly.
+    from ringlight.core.simulate.camera import optics
+    from ringlight.core.simulate.photon import simulate_points
+    from ringlight.core.simulate.tables import single_channel_tables
+
+    gpu = cuda_case("mcml_slab", tmp_path)
+    tables, majorant = single_channel_tables([100.0], [0.9], [0.75])
+    windows = np.zeros((16, 3, 3, 1))
+    simulate_points(np.zeros((1, 1, 1), np.uint8), tables, majorant, optics(1.0, 0.02), np.zeros((0, 0, 0, 0)),
+                    False, np.zeros((16, 2), np.int64), 64, 7, np.arange(16), 1.0, windows, np.zeros((1, 0, 1, 1, 1)))
+    assert_allclose(gpu["windows"], windows, rtol=1e-12, atol=1e-15)
+    per_stream = gpu["windows"].sum(axis=(1, 2, 3)) / 64
+    error = per_stream.std(ddof=1) / np.sqrt(16)
+    assert 0 < error < 0.02 and abs(per_stream.mean() - 0.09739) < 3 * error, (per_stream.mean(), error)
+
+
+def test_simulate_command_on_cuda_names_the_device_in_its_output_and_notes(tmp_path):
+    # The whole command through the GPU path (the reference kernel on the device's streams): a
+    # dataset whose notes and output line name the device.
+    arrays = cuda_case("simulate_command", tmp_path, str(tmp_path / "sim"))
+    name = cuda_device().name if cuda_device() is not None else "CUDA simulator"
+    assert int(arrays["status"]) == 0
+    assert str(arrays["printed"]).rstrip().endswith(f"M photons/s) on {name}")
+    assert f"\nphotons traced on {name}" in str(arrays["notes"])
+    responses = open_dataset(tmp_path / "sim").point(1, 1)
+    assert np.isfinite(responses).all() and responses.sum() > 0
+
+
 def test_cuda_device_is_the_gpu_or_the_simulator_and_auto_never_the_simulator(tmp_path):
     arrays = cuda_case("device", tmp_path)
     usable = cuda_device()
@@ -117,7 +184,8 @@ def test_stack_command_says_which_device_summed_the_rings(tmp_path, capsys):
 
 @pytest.mark.skipif(cuda_device() is not None or simulator_enabled(), reason="a GPU is usable here")
 @pytest.mark.parametrize("command", [["layers", "DATASET", "--method", "inverse"],
-                                     ["optics", "DATASET", "--json", "OUT"]])
+                                     ["optics", "DATASET", "--json", "OUT"],
+                                     ["simulate", "homogeneous", "--size", "3x3", "--out", "OUT"]])
 def test_device_cuda_without_a_gpu_stops_the_white_runs_commands_in_one_line(tmp_path, capsys, command):
     from ringlight.app.main import main
 

@@ -7,6 +7,7 @@ import sys
 import textwrap
 
 from ringlight.core.dataset.writer import check_dataset_target
+from ringlight.core.device import CHOICES, choose_device
 from ringlight.core.simulate.presets import load_scene, preset_names, preset_notes
 from ringlight.core.simulate.scene import SceneError
 from ringlight.core.simulate.progressive import CheckpointError, Status, forget_checkpoint, simulate_until
@@ -50,6 +51,9 @@ def add_command(subparsers) -> None:
                                "dataset's replicates, so that its noise, shared by lit points or not, can be "
                                "measured (the standard errors of the explorer and of the layer inversion); "
                                "with --photons, not --noise or --time")
+    simulate.add_argument("--device", choices=CHOICES, default="auto",
+                          help="where the photons walk: auto (a usable NVIDIA GPU, else the CPU), cpu, or cuda "
+                               "(a GPU or stop); see docs/guide/devices.md")
     simulate.add_argument("--overwrite", action="store_true",
                           help="replace an earlier dataset at --out (only if the folder holds nothing else)")
     simulate.add_argument("--list", action="store_true", help="list the bundled presets and exit")
@@ -82,7 +86,7 @@ def parse_duration(text: str) -> float:
     return value
 
 
-def run_progressive(scene, args, seconds):
+def run_progressive(scene, args, seconds, device):
     """Simulate with :func:`simulate_until`, printing the noise after every pair of batches."""
     def report(status: Status) -> None:
         where = "resumed at" if status.resumed else "at"
@@ -95,7 +99,7 @@ def run_progressive(scene, args, seconds):
         with progress_bar(f"simulating {scene.name} (a pair of batches)") as progress:
             transport, status = simulate_until(scene, args.noise, seconds, batch=args.photons or BATCH,
                                                seed=args.seed, estimator=args.estimator, report=report,
-                                               progress=progress)
+                                               progress=progress, device=device)
     except KeyboardInterrupt:
         print("ringlight: interrupted; the photons simulated so far are kept: give the same command to continue",
               file=sys.stderr)
@@ -142,16 +146,17 @@ def run_simulate(args) -> int:
     seconds = parse_duration(args.time) if args.time is not None else None
     scene = load_scene(args.scene, size=parse_size(args.size) if args.size else None)
     check_dataset_target(args.out, overwrite=args.overwrite)  # refused before simulating
+    device = choose_device(args.device)
     if args.replicates is not None:
         with progress_bar(f"simulating {scene.name} in {args.replicates} replicates") as progress:
             transport = simulate_replicates(scene, args.photons or scene.photons_per_point, args.replicates,
-                                            args.seed, progress, args.estimator)
+                                            args.seed, progress, args.estimator, device)
     elif args.noise is None and seconds is None:
         with progress_bar(f"simulating {scene.name}") as progress:
             transport = simulate_transport(scene, photons=args.photons, seed=args.seed, progress=progress,
-                                           estimator=args.estimator)
+                                           estimator=args.estimator, device=device)
     else:
-        transport = run_progressive(scene, args, seconds)
+        transport = run_progressive(scene, args, seconds, device)
     with progress_bar("writing dataset") as progress:
         write_transport(transport, args.out, overwrite=args.overwrite, progress=progress)
     if args.noise is not None or seconds is not None:
@@ -160,6 +165,6 @@ def run_simulate(args) -> int:
     total = scene.height * scene.width * transport.photons * channels
     print(
         f"wrote {args.out}: {scene.height} x {scene.width} grid, {total:,} photons in "
-        f"{transport.seconds:.1f} s ({total / transport.seconds / 1e6:.2f} M photons/s)"
+        f"{transport.seconds:.1f} s ({total / transport.seconds / 1e6:.2f} M photons/s) on {device.name}"
     )
     return 0

@@ -54,6 +54,7 @@ from ..dataset.store_table import (
     store_codecs,
     table_of,
 )
+from ..device import Device
 from ..errors import RinglightError
 from ..phases import phase
 from ..staging_locks import sweep_abandoned
@@ -81,9 +82,10 @@ Shapes = dict[str, tuple[tuple[int, ...], str]]
 
 
 def cached_stacks(dataset: ImpulseDataset, request: StackRequest,
-                  progress: ProgressCallback | None = None) -> StackPair:
+                  progress: ProgressCallback | None = None, device: Device | None = None) -> StackPair:
     """:func:`.stack_request.compute_stacks`, read from the cache when an entry of the same key
-    is there and intact, else computed and saved. ``progress`` may raise ``Cancelled``."""
+    is there and intact, else computed (on ``device``) and saved. ``progress`` may raise
+    ``Cancelled``."""
     request.check(dataset)
     n, (height, width) = len(request.radii()), dataset.grid_shape
     images, counts = ((n, height, width, 3), "float32"), ((n, height, width), "int32")
@@ -108,7 +110,7 @@ def cached_stacks(dataset: ImpulseDataset, request: StackRequest,
 
     return _cached(dataset, "stacks", dataclasses.asdict(request), shapes,
                    ("reading the saved stacks", "computing the stacks"),
-                   lambda: compute_stacks(dataset, request, progress), arrays_of, pair_of)
+                   lambda: compute_stacks(dataset, request, progress, device), arrays_of, pair_of)
 
 
 def cached_noise(dataset: ImpulseDataset, request: StackRequest,

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
+from ..device import Device
 from ..errors import StackError
 from .radii import check_ring_shape, needed_radius, radius_range
 from .stacks import Stack, ring_and_transient_stacks
@@ -105,10 +106,13 @@ def default_request(max_radius: float, most_radii: int = 64) -> StackRequest:
 
 
 def compute_stacks(dataset: ImpulseDataset, request: StackRequest,
-                   progress: ProgressCallback | None = None) -> StackPair:
-    """E_r and T_r = E_r - E_{r+dr} for every radius of ``request``; each ring computed once."""
+                   progress: ProgressCallback | None = None, device: Device | None = None) -> StackPair:
+    """E_r and T_r = E_r - E_{r+dr} for every radius of ``request``; each ring computed once, its
+    rings summed on ``device`` (the CPU when None, and for an antialiased request, which the
+    GPU's gather does not sum: as ``ringlight stack --interpolate``)."""
     request.check(dataset)
     ring, transient = ring_and_transient_stacks(
-        dataset, request.radii(), request.dr, request.thickness, request.antialias, progress
+        dataset, request.radii(), request.dr, request.thickness, request.antialias, progress,
+        device=None if request.antialias else device,
     )
     return StackPair(request, ring, transient)

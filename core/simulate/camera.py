@@ -54,8 +54,7 @@ import math
 import numba
 import numpy as np
 
-from .steps import CPU
-from .streams import uniform
+from .steps import CPU, Steps
 from .tables import ANISOTROPY, MU_T
 
 OPTICAL_DEPTH_CUTOFF = 40.0
@@ -137,22 +136,21 @@ def column_optical_depths(volume: np.ndarray, mu_t: np.ndarray, camera=(0.0, 0.0
     return np.concatenate([np.zeros((per_voxel.shape[0], 1) + volume.shape[1:]), above[:, :-1]], axis=1)
 
 
-@numba.njit(cache=True, inline="always")
-def _column_optical_depths(volume, tables, columns, material, z, y, x, out):
-    """Optical depth per channel straight up from ``(z, y, x)`` (in ``material``) into ``out``:
-    the voxels above, then this one's part."""
+def column_depths(volume, tables, columns, material, z, y, x, out, channels):
+    """Optical depth per channel straight up from ``(z, y, x)`` (in ``material``) into
+    ``out[:channels]``: the voxels above (``columns``, :func:`column_optical_depths`), then this
+    one's part."""
     layers, height, width = volume.shape
     iz = min(int(z), layers - 1)
     iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
     ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
-    for c in range(out.shape[0]):
+    for c in range(channels):
         out[c] = columns[c, iz, iy, ix] + tables[MU_T + c, material] * (z - iz)
 
 
-@numba.njit(cache=True)
-def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit, out):
+def traverse_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit, out):
     """Optical depth per channel (``mu_t`` (C, materials)) from ``(z, y, x)`` along
-    ``(vy, vx, vz)`` (``vz < 0``) up to ``z = 0``, into ``out`` (C,), exact for the voxel volume
+    ``(vy, vx, vz)`` (``vz < 0``) up to ``z = 0``, into ``out[:C]``, exact for the voxel volume
     (which repeats its edge voxels sideways); stops early, with every channel above ``limit``,
     once they all are past it."""
     length = z / -vz
@@ -176,8 +174,9 @@ def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit, out):
     else:
         next_x, step_x, move_x = math.inf, math.inf, 0
     travelled = 0.0
-    channels = out.shape[0]
-    out[:] = 0.0
+    channels = mu_t.shape[0]
+    for c in range(channels):
+        out[c] = 0.0
     while True:
         face = min(next_z, next_y, next_x, length)
         material = volume[iz, min(max(iy, 0), height - 1), min(max(ix, 0), width - 1)]
@@ -201,50 +200,68 @@ def optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, limit, out):
             next_x += step_x
 
 
-@numba.njit(cache=True)
-def camera_estimate(state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values):
-    """Next-event estimate toward the camera from a scattering at ``(z, y, x)``, in
+def least_of(values, channels):
+    """The least of ``values[:channels]``."""
+    least = values[0]
+    for c in range(1, channels):
+        least = min(least, values[c])
+    return least
+
+
+def compile_estimate(jit, inline, steps: Steps):
+    """``(optical_depth_to_surface, camera_estimate)`` compiled with ``jit`` (``inline`` for the
+    small helpers) from the device's ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`):
+    the one statement of the estimate that the CPU and the CUDA kernels compile.
+
+    ``camera_estimate(state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz,
+    values)`` is the next-event estimate toward the camera from a scattering at ``(z, y, x)``, in
     ``material``, of a photon of ``weights`` (C,) (after the collision's factor) arriving along
     ``(uy, ux, uz)``; ``tables`` is :func:`ringlight.core.simulate.tables.walk_tables`, ``view``
-    :func:`view_constants` of the optics, ``columns`` :func:`column_optical_depths` (or an empty
-    array), ``state`` the estimator's own random stream (for the roulette, played on the least
-    attenuated channel).
-
-    Writes into ``values`` (C,) the contribution to the reflectance factor of the pixel around
-    the point where the path to the camera leaves the surface, and returns ``(exit_y, exit_x,
-    distance, scored)``: that point, the path's length inside, ``z / cos th_i``, and whether
-    anything was scored.
+    the optics' ``(VIEW_Y, VIEW_X, VIEW_Z, VIEW_FACTOR, UNIFORM_MU_T)`` as a tuple, ``columns``
+    :func:`column_optical_depths` (or an empty array), ``state`` the estimator's own random stream
+    (for the roulette, played on the least attenuated channel). It writes into ``values`` (C,) the
+    contribution to the reflectance factor of the pixel around the point where the path to the
+    camera leaves the surface, and returns
+    ``(exit_y, exit_x, distance, scored)``: that point, the path's length inside,
+    ``z / cos th_i``, and whether anything was scored.
     """
-    vy, vx, vz, factor, uniform_mu_t = view
-    distance = z / -vz
-    scale = 1.0
-    channels = values.shape[0]
-    mu_t = tables[MU_T:MU_T + channels]
-    # A homogeneous volume needs no traversal (nor the call, whose array arguments cost about
-    # as much as the rest of the estimate).
-    if uniform_mu_t >= 0.0:
+    uniform, henyey_greenstein = steps.uniform, steps.henyey_greenstein
+    columns_up = inline(column_depths)
+    traverse = jit(traverse_to_surface)
+    least = inline(least_of)
+
+    def camera_estimate(state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values):
+        vy, vx, vz, factor, uniform_mu_t = view
+        distance = z / -vz
+        scale = 1.0
+        channels = (tables.shape[0] - MU_T) // 2
+        mu_t = tables[MU_T:MU_T + channels]
+        # A homogeneous volume needs no traversal (nor the call, whose array arguments cost about
+        # as much as the rest of the estimate).
+        if uniform_mu_t >= 0.0:
+            for c in range(channels):
+                values[c] = mu_t[c, material] * distance
+        elif columns.shape[0] > 0:
+            columns_up(volume, tables, columns, material, z, y, x, values, channels)
+        else:
+            traverse(volume, mu_t, z, y, x, vy, vx, vz, ROULETTE_DEPTH, values)
+        if least(values, channels) > ROULETTE_DEPTH:
+            if uniform(state) >= ROULETTE_SURVIVAL:
+                return y, x, distance, False
+            scale = 1.0 / ROULETTE_SURVIVAL
+            if uniform_mu_t < 0.0 and columns.shape[0] == 0:
+                traverse(volume, mu_t, z, y, x, vy, vx, vz, OPTICAL_DEPTH_CUTOFF, values)
+            if least(values, channels) > OPTICAL_DEPTH_CUTOFF:
+                return y, x, distance, False
+        common = scale * factor * henyey_greenstein(uy * vy + ux * vx + uz * vz, tables[ANISOTROPY, material])
         for c in range(channels):
-            values[c] = mu_t[c, material] * distance
-    elif columns.shape[0] > 0:
-        _column_optical_depths(volume, tables, columns, material, z, y, x, values)
-    else:
-        optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, ROULETTE_DEPTH, values)
-    if values.min() > ROULETTE_DEPTH:
-        if uniform(state) >= ROULETTE_SURVIVAL:
-            return y, x, distance, False
-        scale = 1.0 / ROULETTE_SURVIVAL
-        if uniform_mu_t < 0.0 and columns.shape[0] == 0:
-            optical_depth_to_surface(volume, mu_t, z, y, x, vy, vx, vz, OPTICAL_DEPTH_CUTOFF, values)
-        if values.min() > OPTICAL_DEPTH_CUTOFF:
-            return y, x, distance, False
-    common = scale * factor * henyey_greenstein(uy * vy + ux * vx + uz * vz, tables[ANISOTROPY, material])
-    for c in range(channels):
-        # values holds each channel's optical depth; past the cutoff a channel adds nothing.
-        values[c] = common * weights[c] * math.exp(-values[c]) if values[c] <= OPTICAL_DEPTH_CUTOFF else 0.0
-    return y + distance * vy, x + distance * vx, distance, True
+            # values holds each channel's optical depth; past the cutoff a channel adds nothing.
+            values[c] = common * weights[c] * math.exp(-values[c]) if values[c] <= OPTICAL_DEPTH_CUTOFF else 0.0
+        return y + distance * vy, x + distance * vx, distance, True
+
+    return traverse, jit(camera_estimate)
 
 
-@numba.njit(cache=True, inline="always")
-def view_constants(optics):
-    """``(vy, vx, vz, view factor, uniform mu_t)`` from an optics array, as scalars."""
-    return optics[VIEW_Y], optics[VIEW_X], optics[VIEW_Z], optics[VIEW_FACTOR], optics[UNIFORM_MU_T]
+optical_depth_to_surface, camera_estimate = compile_estimate(numba.njit(cache=True),
+                                                             numba.njit(cache=True, inline="always"), CPU)
+"""The estimate compiled for the CPU (:func:`compile_estimate`)."""

@@ -42,6 +42,7 @@ import math
 import numba
 import numpy as np
 
+from ..device import Device
 from .camera import (
     BEAM_X,
     BEAM_Y,
@@ -50,16 +51,17 @@ from .camera import (
     ENTRY_WEIGHT,
     INDEX,
     OPTICS_SIZE,
+    UNIFORM_MU_T,
+    VIEW_FACTOR,
+    VIEW_X,
+    VIEW_Y,
+    VIEW_Z,
     camera_estimate,
-    exit_fresnel,
-    view_constants,
 )
-from .phase import scatter_direction
-from .steps import CPU
+from .steps import CPU, Steps
 from .streams import ESTIMATOR_STREAM, fresh_state, seed_state, uniform
 from .tables import ANISOTROPY, MU_T, SCATTER, WALK_MU, channel_count
 
-flight_to_surface = CPU.flight_to_surface
 ROULETTE_WEIGHT = 1e-4
 ROULETTE_SURVIVAL = 0.1
 RECORD_FIELDS = 6
@@ -80,26 +82,9 @@ def walk_buffers(channels):
     return np.zeros((3, channels))
 
 
-@numba.njit(cache=True, inline="always")
-def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x,
-           surface_y, surface_x, length, values, sign):
-    """Add ``sign * values`` (C,) to the lit point's window (offsets from ``(centre_y,
-    centre_x)``), to the path-length image of its bin, and as a row of ``records`` while there
-    is room; returns the number of events so far (it may exceed the rows: the caller sees the
-    overflow)."""
-    py = int(math.floor(surface_y + 0.5))
-    px = int(math.floor(surface_x + 0.5))
-    radius = window.shape[0] // 2
-    dy = py - centre_y
-    dx = px - centre_x
-    channels = values.shape[0]
-    if abs(dy) <= radius and abs(dx) <= radius:
-        for c in range(channels):
-            window[dy + radius, dx + radius, c] += sign * values[c]
-    b = int(length / bin_step)
-    if b < truth.shape[0] and 0 <= py < truth.shape[1] and 0 <= px < truth.shape[2]:
-        for c in range(channels):
-            truth[b, py, px, c] += sign * values[c]
+def keep_record(records, count, photon, entry_y, entry_x, surface_y, surface_x, length, values, sign, channels):
+    """Row ``count`` of ``records`` (the CPU's event list for tests and inspection), when there is
+    room: ``[photon, entry_y, entry_x, surface_y, surface_x, length, sign * value per channel]``."""
     if count < records.shape[0]:
         records[count, 0] = photon
         records[count, 1] = entry_y
@@ -109,7 +94,174 @@ def _score(window, centre_y, centre_x, truth, bin_step, records, count, photon, 
         records[count, 5] = length
         for c in range(channels):
             records[count, RECORD_FIELDS + c] = sign * values[c]
-    return count + 1
+
+
+def add_in_place(array, index, value):
+    """``array[index] += value``: the CPU's tally (a CUDA kernel adds atomically instead)."""
+    array[index] += value
+
+
+def fill_walker(walker, entry_y, entry_x, optics, channels):
+    """Fill ``walker`` (at least WEIGHTS + channels) with a photon that has just refracted in at
+    ``(entry_y, entry_x)``."""
+    walker[0] = entry_y
+    walker[1] = entry_x
+    walker[2] = 0.0
+    walker[3] = optics[BEAM_Y]
+    walker[4] = optics[BEAM_X]
+    walker[5] = optics[BEAM_Z]
+    walker[6] = 0.0
+    for c in range(channels):
+        walker[WEIGHTS + c] = optics[ENTRY_WEIGHT]
+
+
+def compile_walk(jit, inline, steps: Steps, camera_estimate, add, record):
+    """:func:`walk` compiled with ``jit`` (``inline`` for the small helpers) from the device's
+    ``steps`` (:func:`ringlight.core.simulate.steps.compile_steps`), its compiled
+    ``camera_estimate`` (:func:`ringlight.core.simulate.camera.compile_estimate`), its tally
+    ``add(array, index, value)`` (:func:`add_in_place`, or an atomic add) and its ``record`` (as
+    :func:`keep_record`, or nothing): the one statement of the walk and its scoring that the CPU
+    and the CUDA kernels compile."""
+    uniform, exit_fresnel, flight_to_surface = steps.uniform, steps.exit_fresnel, steps.flight_to_surface
+    scatter_direction = steps.scatter
+
+    def score(window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x,
+              surface_y, surface_x, length, values, sign, channels):
+        """Add ``sign * values`` (C,) to the lit point's window (offsets from ``(centre_y,
+        centre_x)``), to the path-length image of its bin, and to the records; returns the number
+        of events so far (it may exceed the records' rows: the caller sees the overflow)."""
+        py = int(math.floor(surface_y + 0.5))
+        px = int(math.floor(surface_x + 0.5))
+        radius = window.shape[0] // 2
+        dy = py - centre_y
+        dx = px - centre_x
+        if abs(dy) <= radius and abs(dx) <= radius:
+            for c in range(channels):
+                add(window, (dy + radius, dx + radius, c), sign * values[c])
+        b = int(length / bin_step)
+        if b < truth.shape[0] and 0 <= py < truth.shape[1] and 0 <= px < truth.shape[2]:
+            for c in range(channels):
+                add(truth, (b, py, px, c), sign * values[c])
+        record(records, count, photon, entry_y, entry_x, surface_y, surface_x, length, values, sign, channels)
+        return count + 1
+
+    tally = inline(score)
+
+    def walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns, camera, window,
+             centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
+             saved_walker, saved_state, saved_estimator_state, buffers):
+        layers, height, width = volume.shape
+        channels = (tables.shape[0] - MU_T) // 2
+        n = optics[INDEX]
+        depth = optics[DEPTH]
+        y, x, z, uy, ux, uz, length = walker[0], walker[1], walker[2], walker[3], walker[4], walker[5], walker[6]
+        totals = buffers[TOTALS]
+        weights = buffers[TOTALS + 1]
+        for c in range(channels):
+            weights[c] = walker[WEIGHTS + c]
+        values = buffers[TOTALS + 2]
+        view = (optics[VIEW_Y], optics[VIEW_X], optics[VIEW_Z], optics[VIEW_FACTOR], optics[UNIFORM_MU_T])
+        touched = mixed.shape[0] == 0
+        reached = False
+        while True:
+            if pending:
+                pending = False
+            else:
+                step = -math.log(1.0 - uniform(state)) / majorant
+                travel = flight_to_surface(z, uz, step)
+                if travel >= 0.0:
+                    y += travel * uy
+                    x += travel * ux
+                    length += travel
+                    z = 0.0
+                    if uniform(state) < exit_fresnel(n, -uz):
+                        uz = -uz
+                        continue
+                    if not camera and touched:
+                        count = tally(window, centre_y, centre_x, truth, bin_step, records, count, photon,
+                                      entry_y, entry_x, y, x, length, weights, sign, channels)
+                        for c in range(channels):
+                            totals[c] += weights[c]
+                    return count, reached
+                if uz > 0.0 and z + step * uz >= depth:
+                    return count, reached
+                y += step * uy
+                x += step * ux
+                z += step * uz
+                length += step
+                if not touched and mixed[min(int(z), layers - 1), min(max(int(math.floor(y + 0.5)), 0), height - 1),
+                                         min(max(int(math.floor(x + 0.5)), 0), width - 1)]:
+                    touched = True
+                    reached = True
+                    saved_walker[0] = y
+                    saved_walker[1] = x
+                    saved_walker[2] = z
+                    saved_walker[3] = uy
+                    saved_walker[4] = ux
+                    saved_walker[5] = uz
+                    saved_walker[6] = length
+                    for c in range(channels):
+                        saved_walker[WEIGHTS + c] = weights[c]
+                    for i in range(2):
+                        saved_state[i] = state[i]
+                        saved_estimator_state[i] = estimator_state[i]
+            iz = min(int(z), layers - 1)
+            iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
+            ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
+            material = volume[iz, iy, ix]
+            if uniform(state) * majorant >= tables[WALK_MU, material]:
+                # A null collision: the majorant's fictitious particles (each channel's own share).
+                for c in range(channels):
+                    weights[c] *= tables[MU_T + channels + c, material]
+                continue
+            factor = tables[SCATTER, material]
+            heaviest = 0.0
+            for c in range(channels):
+                weights[c] *= factor
+                heaviest = max(heaviest, weights[c])
+            anisotropy = tables[ANISOTROPY, material]
+            if camera:
+                surface_y, surface_x, distance, scored = camera_estimate(
+                    estimator_state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values)
+                if scored and touched:
+                    count = tally(window, centre_y, centre_x, truth, bin_step, records, count, photon,
+                                  entry_y, entry_x, surface_y, surface_x, length + distance, values, sign, channels)
+                    for c in range(channels):
+                        totals[c] += values[c]
+            uy, ux, uz = scatter_direction(state, uy, ux, uz, anisotropy)
+            if heaviest < ROULETTE_WEIGHT:
+                if uniform(state) < ROULETTE_SURVIVAL:
+                    for c in range(channels):
+                        weights[c] /= ROULETTE_SURVIVAL
+                else:
+                    return count, reached
+
+    return jit(walk)
+
+
+_CPU_INLINE = numba.njit(cache=True, inline="always")
+walk = compile_walk(numba.njit(cache=True), _CPU_INLINE, CPU, camera_estimate, _CPU_INLINE(add_in_place),
+                    _CPU_INLINE(keep_record))
+walk.__doc__ = """``walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns,
+camera, window, centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign,
+mixed, saved_walker, saved_state, saved_estimator_state, buffers)``, compiled for the CPU
+(:func:`compile_walk`).
+
+Walk from ``walker`` (``WEIGHTS + C``) until the light leaves, is lost or absorbed,
+scoring as :func:`trace_photon` does, times ``sign``, and adding the values scored to row
+:data:`TOTALS` of ``buffers`` (:func:`walk_buffers`); ``pending``: the walker stands at a
+tentative collision not yet decided (else it is about to fly). ``walker`` itself is not changed.
+
+``mixed`` ((D, H, W) bool, or the empty :data:`NO_MAP`) marks the voxels where the walk or
+its scores can differ from those in a reference volume
+(:func:`ringlight.core.simulate.reference.mixed_voxels`). Given one, nothing is scored before
+the walk's first tentative collision in a marked voxel; there the walker
+and both random states are saved (into ``saved_walker``, ``saved_state``,
+``saved_estimator_state``) and scoring starts. Before that point the same random numbers
+walk the same way, with the same scores, in the reference volume.
+Returns ``(count, touched)``: events scored, and whether the walk reached a marked voxel.
+"""
+_fill_walker = _CPU_INLINE(fill_walker)
 
 
 @numba.njit(cache=True)
@@ -138,117 +290,8 @@ def entering_walker(entry_y, entry_x, optics, channels):
     """(WEIGHTS + channels,) the walker of a photon that has just refracted in at
     ``(entry_y, entry_x)``."""
     walker = np.empty(WEIGHTS + channels)
-    walker[0] = entry_y
-    walker[1] = entry_x
-    walker[2] = 0.0
-    walker[3] = optics[BEAM_Y]
-    walker[4] = optics[BEAM_X]
-    walker[5] = optics[BEAM_Z]
-    walker[6] = 0.0
-    walker[WEIGHTS:] = optics[ENTRY_WEIGHT]
+    _fill_walker(walker, entry_y, entry_x, optics, channels)
     return walker
-
-
-@numba.njit(cache=True)
-def walk(state, estimator_state, walker, pending, volume, tables, majorant, optics, columns, camera, window,
-         centre_y, centre_x, truth, bin_step, records, count, photon, entry_y, entry_x, sign, mixed,
-         saved_walker, saved_state, saved_estimator_state, buffers):
-    """Walk from ``walker`` (``WEIGHTS + C``) until the light leaves, is lost or absorbed,
-    scoring as :func:`trace_photon` does, times ``sign``, and adding the values scored to row
-    :data:`TOTALS` of ``buffers`` (:func:`walk_buffers`); ``pending``: the walker stands at a tentative collision not yet decided
-    (else it is about to fly). ``walker`` itself is not changed.
-
-    ``mixed`` ((D, H, W) bool, or the empty :data:`NO_MAP`) marks the voxels where the walk or
-    its scores can differ from those in a reference volume
-    (:func:`ringlight.core.simulate.reference.mixed_voxels`). Given one, nothing is scored before
-    the walk's first tentative collision in a marked voxel; there the walker
-    and both random states are saved (into ``saved_walker``, ``saved_state``,
-    ``saved_estimator_state``) and scoring starts. Before that point the same random numbers
-    walk the same way, with the same scores, in the reference volume.
-    Returns ``(count, touched)``: events scored, and whether the walk reached a marked voxel.
-    """
-    layers, height, width = volume.shape
-    channels = channel_count(tables)
-    n = optics[INDEX]
-    depth = optics[DEPTH]
-    y, x, z, uy, ux, uz, length = walker[0], walker[1], walker[2], walker[3], walker[4], walker[5], walker[6]
-    totals = buffers[TOTALS]
-    weights = buffers[TOTALS + 1]
-    weights[:] = walker[WEIGHTS:]
-    values = buffers[TOTALS + 2]
-    view = view_constants(optics)
-    touched = mixed.shape[0] == 0
-    reached = False
-    while True:
-        if pending:
-            pending = False
-        else:
-            step = -math.log(1.0 - uniform(state)) / majorant
-            travel = flight_to_surface(z, uz, step)
-            if travel >= 0.0:
-                y += travel * uy
-                x += travel * ux
-                length += travel
-                z = 0.0
-                if uniform(state) < exit_fresnel(n, -uz):
-                    uz = -uz
-                    continue
-                if not camera and touched:
-                    count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                                   entry_y, entry_x, y, x, length, weights, sign)
-                    for c in range(channels):
-                        totals[c] += weights[c]
-                return count, reached
-            if uz > 0.0 and z + step * uz >= depth:
-                return count, reached
-            y += step * uy
-            x += step * ux
-            z += step * uz
-            length += step
-            if not touched and mixed[min(int(z), layers - 1), min(max(int(math.floor(y + 0.5)), 0), height - 1),
-                                     min(max(int(math.floor(x + 0.5)), 0), width - 1)]:
-                touched = True
-                reached = True
-                saved_walker[0] = y
-                saved_walker[1] = x
-                saved_walker[2] = z
-                saved_walker[3] = uy
-                saved_walker[4] = ux
-                saved_walker[5] = uz
-                saved_walker[6] = length
-                saved_walker[WEIGHTS:] = weights
-                saved_state[:] = state
-                saved_estimator_state[:] = estimator_state
-        iz = min(int(z), layers - 1)
-        iy = min(max(int(math.floor(y + 0.5)), 0), height - 1)
-        ix = min(max(int(math.floor(x + 0.5)), 0), width - 1)
-        material = volume[iz, iy, ix]
-        if uniform(state) * majorant >= tables[WALK_MU, material]:
-            # A null collision: the majorant's fictitious particles (each channel's own share).
-            for c in range(channels):
-                weights[c] *= tables[MU_T + channels + c, material]
-            continue
-        factor = tables[SCATTER, material]
-        heaviest = 0.0
-        for c in range(channels):
-            weights[c] *= factor
-            heaviest = max(heaviest, weights[c])
-        anisotropy = tables[ANISOTROPY, material]
-        if camera:
-            surface_y, surface_x, distance, scored = camera_estimate(
-                estimator_state, volume, tables, columns, view, weights, material, z, y, x, uy, ux, uz, values)
-            if scored and touched:
-                count = _score(window, centre_y, centre_x, truth, bin_step, records, count, photon,
-                               entry_y, entry_x, surface_y, surface_x, length + distance, values, sign)
-                for c in range(channels):
-                    totals[c] += values[c]
-        uy, ux, uz = scatter_direction(state, uy, ux, uz, anisotropy)
-        if heaviest < ROULETTE_WEIGHT:
-            if uniform(state) < ROULETTE_SURVIVAL:
-                for c in range(channels):
-                    weights[c] /= ROULETTE_SURVIVAL
-            else:
-                return count, reached
 
 
 @numba.njit(cache=True, nogil=True)
@@ -398,3 +441,13 @@ def simulate_differences(volume, reference, mixed, tables, majorant, optics, ref
                          reference_optics, reference_columns, camera, windows[i], ly, lx, truth[block], bin_step,
                          records, 0, 0, entry_y, entry_x, -share, NO_MAP, saved, saved_state, saved_estimator_state,
                          buffers)
+
+
+def point_kernels(device: Device | None = None):
+    """``(simulate_points, simulate_differences)`` for ``device`` (the CPU's when None; on a CUDA
+    device :mod:`.photon_cuda`'s, which take the same arguments)."""
+    if device is not None and device.is_cuda:
+        from .photon_cuda import simulate_differences_cuda, simulate_points_cuda
+
+        return simulate_points_cuda, simulate_differences_cuda
+    return simulate_points, simulate_differences

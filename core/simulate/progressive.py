@@ -25,6 +25,7 @@ import numpy as np
 
 from ..checked_arrays import DamagedFile, load_checked, save_checked
 from ..dataset.cache import user_cache_root
+from ..device import Device, cpu_device
 from ..errors import RinglightError
 from ..rings.geometry import ring_geometry
 from .convergence import transient_images
@@ -171,14 +172,16 @@ class Status:
 def simulate_until(scene: Scene, target: float | None = None, seconds: float | None = None, *, batch: int = 50,
                    seed: int | None = None, estimator: str = "reference",
                    report: Callable[[Status], None] | None = None,
-                   progress: Callable[[float], None] | None = None) -> tuple[Transport, Status]:
+                   progress: Callable[[float], None] | None = None,
+                   device: Device | None = None) -> tuple[Transport, Status]:
     """Simulate ``scene`` in batches until the estimated noise of T_r is at most ``target`` for
     every r up to :func:`noise_radius` (after at least :data:`MIN_BATCHES` batches) or
     ``seconds`` of simulation (this session's and the checkpoint's together) have passed; at
     least two batches are run. Resumes from, and updates, the checkpoint of the same run
     (:func:`forget_checkpoint` removes it once the result is saved). ``progress`` gets fractions
-    within one batch and may raise to cancel (the batches done are kept). Returns the
-    transport of all photons and the last status."""
+    within one batch and may raise to cancel (the batches done are kept). ``device`` runs this
+    session's batches (:func:`.transport.simulate_transport`). Returns the transport of all photons
+    and the last status."""
     if target is None and seconds is None:
         raise ValueError("simulate_until needs a noise target, a time, or both")
     seed = scene.seed if seed is None else seed
@@ -194,7 +197,7 @@ def simulate_until(scene: Scene, target: float | None = None, seconds: float | N
     while status is None or not _done(status, sums.batches, target, seconds):
         started = time.perf_counter()
         run = simulate_transport(scene, photons=batch, seed=_batch_seed(seed, sums.batches if sums else 0),
-                                 estimator=estimator, progress=progress)
+                                 estimator=estimator, progress=progress, device=device)
         windows = run.windows.astype(np.float64)
         transients = transient_images(windows, radii)
         if sums is None:
@@ -214,7 +217,8 @@ def simulate_until(scene: Scene, target: float | None = None, seconds: float | N
         scene=scene, photons=status.photons, seed=seed, window_radius=math.ceil(scene.max_radius),
         windows=(sums.windows / sums.batches).astype(np.float32),
         path_length_images=(sums.truth / sums.batches).astype(np.float32),
-        seconds=sums.seconds, measure=scene.measure, estimator=estimator)
+        seconds=sums.seconds, measure=scene.measure, estimator=estimator,
+        device=(device or cpu_device()).name)
     return transport, status
 
 

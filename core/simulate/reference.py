@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 from .camera import UNIFORM_MU_T, column_optical_depths, optics
-from .photon import simulate_differences, simulate_points
+from ..device import Device
+from .photon import point_kernels
 from .tables import MU_T, channel_count
 
 KERNEL_STREAMS = 64
@@ -86,7 +87,8 @@ def _pad_shift(mask: np.ndarray, dy: int, dx: int) -> np.ndarray:
 
 def reference_kernel(reference: np.ndarray, tables: np.ndarray, majorant: float, geometry: np.ndarray, camera: bool,
                      direction, photons: int, seed: int, stream: int, window_radius: int, grid: tuple[int, int],
-                     bin_step: float, bin_count: int, symmetric: bool) -> tuple[np.ndarray, np.ndarray]:
+                     bin_step: float, bin_count: int, symmetric: bool, device: Device | None = None,
+                     streams: int = KERNEL_STREAMS) -> tuple[np.ndarray, np.ndarray]:
     """The reference's response to one lit point, ``photons`` photons, for the C channels of
     ``tables`` (:func:`.tables.walk_tables`).
 
@@ -95,18 +97,19 @@ def reference_kernel(reference: np.ndarray, tables: np.ndarray, majorant: float,
     ``[dy + H - 1, dx + W - 1]`` by path-length bin (every offset a grid of ``grid = (H, W)``
     can hold). ``symmetric``: average over the symmetries of the square grid that keep the
     shapes (exact when projector and camera look straight down). Random streams
-    ``stream .. stream + KERNEL_STREAMS - 1`` of ``seed``.
+    ``stream .. stream + streams - 1`` of ``seed``, run on ``device`` (the CPU when None).
     """
     channels = channel_count(tables)
     height, width = grid
-    centre = np.array([[height - 1, width - 1]] * KERNEL_STREAMS, np.int64)
+    centre = np.array([[height - 1, width - 1]] * streams, np.int64)
     size = 2 * window_radius + 1
     window = np.zeros((size, size, channels))
     kernel = np.zeros((bin_count, 2 * height - 1, 2 * width - 1, channels))
     # Spread the photons over the streams; the first ones take the remainder.
-    per_stream = np.full(KERNEL_STREAMS, photons // KERNEL_STREAMS)
-    per_stream[:photons % KERNEL_STREAMS] += 1
+    per_stream = np.full(streams, photons // streams)
+    per_stream[:photons % streams] += 1
     columns = _columns(reference, tables, camera, direction, geometry)
+    simulate_points = point_kernels(device)[0]
     for count in np.unique(per_stream):
         chosen = np.nonzero(per_stream == count)[0]
         if count == 0:
@@ -154,13 +157,16 @@ def _columns(volume, tables, camera, direction, geometry) -> np.ndarray:
 
 
 def simulate_point_differences(volume, reference, mixed, tables, majorant, geometry, reference_geometry, camera,
-                               direction, lit, photons, direct, seed, streams, bin_step, windows, truth) -> np.ndarray:
+                               direction, lit, photons, direct, seed, streams, bin_step, windows, truth,
+                               device: Device | None = None) -> np.ndarray:
     """:func:`.photon.simulate_differences` with the column tables of both volumes (the channels
     of ``tables``; ``direction`` the camera's ``[zenith, azimuth]``; ``photons`` (n,) and
-    ``direct`` (n,) bool per lit point). Returns (n,) int64: how many of each point's walks reached a marked voxel."""
+    ``direct`` (n,) bool per lit point), on ``device`` (the CPU when None). Returns (n,) int64:
+    how many of each point's walks reached a marked voxel."""
     columns = _columns(volume, tables, camera, direction, geometry)
     reference_columns = _columns(reference, tables, camera, direction, reference_geometry)
     touches = np.zeros(len(lit), np.int64)
+    simulate_differences = point_kernels(device)[1]
     simulate_differences(volume, reference, mixed, tables, majorant, geometry, reference_geometry, columns,
                          reference_columns, camera, lit, np.asarray(photons, np.int64), np.asarray(direct, np.bool_),
                          seed, streams, bin_step, windows, truth, touches)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from ..dataset.impulse_dataset import ProgressCallback
+from ..device import Device
 from ..errors import RinglightError
 from .convergence import transient_images
 from .scene import Scene
@@ -25,11 +26,12 @@ def replicate_seed(seed: int, index: int) -> int:
 
 
 def simulate_replicates(scene: Scene, photons: int, replicates: int, seed: int | None = None,
-                        progress: ProgressCallback | None = None, estimator: str = "reference") -> Transport:
+                        progress: ProgressCallback | None = None, estimator: str = "reference",
+                        device: Device | None = None) -> Transport:
     """``replicates`` independent runs of ``photons // replicates`` photons per lit point and
     channel each (``photons`` must be at least ``replicates``); the transport of their mean, with
     each run's windows in :attr:`.transport.Transport.replicates`. ``progress`` gets the fraction
-    done and may raise ``Cancelled``."""
+    done and may raise ``Cancelled``; ``device`` runs them (the CPU when None)."""
     if not 2 <= replicates <= MAX_REPLICATES:
         raise RinglightError(f"replicates must be 2 to {MAX_REPLICATES}, got {replicates}")
     if photons < replicates:
@@ -39,7 +41,8 @@ def simulate_replicates(scene: Scene, photons: int, replicates: int, seed: int |
     runs = []
     for index in range(replicates):
         step = None if progress is None else (lambda fraction, index=index: progress((index + fraction) / replicates))
-        runs.append(simulate_transport(scene, share, replicate_seed(seed, index), step, estimator=estimator))
+        runs.append(simulate_transport(scene, share, replicate_seed(seed, index), step, estimator=estimator,
+                                       device=device))
     windows = [run.windows for run in runs]
     return Transport(
         scene=scene, photons=share * replicates, seed=seed, window_radius=runs[0].window_radius,
@@ -47,7 +50,7 @@ def simulate_replicates(scene: Scene, photons: int, replicates: int, seed: int |
         path_length_images=np.mean([run.path_length_images for run in runs], axis=0, dtype=np.float64
                                    ).astype(np.float32),
         seconds=sum(run.seconds for run in runs), measure=runs[0].measure, estimator=estimator,
-        replicates=tuple(windows))
+        replicates=tuple(windows), device=runs[0].device)
 
 
 def replicate_transient_noise(transport: Transport, radius: int) -> np.ndarray:

@@ -25,6 +25,15 @@ def rotate_left(x, k):
     return (x << np.uint64(k)) | (x >> np.uint64(64 - k))
 
 
+def splitmix(value):
+    """``(next value, output)`` of splitmix64 from the uint64 ``value``: the seeding of a stream."""
+    value = value + np.uint64(0x9E3779B97F4A7C15)
+    z = value
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return value, z ^ (z >> np.uint64(31))
+
+
 def exit_fresnel(n, cos_inside):
     """Unpolarised Fresnel reflectance between a medium of index n and air, for the angle
     ``arccos(cos_inside)`` inside (1.0 at total internal reflection). The same either way
@@ -81,12 +90,17 @@ class Steps(NamedTuple):
     """The steps compiled for one device (each as the plain function of the same name documents;
     ``next_raw(state)`` advances a xoroshiro128+ state of 2 uint64 in place and returns its next
     uint64, ``uniform(state)`` the same step as a float in [0, 1) (its top 53 bits),
-    ``scatter(state, uy, ux, uz, g)`` draws the polar uniform, then the
+    ``seed_from(value, state)`` seeds ``state`` in place from the uint64 ``value`` by splitmix64,
+    ``fresh_state(seeder, state)`` reseeds ``state`` in place from the next output of ``seeder``
+    (advanced): independent streams one after another, for walks that must be replayed from their
+    start; ``scatter(state, uy, ux, uz, g)`` draws the polar uniform, then the
     azimuth's, ``camera_constant(n)`` is ``T_entry pi T_F(0) / n^2``: the Fresnel transmission of
     a beam entering straight down times the view factor of a camera straight above)."""
 
     rotate_left: Callable
     next_raw: Callable
+    seed_from: Callable
+    fresh_state: Callable
     uniform: Callable
     exit_fresnel: Callable
     henyey_greenstein: Callable
@@ -112,6 +126,18 @@ def compile_steps(jit) -> Steps:
         return result
 
     raw = jit(next_raw)
+    mix = jit(splitmix)
+
+    def seed_from(value, state):
+        value, state[0] = mix(value)
+        value, state[1] = mix(value)
+        if state[0] == 0 and state[1] == 0:
+            state[0] = np.uint64(1)
+
+    seed = jit(seed_from)
+
+    def fresh_state(seeder, state):
+        seed(raw(seeder), state)
 
     def uniform(state):
         return (raw(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
@@ -126,7 +152,8 @@ def compile_steps(jit) -> Steps:
     def camera_constant(n):
         return (1.0 - fresnel(n, 1.0)) * (math.pi * (1.0 - fresnel(n, 1.0)) / (n * n))
 
-    return Steps(rotate, raw, next_uniform, fresnel, jit(henyey_greenstein), jit(flight_to_surface), direction,
+    return Steps(rotate, raw, seed, jit(fresh_state), next_uniform, fresnel, jit(henyey_greenstein),
+                 jit(flight_to_surface), direction,
                  jit(scatter), jit(camera_constant))
 
 

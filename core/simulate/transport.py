@@ -24,15 +24,16 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset.disc import disc_offsets
+from ..device import Device, cpu_device
 from ..dataset.impulse_dataset import ProgressCallback
 from ..dataset.manifest import Manifest
 from ..dataset.sample import Sample
 from ..dataset.writer import DatasetWriter
-from . import photon
 from .adding_doubling import thick_slab_reflectance
 from .allocation import PILOT_PHOTONS, allocate, reach_fractions
 from .camera import UNIFORM_MU_T, column_optical_depths, optics, specular_reflectance
 from .lattice import lattice_frames
+from .photon import point_kernels
 from .reference import (
     KERNEL_STREAMS,
     mixed_voxels,
@@ -47,6 +48,13 @@ from .tables import MU_T, walk_tables
 
 TRUTH_BLOCKS = 16
 POINTS_PER_CALL = 64
+POINTS_PER_CUDA_CALL = 1 << 14
+"""Lit points per kernel launch on a GPU (one thread each)."""
+CUDA_KERNEL_STREAMS = 1 << 14
+"""The reference kernel's random streams on a GPU (one thread each; the CPU's are
+:data:`.reference.KERNEL_STREAMS`), numbered from :data:`CUDA_KERNEL_STREAM_BASE`, above every
+stream a CPU run names and below the estimators' (:data:`.streams.ESTIMATOR_STREAM`)."""
+CUDA_KERNEL_STREAM_BASE = 1 << 39
 KERNEL_SHARE = 0.25
 """With the reference estimator in a scene that differs from its reference, the kernel's
 photons as a fraction of all lit points' (measured on red-bead: the differences dominate the noise)."""
@@ -73,6 +81,8 @@ class Transport:
         Windows (each as ``windows``) of independent runs whose mean ``windows`` is
         (:mod:`ringlight.core.simulate.replicates`), or empty: written as the dataset's replicates (the frame key
         ``replicate``), so that its noise, shared by lit points or not, can be measured.
+    device
+        The name of the device that traced the photons (:attr:`ringlight.core.device.Device.name`).
     """
 
     scene: Scene
@@ -85,6 +95,7 @@ class Transport:
     measure: str = "camera"
     estimator: str = "reference"
     replicates: tuple[np.ndarray, ...] = ()
+    device: str = "CPU"
 
 
 def channel_groups(scene: Scene) -> list[tuple[int, ...]]:
@@ -103,7 +114,7 @@ ESTIMATORS = ("reference", "analogue")
 
 def simulate_transport(scene: Scene, photons: int | None = None, seed: int | None = None,
                        progress: ProgressCallback | None = None, points: np.ndarray | None = None,
-                       estimator: str = "reference") -> Transport:
+                       estimator: str = "reference", device: Device | None = None) -> Transport:
     """Trace photons from every grid point of ``scene``; see :class:`Transport`.
 
     ``points`` (n, 2) ``[y, x]`` restricts the lit points (their windows alone are filled, and
@@ -115,7 +126,10 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     layered scene).
     Deterministic for a seed whatever the number of threads: each point's random stream depends
     on the seed and its row-major grid index only. ``progress`` gets the fraction done and may
-    raise :class:`Cancelled`.
+    raise :class:`Cancelled`. ``device`` runs the walks (the CPU when None): on a GPU
+    (:mod:`.photon_cuda`) each lit point walks the same streams, but the reference kernel's
+    photons are shared among :data:`CUDA_KERNEL_STREAMS` streams, so that a GPU run is another
+    sample of the CPU's; the allocation's pilot runs on the CPU either way.
     """
     if estimator not in ESTIMATORS:
         raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
@@ -133,8 +147,9 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
     windows = np.zeros((height * width, size, size, 3), np.float64)
     truth = np.zeros((scene.bin_count, height, width, 3), np.float64)
     started = time.perf_counter()
+    device = device or cpu_device()
     work = _reference_work if estimator == "reference" else _analogue_work
-    steps = list(work(scene, photons, seed, lit, streams, groups, windows, truth))
+    steps = list(work(scene, photons, seed, lit, streams, groups, windows, truth, device))
     for done, step in enumerate(steps):
         step()
         if progress is not None:
@@ -146,7 +161,7 @@ def simulate_transport(scene: Scene, photons: int | None = None, seed: int | Non
         scene=scene, photons=photons, seed=seed, window_radius=radius,
         windows=windows.reshape(height, width, size, size, 3).astype(np.float32),
         path_length_images=truth.astype(np.float32), seconds=time.perf_counter() - started,
-        measure=scene.measure, estimator=estimator,
+        measure=scene.measure, estimator=estimator, device=device.name,
     )
 
 
@@ -171,34 +186,36 @@ def _store(windows, truth, rows, group, chunk_windows, chunk_truth, photons, add
         truth[..., channel] += chunk_truth[..., k].sum(axis=0) / photons
 
 
-def _analogue_work(scene, photons, seed, lit, streams, groups, windows, truth):
+def _analogue_work(scene, photons, seed, lit, streams, groups, windows, truth, device):
     """Steps (callables) of the analogue estimator: every lit point's photons on their own."""
     height, width = scene.height, scene.width
     camera = scene.measure == "camera"
     size = windows.shape[1]
+    simulate_points = point_kernels(device)[0]
+    per_call = POINTS_PER_CUDA_CALL if device.is_cuda else POINTS_PER_CALL
 
     def chunk_step(group, start):
         def step():
             tables, majorant, geometry = _group_setup(scene, group, scene.volume)
             columns = (column_optical_depths(scene.volume, tables[MU_T:MU_T + len(group)], scene.camera)
                        if camera and geometry[UNIFORM_MU_T] < 0 else np.zeros((0, 0, 0, 0)))
-            chunk = lit[start:start + POINTS_PER_CALL]
+            chunk = lit[start:start + per_call]
             chunk_windows = np.zeros((len(chunk), size, size, len(group)))
             chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width, len(group)))
-            photon.simulate_points(
+            simulate_points(
                 scene.volume, tables, majorant, geometry, columns, camera, chunk, photons, seed,
-                streams[start:start + POINTS_PER_CALL] + group[0] * height * width,
+                streams[start:start + per_call] + group[0] * height * width,
                 scene.bin_step, chunk_windows, chunk_truth,
             )
             _store(windows, truth, streams[start:start + len(chunk)], group, chunk_windows, chunk_truth, photons)
         return step
 
     for group in groups:
-        for start in range(0, len(lit), POINTS_PER_CALL):
+        for start in range(0, len(lit), per_call):
             yield chunk_step(group, start)
 
 
-def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
+def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth, device):
     """Steps (callables) of the reference estimator (:mod:`.reference`): the allocation of the
     differences' photons (:mod:`.allocation`), then per channel group the reference kernel
     spread to every lit point and the correlated differences."""
@@ -212,7 +229,9 @@ def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
     symmetric = scene.camera[0] == 0.0 and scene.projector[0] == 0.0
     base_geometry = reference_optics(scene.n, scene.depth, scene.projector, scene.camera, base)
     # Kernel streams sit above every point's walk streams.
-    kernel_stream = 3 * height * width
+    kernel_stream = CUDA_KERNEL_STREAM_BASE if device.is_cuda else 3 * height * width
+    kernel_streams = CUDA_KERNEL_STREAMS if device.is_cuda else KERNEL_STREAMS
+    per_call = POINTS_PER_CUDA_CALL if device.is_cuda else POINTS_PER_CALL
     kernel_photons = photons * len(lit) if len(differing) == 0 else max(1, int(photons * len(lit) * KERNEL_SHARE))
     # Photons per point of the differences, and the points scored whole (not kernel + difference).
     allocation = {"direct": np.zeros(len(lit), bool)}
@@ -226,8 +245,10 @@ def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
             tables, majorant, _ = _group_setup(scene, group, scene.volume)
             window, kernel = reference_kernel(
                 base, tables, majorant, base_geometry, camera, scene.camera, kernel_photons, seed,
-                kernel_stream + group[0] * KERNEL_STREAMS, size // 2, (height, width), scene.bin_step,
-                scene.bin_count, symmetric)
+                kernel_stream + group[0] * kernel_streams, size // 2, (height, width), scene.bin_step,
+                scene.bin_count, symmetric, device,
+                # A GPU launches no thread without a photon.
+                min(kernel_streams, kernel_photons) if device.is_cuda else kernel_streams)
             kept = ~allocation["direct"]
             for k, channel in enumerate(group):
                 windows[streams[kept], :, :, channel] += window[..., k]
@@ -237,14 +258,14 @@ def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
     def difference_step(group, start):
         def step():
             tables, majorant, geometry = _group_setup(scene, group, scene.volume)
-            chosen = differing[start:start + POINTS_PER_CALL]
+            chosen = differing[start:start + per_call]
             chunk = lit[chosen]
             chunk_windows = np.zeros((len(chunk), size, size, len(group)))
             chunk_truth = np.zeros((min(TRUTH_BLOCKS, len(chunk)), scene.bin_count, height, width, len(group)))
             simulate_point_differences(
                 scene.volume, base, mixed, tables, majorant, geometry, base_geometry, camera, scene.camera, chunk,
                 allocation["photons"][chosen], allocation["direct"][chosen], seed,
-                streams[chosen] + group[0] * height * width, scene.bin_step, chunk_windows, chunk_truth)
+                streams[chosen] + group[0] * height * width, scene.bin_step, chunk_windows, chunk_truth, device)
             _store(windows, truth, streams[chosen], group, chunk_windows, chunk_truth, 1, add=True)
         return step
 
@@ -252,7 +273,7 @@ def _reference_work(scene, photons, seed, lit, streams, groups, windows, truth):
         yield pilot_step
     for group in groups:
         yield kernel_step(group)
-        for start in range(0, len(differing), POINTS_PER_CALL):
+        for start in range(0, len(differing), per_call):
             yield difference_step(group, start)
 
 
@@ -298,7 +319,8 @@ def write_transport(transport: Transport, out, *, overwrite: bool = False,
              f"camera direction {list(scene.camera)}, projector direction {list(scene.projector)} "
              f"([zenith, azimuth] degrees)\n"
              f"specular reflection {specular_reflectance(scene.n, scene.projector[0]):.6g} of the beam, "
-             f"not in the frames or path-length images")
+             f"not in the frames or path-length images\n"
+             f"photons traced on {transport.device}")
     if transport.replicates:
         count = len(transport.replicates)
         notes += f"\n{count} independent replicates of {transport.photons // count} photons per point each (the frames' " \
