@@ -221,7 +221,8 @@ def _catmull_rom(t):
 def interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
     """log E (R,) into ``values`` and its derivatives by u and v (2, R) into ``slopes`` at
     ``(u, v)``; False (and nothing written) outside the nodes a spline can use. Each derivative's
-    rings are contiguous: the fit's loops over them vectorise (an (R, 2) layout cost 0.03 us a look-up)."""
+    rings are contiguous (with an (R, 2) layout a look-up took 0.156 us, 0.121 us with this one, in
+    one run on a loaded machine)."""
     su = (u - u0) / du
     sv = (v - v0) / dv
     k = int(math.floor(su))
