@@ -87,22 +87,23 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
         if cancelled is not None and cancelled():
             raise Cancelled("cancelled")
         row1 = min(height, row0 + band)
-        _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale, errors_given,
-                  counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+        _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
+                  errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
+                  out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
     return out
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _fit_rows(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, row0, row1,
-              u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+def _fit_rows(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation,
+              row0, row1, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
     for y in numba.prange(row0, row1):
         _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
                  u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y, u_out,
-             v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
+             u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
     """The fits of grid row ``y``, every channel, pixel after pixel (each starting where the last
     ended). A function of its own, outside the parallel loop, so that the fit's functions are
     inlined into it (a call passing arrays costs their reference counts: 0.2 us a fit; inlined
@@ -198,8 +199,8 @@ def _coarse_start(coarse, u0, du, v0, dv, data, weight, scale):
 
 
 @numba.njit(cache=True, inline="always")
-def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight, values,
-             slopes):
+def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight,
+             values, slopes):
     """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
     look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
     and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
