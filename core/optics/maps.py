@@ -10,9 +10,11 @@ that has one, scaled by the square root of their member counts (independent memb
 relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what the noise does not
 show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma`, made by each fit.
 
-Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a loaded two-core machine): the
-stack with its errors 1.3-1.7 x the stack alone (the errors in a pass of their own took 2.6-4.3 x),
-the 1.9 million fits 1.9-2.8 x, about 0.4 us of CPU each.
+Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a two-core machine at load 2-8):
+the stack with its errors 1.2-2.2 x the stack alone (the errors in a pass of their own took
+3.6-5.3 x), the 1.9 million fits 2.1-3.2 x, 0.56-0.78 us of CPU each. Timed in one process, the
+kernels alternating, the errors cost 0.67-0.78 x the stack beyond it (0.23 x on a 500 x 500 grid,
+one thread).
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased

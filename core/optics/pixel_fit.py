@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from .ring_sigma import profile_sigma
+from .ring_sigma import profile_variance
 from .table import ProfileTable, interpolate
 
 MIN_RINGS = 3
@@ -59,8 +59,8 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     rig's ``scale`` (C,).
 
     With the rings' members ``counts`` (R, H, W), ``sigma`` holds the standard errors of
-    ``measured`` instead, which each fit turns into its rings' standard deviations
-    (:func:`.ring_sigma.profile_sigma`, with ``floor`` and each ring's error times ``inflation``
+    ``measured`` instead, which each fit turns into its rings' variances
+    (:func:`.ring_sigma.profile_variance`, with ``floor`` and each ring's error times ``inflation``
     (R,), default 1): the maps' way, without an (R, H, W, C) array of them (it took as long as
     the stack, ``benchmarks/bench_optics.py``).
 
@@ -81,27 +81,29 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     errors_given = counts is not None
     counts = np.ascontiguousarray(counts, np.int32) if errors_given else np.zeros((rings, 1, 1), np.int32)
     inflation = np.ones(rings) if inflation is None else np.asarray(inflation, np.float64)
+    coarse = coarse_nodes(table.log_profile)
     band = max(1, (1 << 16) // max(1, width * channels))
     for row0 in range(0, height, band):
         if cancelled is not None and cancelled():
             raise Cancelled("cancelled")
         row1 = min(height, row0 + band)
-        _fit_rows(table.log_profile, table.u0, table.du, table.v0, table.dv, measured, sigma, scale, errors_given,
-                  counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+        _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
+                  errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
+                  out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
     return out
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _fit_rows(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, row0, row1,
-              u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+def _fit_rows(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation,
+              row0, row1, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
     for y in numba.prange(row0, row1):
-        _fit_row(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
+        _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
                  u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fit_row(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y, u_out,
-             v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
+def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors_given, counts, floor, inflation, y,
+             u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status):
     """The fits of grid row ``y``, every channel, pixel after pixel (each starting where the last
     ended). A function of its own, outside the parallel loop, so that the fit's functions are
     inlined into it (a call passing arrays costs their reference counts: 0.2 us a fit; inlined
@@ -111,22 +113,23 @@ def _fit_row(log_profile, u0, du, v0, dv, measured, sigma, scale, errors_given, 
     rings = measured.shape[0]
     # Scratch arrays once per row (an allocation per fit cost a tenth of its time).
     result = np.empty(10)
-    deviation = np.empty(rings)
+    variance = np.empty(rings)
     data = np.empty(rings)
     weight = np.empty(rings)
     values = np.empty(rings)
-    slopes = np.empty((rings, 2))
+    slopes = np.empty((2, rings))
     for c in range(channels):
         start_u = math.nan
         start_v = math.nan
         for x in range(width):
             if errors_given:
-                profile_sigma(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, deviation)
+                profile_variance(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, variance)
             else:
                 for r in range(rings):
-                    deviation[r] = sigma[r, y, x, c]
+                    deviation = np.float64(sigma[r, y, x, c])
+                    variance[r] = deviation * deviation if deviation > 0.0 else math.nan
             # ``values`` and ``slopes`` hold the model at (start_u, start_v): the previous fit's last look-up.
-            _fit_one(log_profile, u0, du, v0, dv, measured[:, y, x, c], deviation, scale[c],
+            _fit_one(log_profile, coarse, u0, du, v0, dv, measured[:, y, x, c], variance, scale[c],
                      start_u, start_v, result, data, weight, values, slopes)
             code = int(result[7])
             status[y, x, c] = code
@@ -168,29 +171,36 @@ def _residual_chi2(data, weight, values):
     return total
 
 
+def coarse_nodes(log_profile: np.ndarray) -> np.ndarray:
+    """(K', J', R) E at the coarse search's nodes: every :data:`COARSE_STRIDE`-th interior node
+    of the table's (K, J, R) ``log_profile`` from node 2 in u and v, made once per map (the
+    search took their exponentials at each row's start: 18 us a search, three a row of 2400 fits)."""
+    return np.exp(log_profile[2:log_profile.shape[0] - 3:COARSE_STRIDE, 2:log_profile.shape[1] - 3:COARSE_STRIDE])
+
+
 @numba.njit(cache=True)
-def _coarse_start(log_profile, u0, du, v0, dv, data, weight, scale):
-    """(u, v) of the coarse search's best node (interior nodes, every COARSE_STRIDE-th)."""
+def _coarse_start(coarse, u0, du, v0, dv, data, weight, scale):
+    """(u, v) of the best node of the coarse search (:func:`coarse_nodes`' E ``coarse``)."""
     best = math.inf
-    best_u = u0 + du * (log_profile.shape[0] // 2)
-    best_v = v0 + dv * (log_profile.shape[1] // 2)
-    for k in range(2, log_profile.shape[0] - 3, COARSE_STRIDE):
-        for j in range(2, log_profile.shape[1] - 3, COARSE_STRIDE):
+    best_u = u0 + du * (2 + COARSE_STRIDE * (coarse.shape[0] // 2))
+    best_v = v0 + dv * (2 + COARSE_STRIDE * (coarse.shape[1] // 2))
+    for k in range(coarse.shape[0]):
+        for j in range(coarse.shape[1]):
             total = 0.0
             for r in range(data.shape[0]):
                 if weight[r] > 0.0:
-                    residual = data[r] - scale * math.exp(log_profile[k, j, r])
+                    residual = data[r] - scale * coarse[k, j, r]
                     total += weight[r] * residual * residual
             if total < best:
                 best = total
-                best_u = u0 + k * du
-                best_v = v0 + j * dv
+                best_u = u0 + (2 + COARSE_STRIDE * k) * du
+                best_v = v0 + (2 + COARSE_STRIDE * j) * dv
     return best_u, best_v
 
 
 @numba.njit(cache=True, inline="always")
-def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start_v, result, data, weight, values,
-             slopes):
+def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight,
+             values, slopes):
     """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
     look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
     and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
@@ -200,9 +210,9 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
     count = 0
     for r in range(rings):
         # A ring not used weighs 0 (its value 0, not NaN): the sums need no test.
-        if math.isfinite(measured[r]) and math.isfinite(sigma[r]) and sigma[r] > 0.0:
+        if math.isfinite(measured[r]) and math.isfinite(variance[r]) and variance[r] > 0.0:
             data[r] = measured[r]
-            weight[r] = 1.0 / (np.float64(sigma[r]) * sigma[r])
+            weight[r] = 1.0 / variance[r]
             count += 1
         else:
             data[r] = 0.0
@@ -215,9 +225,9 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
         fit = _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, start_u, start_v, True, values,
                                    slopes)
         if fit[0] != CONVERGED:
-            fit = _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes)
+            fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
     else:
-        fit = _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes)
+        fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
     status, u, v, a_uu, a_uv, a_vv, chi2, last_u, last_v = fit
     determinant = a_uu * a_vv - a_uv * a_uv
     result[0] = u
@@ -233,11 +243,11 @@ def _fit_one(log_profile, u0, du, v0, dv, measured, sigma, scale, start_u, start
 
 
 @numba.njit(cache=True)
-def _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, slopes):
+def _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes):
     """:func:`_levenberg_marquardt` from the coarse search's best node (a row's first fit, or one
     whose start did not converge): a call of its own, so that the usual fit's code holds one
     inlined minimiser (with two, or a loop around one, a fit took half as long again)."""
-    u, v = _coarse_start(log_profile, u0, du, v0, dv, data, weight, scale)
+    u, v = _coarse_start(coarse, u0, du, v0, dv, data, weight, scale)
     return _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, u, v, False, values, slopes)
 
 
@@ -245,12 +255,12 @@ def _fit_from_coarse(log_profile, u0, du, v0, dv, data, weight, scale, values, s
 def _normal_equations(data, weight, values, slopes):
     """``(A_uu, A_uv, A_vv, b_u, b_v)``: ``A = J^T W J`` and ``b = J^T W (data - model)`` with the
     rings' ``weight`` W (0 at rings not used), the model ``values`` (R,) and its log-slopes
-    ``slopes`` (R, 2) at the fit."""
+    ``slopes`` (2, R) at the fit."""
     a_uu = a_uv = a_vv = b_u = b_v = 0.0
     for r in range(data.shape[0]):
         model = values[r]
-        j_u = model * slopes[r, 0]
-        j_v = model * slopes[r, 1]
+        j_u = model * slopes[0, r]
+        j_v = model * slopes[1, r]
         residual = data[r] - model
         a_uu += weight[r] * j_u * j_u
         a_uv += weight[r] * j_u * j_v

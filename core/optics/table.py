@@ -95,7 +95,7 @@ class ProfileTable:
         (interpolated); NaN outside the table."""
         mus = musp / (1.0 - self.g)
         values = np.empty(len(self.radii))
-        slopes = np.empty((len(self.radii), 2))
+        slopes = np.empty((2, len(self.radii)))
         inside = interpolate(self.log_profile, self.u0, self.du, self.v0, self.dv, math.log(mus),
                              math.log(mua / mus), values, slopes)
         return np.exp(values) if inside else np.full(len(self.radii), np.nan)
@@ -219,8 +219,10 @@ def _catmull_rom(t):
 
 @numba.njit(cache=True)
 def interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
-    """log E (R,) into ``values`` and its derivatives by u and v (R, 2) into ``slopes`` at
-    ``(u, v)``; False (and nothing written) outside the nodes a spline can use."""
+    """log E (R,) into ``values`` and its derivatives by u and v (2, R) into ``slopes`` at
+    ``(u, v)``; False (and nothing written) outside the nodes a spline can use. Each derivative's
+    rings are contiguous (with an (R, 2) layout a look-up took 0.156 us, 0.121 us with this one, in
+    one run on a loaded machine)."""
     su = (u - u0) / du
     sv = (v - v0) / dv
     k = int(math.floor(su))
@@ -244,8 +246,8 @@ def interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
             slope_u += wu[4 + a] * row
             slope_v += wu[a] * row_v
         values[r] = value
-        slopes[r, 0] = slope_u / du
-        slopes[r, 1] = slope_v / dv
+        slopes[0, r] = slope_u / du
+        slopes[1, r] = slope_v / dv
     return True
 
 
