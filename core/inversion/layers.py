@@ -36,7 +36,8 @@ from .layer_colour import InvertedLayer, joined, layer_colours, widened
 from .limit import data_limits, exact_regions, limit_reason
 from .measured import MeasuredProfile
 from .settings import MUS_GRID, N_GRID, InversionError, InversionSettings
-from .white_cells import CellForward, cell_database
+from .cell_forward import CellForward
+from .white_cells import cell_database
 from .finalists import screen
 from .search import (REACH, REFINE_STEPS, Candidate, all_structures, best_candidate, bic, database_optics,
                      refine_scattering, scout_structures, search_base)

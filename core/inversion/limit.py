@@ -98,7 +98,7 @@ def allowed_width(covariance: np.ndarray, mus: float, mua: np.ndarray, optics: S
 
 
 class ExactForward:
-    """``forward`` (a :class:`.forward.Forward` or :class:`.white_cells.CellForward`) taken as
+    """``forward`` (a :class:`.forward.Forward` or :class:`.cell_forward.CellForward`) taken as
     exact: its profile and derivatives, with no noise of its own (the white run's variance and
     covariance zero), for fits that measure what the data alone allow."""
 
