@@ -256,7 +256,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     limits = data_limits(forward, fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
                          colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
                          measured.covariance, np.array([layer.xy for layer in layers]),
-                         exact_regions(forward, measured.mean, measured.standard_error, colorspace, measured.floor))
+                         exact_regions(forward, measured.mean, measured.standard_error, colorspace, measured.floor, fits))
     # A region is never narrower than what the data alone allow (where that is quadratic).
     layers = [replace(layer, region=joined(layer.region, limit.ellipse), allowed_width=limit.width,
                       limit=limit_reason(limit.width)) for layer, limit in zip(layers, limits)]
