@@ -22,7 +22,8 @@ from ringlight.core.inversion.measured import MeasuredProfile, measured_profile
 from ringlight.core.inversion.report import invert_region, profile_radii
 from ringlight.core.inversion.search import database_optics
 from ringlight.core.inversion.settings import InversionSettings
-from ringlight.core.inversion.white_cells import CellForward, cell_database, pixel_classes
+from ringlight.core.inversion.cell_forward import CellForward
+from ringlight.core.inversion.white_cells import cell_database, pixel_classes
 from ringlight.core.inversion.white_mc import SlabOptics, run_white, white_database
 from ringlight.core.rings.geometry import ring_geometry
 from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
@@ -404,12 +405,14 @@ def test_a_capture_of_large_max_radius_is_fitted_on_the_rings_a_white_database_h
     ({"mus": 101.0}, "at most 100 per grid step, got 101"),
     ({"mus": [0.5, 1.0]}, "mus must be one number or a tuple"),
     ({"boundaries": (2.5,)}, "boundaries must be whole grid steps"),
+    ({"boundaries": (1, 2, 3, 4)}, "at most 4 layers \\(3 boundaries\\), got 4 boundaries"),
     ({"photons": 0}, "photons must be 1000 to 1000000, got 0"),
     ({"photons": 10**9}, "photons must be 1000 to 1000000, got 1000000000"),
 ])
 def test_settings_that_cannot_work_are_refused_by_their_check(changes, message):
     """A NaN scattering passed the check and divided by zero in the white run, an infinite one never
-    finished, a billion photons asked for 17 GB, a list or a fractional boundary gave TypeErrors."""
+    finished, a billion photons asked for 17 GB, a list or a fractional boundary gave TypeErrors; five layers (boundaries
+    given, layers not) would reach the cells' kernel, which holds four."""
     from dataclasses import replace
 
     from ringlight.core.inversion.settings import InversionError

@@ -24,7 +24,13 @@ from ringlight.core.inversion.forward import Forward, Structure
 from ringlight.core.inversion.joint import ELLIPSE_CHI2
 from ringlight.core.inversion.layer_colour import joined, region_contains
 from ringlight.core.inversion.layers import invert
-from ringlight.core.inversion.limit import ExactForward, allowed_width, data_limits, log_absorption_covariance
+from ringlight.core.inversion.limit import (
+    ExactForward,
+    allowed_width,
+    data_limits,
+    exact_regions,
+    log_absorption_covariance,
+)
 from ringlight.core.inversion.measured import MeasuredProfile
 from ringlight.core.inversion.settings import N_GRID, InversionSettings, settings_from_text
 from ringlight.core.inversion.white_mc import SlabOptics, run_white
@@ -295,3 +301,38 @@ def test_the_exact_model_interval_is_where_the_data_chi_square_alone_rises_by_th
     assert inside[0] - 0.02 <= low <= inside[0] + 2e-4 and inside[-1] - 2e-4 <= high <= inside[-1] + 0.02
     noisy = fit_channels(forward, measured[:, None], error[:, None], floor=0.0)[0]
     assert np.ptp(np.log(noisy.interval[0])) > np.ptp(np.log(exact.interval[0]))
+
+
+def test_the_exact_models_regions_from_the_main_fits_minima_equal_those_from_the_start_grid():
+    """exact_regions started from the main fits' first-pass minima (the same weights: the data's
+    noise alone) against exact_regions searching the start grid itself, as it did before: the same
+    absorptions and, to 1e-4 in xy, the same regions."""
+    forward = _forward()
+    mua = np.array([[0.3, 0.02], [0.05, 0.05], [0.01, 0.2]])
+    clean = np.stack([forward.profile(row) for row in mua], axis=1)
+    measured = clean * (1.0 + 0.01 * np.random.default_rng(5).standard_normal(clean.shape))
+    error = 0.01 * clean
+    fits = fit_channels(forward, measured, error, floor=0.0)
+    assert all(len(fit.data_minima) == fit_module.FITTED_STARTS for fit in fits)
+    searched = exact_regions(forward, measured, error, "sRGB", 0.0)
+    started = exact_regions(forward, measured, error, "sRGB", 0.0, fits)
+    for own, lent in zip(searched, started):
+        assert len(own) >= 3
+        np.testing.assert_allclose(np.ptp(lent, axis=0), np.ptp(own, axis=0), atol=1e-4)
+        np.testing.assert_allclose(lent.mean(axis=0), own.mean(axis=0), atol=1e-4)
+
+
+def test_a_steep_profiles_end_is_found_to_0_005_in_eight_profile_values():
+    """A profile chi-square that rises 10^8-fold toward the bound, exp(3 (theta - c)) - 1 (an
+    opaque layer's, as layers3's red top had): its end toward the bound is c + log(1 + JOINT_CHI2)
+    / 3, found to within PROFILE_TOLERANCE, never narrower, from at most 8 profile values (6 now;
+    Brent's method on the chi-square itself, bracketed by the bound, asked for 12 here)."""
+    centre = math.log(0.002)
+    residuals = lambda theta: np.array([math.sqrt(math.expm1(3.0 * max(theta[0] - centre, 0.0)))])
+    jacobian = lambda theta: np.array([[1.0]])  # unused: one layer is not refitted
+    low, high = math.log(1e-5), math.log(10.0)
+    profile = fit_module._Profile(residuals, jacobian, np.array([centre]), 0, low, high)
+    end = fit_module._profile_end(profile, centre, high, 0.0)
+    exact = centre + math.log1p(JOINT_CHI2) / 3.0
+    assert 0.0 <= end - exact <= 2 * PROFILE_TOLERANCE
+    assert len(profile.values) <= 8

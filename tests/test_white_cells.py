@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from ringlight.core.inversion.forward import Forward, Structure
+from ringlight.core.inversion.cell_forward import CellForward
 from ringlight.core.inversion.white_cells import (
     BATCHES,
-    CellForward,
+    CellDatabase,
     cell_database,
     cells_path,
     pixel_classes,
@@ -84,6 +85,42 @@ def test_cells_hold_a_fraction_of_their_records(cells, records):
 
 def test_cell_derivatives_match_finite_differences(cells):
     assert_slopes_are_central_differences(CellForward(cells, STRUCTURE, RADII), np.array([0.05, 0.2, 0.01]))
+
+
+@pytest.mark.parametrize("layers", [1, 2, 3, 4])
+def test_the_cell_kernels_sum_each_cells_formula_as_numpy_does(layers):
+    """The compiled kernels (cells sorted by class, rows padded to four layers, classes no ring
+    weighs dropped) against ``W exp(-a . mu) (1 + a^T S a / 2)`` and its derivatives summed over
+    every cell in numpy: equal to 1e-10, with means and covariances rounded to float32 as the
+    kernels store them; the batches' covariance likewise."""
+    rng = np.random.default_rng(layers)
+    count = 3000
+    classes = pixel_classes(OPTICS.reach)
+    spread = rng.uniform(-0.2, 1.0, (count, layers, layers))
+    spread = 0.5 * (spread + spread.transpose(0, 2, 1))
+    database = CellDatabase(OPTICS, tuple(range(layers)), 5000, rng.integers(0, classes.max() + 1, count),
+                            rng.uniform(0.1, 2.0, count), rng.uniform(0.0, 30.0, (count, layers)), spread,
+                            rng.uniform(0.0, 0.2, (BATCHES, count)).astype(np.float32), 0.0)
+    radii = np.arange(0.0, 6.0)  # rings that weigh only some of the classes
+    forward = CellForward(database, Structure(tuple(range(layers))), radii)
+    mean = database.mean.astype(np.float32).astype(np.float64)
+    spread = database.spread.astype(np.float32).astype(np.float64)
+    mua = rng.uniform(0.001, 0.2, layers)
+    turned = spread @ mua  # (M, L) S a
+    correction = 1.0 + 0.5 * turned @ mua
+    kept = database.weight * np.exp(-(mean @ mua))
+    per_class = lambda values: np.bincount(database.cell_class, values, forward.rings.shape[1])
+    profile = forward.rings @ per_class(kept * correction) / database.photons
+    slopes = np.stack([forward.rings @ per_class(kept * (turned[:, k] - mean[:, k] * correction))
+                       for k in range(layers)], axis=1) / database.photons
+    fitted, derivatives = forward.profile(mua, derivatives=True)
+    np.testing.assert_allclose(fitted, profile, rtol=1e-10)
+    np.testing.assert_allclose(derivatives, slopes, rtol=1e-10, atol=1e-10 * np.abs(slopes).max())
+    batches = np.stack([forward.rings @ per_class(database.batch_weight[b] * np.exp(-(mean @ mua)) * correction)
+                        for b in range(BATCHES)]) * (BATCHES / database.photons)
+    centred = batches - batches.mean(axis=0)
+    np.testing.assert_allclose(forward.variance(mua), (centred ** 2).sum(axis=0) / (BATCHES - 1) / BATCHES,
+                               rtol=1e-6)
 
 
 def test_the_batches_variance_matches_the_records_per_photon_variance():

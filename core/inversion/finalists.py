@@ -20,7 +20,8 @@ from .fit import fit_channels
 from .measured import MeasuredProfile
 from .search import Candidate, bic, boundary_moves
 from .settings import InversionSettings
-from .white_cells import CellForward, cell_database
+from .cell_forward import CellForward
+from .white_cells import cell_database
 
 MAX_ROUNDS = 3
 """Rounds of the local search over boundaries at most (each screens the leader's neighbours)."""

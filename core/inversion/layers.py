@@ -36,7 +36,8 @@ from .layer_colour import InvertedLayer, joined, layer_colours, widened
 from .limit import data_limits, exact_regions, limit_reason
 from .measured import MeasuredProfile
 from .settings import MUS_GRID, N_GRID, InversionError, InversionSettings
-from .white_cells import CellForward, cell_database
+from .cell_forward import CellForward
+from .white_cells import cell_database
 from .finalists import screen
 from .search import (REACH, REFINE_STEPS, Candidate, all_structures, best_candidate, bic, database_optics,
                      refine_scattering, scout_structures, search_base)
@@ -255,7 +256,7 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     limits = data_limits(forward, fitted_mua, measured.mean, measured.standard_error, np.array([f.used for f in fits]),
                          colorspace, joint.floor_correlation if joint is not None else 0.0, measured.floor,
                          measured.covariance, np.array([layer.xy for layer in layers]),
-                         exact_regions(forward, measured.mean, measured.standard_error, colorspace, measured.floor))
+                         exact_regions(forward, measured.mean, measured.standard_error, colorspace, measured.floor, fits))
     # A region is never narrower than what the data alone allow (where that is quadratic).
     layers = [replace(layer, region=joined(layer.region, limit.ellipse), allowed_width=limit.width,
                       limit=limit_reason(limit.width)) for layer, limit in zip(layers, limits)]

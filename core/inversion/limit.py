@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .fit import RELATIVE_FLOOR, fit_channels
+from .fit import RELATIVE_FLOOR, ChannelFit, fit_channels
 from .forward import SMALLEST_E, Forward
 from .joint import ELLIPSE_CHI2, chromaticity_ellipse
 from .layer_colour import QUADRATIC_SPREAD, chromaticity_gradient, joined, layer_colours
@@ -98,7 +98,7 @@ def allowed_width(covariance: np.ndarray, mus: float, mua: np.ndarray, optics: S
 
 
 class ExactForward:
-    """``forward`` (a :class:`.forward.Forward` or :class:`.white_cells.CellForward`) taken as
+    """``forward`` (a :class:`.forward.Forward` or :class:`.cell_forward.CellForward`) taken as
     exact: its profile and derivatives, with no noise of its own (the white run's variance and
     covariance zero), for fits that measure what the data alone allow."""
 
@@ -120,11 +120,15 @@ class ExactForward:
 
 
 def exact_regions(forward, measured: np.ndarray, error: np.ndarray, colorspace: str,
-                  floor: float = RELATIVE_FLOOR) -> list[np.ndarray]:
+                  floor: float = RELATIVE_FLOOR, fitted: list[ChannelFit] | None = None) -> list[np.ndarray]:
     """Each layer's two-sigma region in xy ((K, 2) each) from the channels' profile-likelihood
     intervals (:func:`.fit.fit_channels`, :func:`.layer_colour.layer_colours`) when ``forward``'s
-    model is exact (:class:`ExactForward`): ``measured`` and ``error`` (R, C), relative ``floor``."""
-    fits = fit_channels(ExactForward(forward), measured, error, floor=floor)
+    model is exact (:class:`ExactForward`): ``measured`` and ``error`` (R, C), relative ``floor``.
+    ``fitted``, the channels' fits of these data with ``forward`` itself, lend their first passes
+    (:attr:`.fit.ChannelFit.data_minima`: weighted by the data's noise alone, those are the exact
+    model's fits too), so the start grid is not searched again."""
+    minima = [fit.data_minima for fit in fitted] if fitted is not None else None
+    fits = fit_channels(ExactForward(forward), measured, error, floor=floor, data_minima=minima)
     return [layer.region for layer in layer_colours(fits, forward.structure, forward.database.optics, colorspace)]
 
 

@@ -110,6 +110,9 @@ class InversionSettings:
             if any(b <= 0 for b in bounds) or bounds != sorted(set(bounds)) or bounds and bounds[-1] >= self.depth:
                 raise InversionError(f"layer boundaries must increase from above 0 to below the depth "
                                      f"{self.depth:g}, got {', '.join(map(str, bounds))}")
+            if len(bounds) >= MAX_LAYERS:
+                raise InversionError(f"at most {MAX_LAYERS} layers ({MAX_LAYERS - 1} boundaries), got "
+                                     f"{len(bounds)} boundaries")
             if self.layers is not None and len(bounds) != self.layers - 1:
                 raise InversionError(f"{self.layers} layers need {self.layers - 1} boundaries, got {len(bounds)}")
         if isinstance(self.mus, tuple):

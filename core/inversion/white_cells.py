@@ -29,14 +29,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
 from ..device import Device
 from ..errors import RinglightError
 from . import white_cache
-from .forward import Structure, embedded_rings, ring_matrix
+from .forward import Structure
 from .white_mc import DatabaseError, SlabOptics, run_white
 
 RATIO = 1.25
@@ -261,127 +260,3 @@ class _Tally:
         """``(keys, sums, batch weights)`` of the cells filled: views trimmed to them, batches
         ``(cells, BATCHES)``."""
         return self.keys[:self.size], self.sums[:self.size], self.batches[:self.size]
-
-
-class CellForward:
-    """E(r) and its derivatives from a :class:`CellDatabase`, as :class:`.forward.Forward` gives
-    them from records (the same interface: :meth:`profile`, :meth:`variance`, :meth:`covariance`,
-    :attr:`reached`).
-
-    The cells are held packed for the kernels, sorted by pixel class: means and the upper triangle
-    of each covariance in float32 (a length's relative rounding, 6e-8, moves ``a . mu`` by far less
-    than the cells' own approximation) and the batches' weights a row per cell, so that an
-    evaluation reads 40-100 bytes a cell, not 112, and every batch comes from one pass."""
-
-    def __init__(self, database: CellDatabase, structure: Structure, radii, thickness: float = 1.0,
-                 antialias: bool = False, ring_weights: np.ndarray | None = None):
-        if tuple(structure.starts) != database.starts:
-            raise ValueError(f"cells tallied for layers from {database.starts}, not {structure.starts}")
-        self.database = database
-        self.structure = structure
-        self.radii = np.asarray(radii, np.float64)
-        reach = database.optics.reach
-        rings = (ring_matrix(self.radii, reach, thickness, antialias) if ring_weights is None
-                 else embedded_rings(ring_weights, reach))
-        classes = pixel_classes(reach)
-        count = np.bincount(classes)
-        # Every pixel of a class has the class's response: a ring weighs the class's mean pixel.
-        self.rings = np.stack([np.bincount(classes, row, len(count)) for row in rings]) / count
-        self._classes = len(count)
-        order = np.argsort(database.cell_class, kind="stable")
-        upper = np.triu_indices(structure.layers)
-        self._class = database.cell_class[order].astype(np.int32)
-        self._weight = database.weight[order]
-        self._mean = database.mean[order].astype(np.float32)
-        self._spread = database.spread[order][:, upper[0], upper[1]].astype(np.float32)
-        self._batches = np.ascontiguousarray(database.batch_weight[:, order].T)
-        reached = self.profile(np.zeros(structure.layers)) > 0
-        self.reached = int(np.argmin(reached)) if not reached.all() else len(reached)
-
-    def profile(self, mua: np.ndarray, derivatives: bool = False):
-        """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also
-        dE/dmua (R, L)."""
-        per_class, slopes = _cell_kernel(self._class, self._weight, self._mean, self._spread,
-                                         np.asarray(mua, np.float64), self._classes, derivatives)
-        scale = 1.0 / self.database.photons
-        profile = self.rings @ per_class * scale
-        if not derivatives:
-            return profile
-        return profile, (self.rings @ slopes.T) * scale
-
-    def variance(self, mua: np.ndarray) -> np.ndarray:
-        """(R,) variance of :meth:`profile` from the run's batches (:meth:`covariance` of one channel)."""
-        return self.covariance(np.asarray(mua, np.float64)[None])[:, 0, 0]
-
-    def covariance(self, mua: np.ndarray, rings: int | None = None) -> np.ndarray:
-        """(rings, C, C) covariance between the channels' :meth:`profile` at absorptions ``mua``
-        (C, L) over the first ``rings`` rings, from the spread of the :data:`BATCHES` batches'
-        profiles (each batch's cells weighted by its own share of their weight); the channels share
-        the photons, so they covary."""
-        mua = np.asarray(mua, np.float64)
-        rings = len(self.radii) if rings is None else rings
-        batches = self._batches.shape[1]
-        per_batch = np.stack([
-            _batch_kernel(self._class, self._batches, self._mean, self._spread, absorption, self._classes)
-            @ self.rings[:rings].T for absorption in mua]) * (batches / self.database.photons)
-        centred = per_batch - per_batch.mean(axis=1, keepdims=True)
-        # The mean of B batch estimates has the covariance of one over B.
-        return np.einsum("cbr,dbr->rcd", centred, centred) / (batches - 1) / batches
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _attenuation(mean, spread, i, mua, turned):
-    """A cell's ``(exp(-a . mu), 1 + a^T S a / 2)``, with ``turned = S a`` (L,) written; ``spread``
-    holds the upper triangle of ``S`` by rows."""
-    layers = mua.shape[0]
-    exponent = 0.0
-    for k in range(layers):
-        exponent += mean[i, k] * mua[k]
-        turned[k] = 0.0
-    quadratic = 0.0
-    p = 0
-    for k in range(layers):
-        for j in range(k, layers):
-            s = spread[i, p]
-            p += 1
-            turned[k] += s * mua[j]
-            if j != k:
-                turned[j] += s * mua[k]
-    for k in range(layers):
-        quadratic += mua[k] * turned[k]
-    return math.exp(-exponent), 1.0 + 0.5 * quadratic
-
-
-@numba.njit(cache=True, nogil=True)
-def _cell_kernel(cell_class, weight, mean, spread, mua, classes, derivatives):
-    """Per pixel class, the cells' ``W exp(-a . mu) (1 + a^T S a / 2)`` summed ((classes,)) and, with
-    ``derivatives``, its derivative by each layer's absorption, ``W exp(-a . mu) ((S a)_k - mu_k
-    (1 + a^T S a / 2))`` ((L, classes); else (0, classes)). Serial and without the GIL, as
-    :func:`.forward._kernel`; ``spread`` (M, L (L + 1) / 2) is each cell's upper triangle."""
-    layers = mua.shape[0]
-    totals = np.zeros(classes)
-    slopes = np.zeros((layers if derivatives else 0, classes))
-    turned = np.zeros(layers)
-    for i in range(weight.shape[0]):
-        attenuation, correction = _attenuation(mean, spread, i, mua, turned)
-        kept = weight[i] * attenuation
-        totals[cell_class[i]] += kept * correction
-        if derivatives:
-            for k in range(layers):
-                slopes[k, cell_class[i]] += kept * (turned[k] - mean[i, k] * correction)
-    return totals, slopes
-
-
-@numba.njit(cache=True, nogil=True)
-def _batch_kernel(cell_class, batches, mean, spread, mua, classes):
-    """(B, classes): :func:`_cell_kernel`'s totals of each batch, whose cells weigh ``batches``
-    (M, B), in one pass over the cells."""
-    count = batches.shape[1]
-    totals = np.zeros((count, classes))
-    turned = np.zeros(mua.shape[0])
-    for i in range(batches.shape[0]):
-        attenuation, correction = _attenuation(mean, spread, i, mua, turned)
-        factor = attenuation * correction
-        for b in range(count):
-            totals[b, cell_class[i]] += batches[i, b] * factor
-    return totals
