@@ -1,5 +1,5 @@
 """The simulator's photon kernels on an NVIDIA GPU: :func:`.photon.simulate_points` and
-:func:`.photon.simulate_differences` with the same walk (:func:`.photon.compile_walk` and
+:func:`.photon.simulate_differences` with the same walk (:func:`.walk.compile_walk` and
 :func:`.camera.compile_estimate`, compiled as CUDA device functions from the same statement of
 the steps, :mod:`ringlight.core.simulate.steps`), one thread per lit point, the windows and the
 path-length images summed with atomic adds.
@@ -19,7 +19,7 @@ import numpy as np
 from numba import cuda, float64, uint64
 
 from .camera import compile_estimate
-from .photon import RECORD_FIELDS, WEIGHTS, compile_walk, fill_walker
+from .walk import RECORD_FIELDS, WEIGHTS, compile_walk, fill_walker
 from .steps import cuda_steps
 from .streams import ESTIMATOR_STREAM, seed_state
 from .tables import MU_T
