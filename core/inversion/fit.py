@@ -241,7 +241,7 @@ def _interval_end(residuals, jacobian, theta: np.ndarray, k: int, spread: float,
         return bound
     profile = _Profile(residuals, jacobian, theta, k, low, high)
     wald = theta[k] + math.copysign(spread, bound - theta[k])
-    step = max(0.5 * min(spread, WALD_LIMIT), 10 * PROFILE_TOLERANCE)
+    step = max(BRACKET_STEP * min(spread, WALD_LIMIT) / WALD_LIMIT, 10 * PROFILE_TOLERANCE)
     if spread > WALD_LIMIT or (wald - bound) * (theta[k] - bound) <= 0.0:  # wide, or at or past the bound
         return _profile_end(profile, theta[k], bound, chi2, step)
     if profile.chi2(wald) - chi2 < JOINT_CHI2:
