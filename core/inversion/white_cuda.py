@@ -20,7 +20,7 @@ import numpy as np
 from numba import cuda, float64, uint64
 
 from ..simulate.steps import CPU, cuda_steps
-from ..simulate.streams import ESTIMATOR_STREAM, seed_state
+from ..simulate.streams import walk_and_estimator_states
 from .white_mc import (BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk,
                        write_record)
 
@@ -80,8 +80,7 @@ def run_white_cuda(optics: SlabOptics, photons: int, seed: int = 0, streams: int
     mus = np.asarray(optics.mus, np.float64)
     traced = -(-photons // BLOCKS) * BLOCKS
     streams = min(streams, traced)
-    states = np.stack([seed_state(seed, t) for t in range(streams)]
-                      + [seed_state(seed, t + ESTIMATOR_STREAM) for t in range(streams)])
+    states = walk_and_estimator_states(seed, np.arange(streams))
     # A pilot of the first stream's first photons on the CPU sizes the records; too few rows, and
     # the kernel runs again with as many as it counted (the same streams make the same records).
     probe = min(PILOT_PHOTONS, traced)

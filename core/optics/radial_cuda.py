@@ -20,7 +20,7 @@ import numpy as np
 from numba import cuda, uint64
 
 from ..simulate.steps import CPU, cuda_steps
-from ..simulate.streams import seed_state
+from ..simulate.streams import seed_states
 from .radial import LONGEST, PATH_CELLS, RHO_CELLS, RadialRun, compile_walk, traced_photons
 
 STREAMS = 1 << 16
@@ -52,11 +52,6 @@ def _kernel():
     return radial_kernel
 
 
-def stream_states(seed: int, streams: int) -> np.ndarray:
-    """(streams, 2) uint64: the xoroshiro128+ state of stream ``(seed, t)`` in row ``t``."""
-    return np.stack([seed_state(seed, stream) for stream in range(streams)])
-
-
 def run_radial_cuda(n: float, g: float, photons: int, seed: int = 0, streams: int = STREAMS) -> RadialRun:
     """:func:`.radial.run_radial` on the current CUDA device: its photons
     (:func:`.radial.traced_photons`) shared among ``streams`` threads, the first ones one more
@@ -64,7 +59,7 @@ def run_radial_cuda(n: float, g: float, photons: int, seed: int = 0, streams: in
     start = time.perf_counter()
     traced = traced_photons(photons)
     streams = min(streams, traced)
-    states = cuda.to_device(stream_states(seed, streams))
+    states = cuda.to_device(seed_states(seed, np.arange(streams, dtype=np.int64)))
     sums = [cuda.to_device(np.zeros((RHO_CELLS, PATH_CELLS))) for _ in range(3)]
     threads = min(THREADS_PER_BLOCK, streams)
     _kernel()[-(-streams // threads), threads](float(g), float(n), LONGEST / (1.0 - abs(g)),

@@ -47,11 +47,16 @@ def _kernel():
 def cuda_ring_sums(responses, first, stop, weight_start, weights, unweighted, counts, totals, images) -> None:
     """:func:`.stacks._ring_sums` on the current CUDA device (same arguments; ``unweighted`` is not
     needed: every ring is summed with its weights). Fills ``images`` (n, rows, W, 3) float32."""
-    rows, width = responses.shape[:2]
     device_images = cuda.device_array(images.shape, np.float32)
-    blocks = (-(-rows // THREADS[0]), -(-width // THREADS[1]))
-    _kernel()[blocks, THREADS](cuda.to_device(np.ascontiguousarray(responses)), cuda.to_device(first),
-                               cuda.to_device(stop), cuda.to_device(weight_start), cuda.to_device(weights),
-                               cuda.to_device(np.ascontiguousarray(counts)),
-                               cuda.to_device(np.ascontiguousarray(totals)), device_images)
+    device_ring_sums(cuda.to_device(np.ascontiguousarray(responses)), first, stop, weight_start, weights,
+                     np.ascontiguousarray(counts), np.ascontiguousarray(totals), device_images)
     images[...] = device_images.copy_to_host()
+
+
+def device_ring_sums(responses, first, stop, weight_start, weights, counts, totals, images) -> None:
+    """The kernel's launch over ``responses`` (rows, W, K, 3) float32 and ``images`` (n, rows, W, 3)
+    float32, both already on the device (the ring tables, ``counts`` and ``totals`` are copied)."""
+    rows, width = responses.shape[:2]
+    blocks = (-(-rows // THREADS[0]), -(-width // THREADS[1]))
+    _kernel()[blocks, THREADS](responses, cuda.to_device(first), cuda.to_device(stop), cuda.to_device(weight_start),
+                               cuda.to_device(weights), cuda.to_device(counts), cuda.to_device(totals), images)

@@ -21,7 +21,7 @@ from numba import cuda, float64, uint64
 from .camera import compile_estimate
 from .walk import RECORD_FIELDS, WEIGHTS, compile_walk, fill_walker
 from .steps import cuda_steps
-from .streams import ESTIMATOR_STREAM, seed_state
+from .streams import walk_and_estimator_states
 from .tables import MU_T
 
 THREADS_PER_BLOCK = 64
@@ -130,13 +130,6 @@ def _kernels():
     return points_kernel, differences_kernel
 
 
-def stream_states(seed: int, streams: np.ndarray) -> np.ndarray:
-    """(2 n, 2) uint64: the walk states of streams ``(seed, streams[i])`` in rows ``i``, then their
-    estimator streams'."""
-    return np.stack([seed_state(seed, int(s)) for s in streams]
-                    + [seed_state(seed, int(s) + ESTIMATOR_STREAM) for s in streams])
-
-
 def _on_device(array):
     """``array`` copied to the device (C-contiguous: a kernel's arrays are typed by their layout)."""
     return cuda.to_device(np.ascontiguousarray(array))
@@ -167,7 +160,7 @@ def simulate_points_cuda(volume, tables, majorant, optics, columns, camera, lit,
     device_windows, device_truth, records, no_map = _device_outputs(windows, truth, (tables.shape[0] - MU_T) // 2)
     _launch(_kernels()[0], count, _on_device(volume), _on_device(tables), float(majorant),
             _on_device(optics), _on_device(columns), bool(camera), _on_device(lit),
-            int(photons), _on_device(stream_states(seed, streams)), float(bin_step), device_windows, device_truth,
+            int(photons), _on_device(walk_and_estimator_states(seed, streams)), float(bin_step), device_windows, device_truth,
             records, no_map)
     windows[...] = device_windows.copy_to_host()
     truth[0] += device_truth.copy_to_host()
@@ -187,7 +180,7 @@ def simulate_differences_cuda(volume, reference, mixed, tables, majorant, optics
             _on_device(tables), float(majorant), _on_device(optics), _on_device(reference_optics),
             _on_device(columns), _on_device(reference_columns), bool(camera),
             _on_device(lit), _on_device(photons), _on_device(direct),
-            _on_device(stream_states(seed, streams)), float(bin_step), device_windows, device_truth,
+            _on_device(walk_and_estimator_states(seed, streams)), float(bin_step), device_windows, device_truth,
             device_touches, records, no_map)
     windows[...] = device_windows.copy_to_host()
     truth[0] += device_truth.copy_to_host()
