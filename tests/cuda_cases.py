@@ -37,6 +37,30 @@ def white(out: Path, argument: str) -> None:
     np.savez(out, pixel=run.pixel, value=run.value, lengths=run.lengths, photon=run.photon, photons=run.photons)
 
 
+CELLS_OPTICS = dict(mus=(1.0, 1.0, 2.0), g=0.5, n=1.0, depth=8.0, reach=3)
+"""The slab of the cells case (:func:`cells`): three depth bins, records within 3 pixels."""
+
+
+def cells(out: Path, argument: str) -> None:
+    """The white run tallied in cells on the GPU: 64 photons of seed 5 for two layers (bins 0 and
+    1-2) in two launches of 32 on 4 streams, from a table of 16 slots (it grows); and the records
+    of each launch's photons by the records kernel (``launch{c}_pixel`` etc.)."""
+    from ringlight.core.inversion.cells_cuda import run_cells_cuda
+    from ringlight.core.inversion.forward import Structure
+    from ringlight.core.inversion.white_cuda import run_white_cuda
+    from ringlight.core.inversion.white_mc import SlabOptics
+
+    optics = SlabOptics(**CELLS_OPTICS)
+    run = run_cells_cuda(optics, Structure((0, 1)), 64, seed=5, streams=4, slots=16, launch_photons=32)
+    arrays = dict(photons=run.photons, cell_class=run.cell_class, weight=run.weight, mean=run.mean,
+                  spread=run.spread, batch_weight=run.batch_weight)
+    for launch in range(2):
+        records = run_white_cuda(optics, 32, seed=5 + (launch << 32), streams=4)
+        for name in ("pixel", "value", "lengths", "photon"):
+            arrays[f"launch{launch}_{name}"] = getattr(records, name)
+    np.savez(out, **arrays)
+
+
 def stacks(out: Path, argument: str) -> None:
     """The ring and transient stacks of the dataset at ``argument`` (radius 4.5), radii 0..3."""
     from ringlight.core import open_dataset
@@ -141,7 +165,8 @@ def device(out: Path, argument: str) -> None:
 
 
 CASES = {"radial": radial, "white": white, "stacks": stacks, "device": device, "simulate_points": simulate_points,
-         "simulate_differences": simulate_differences, "mcml_slab": mcml_slab, "simulate_command": simulate_command}
+         "simulate_differences": simulate_differences, "mcml_slab": mcml_slab, "simulate_command": simulate_command,
+         "cells": cells}
 
 
 def run_case(case: str, out: Path, argument: str = "") -> dict[str, np.ndarray] | None:

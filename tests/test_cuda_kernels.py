@@ -6,6 +6,8 @@ and on a GPU the multiply-adds that its compiler fuses (FMA) where the CPU round
 gave path means 1.1e-12 apart, relative; :data:`SAME_WALKS` allows 1e-9.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from cuda_cases import run_case
@@ -83,6 +85,45 @@ def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(tmp_
     per_photon = np.bincount(gpu["photon"], gpu["value"] * np.exp(-gpu["lengths"][:, 0]), 256)
     error = per_photon.std() / np.sqrt(256)
     assert abs(per_photon.mean() - 0.5 * chandrasekhar_h_at_one(0.5) ** 2 / 8) < 3 * error
+
+
+def test_cells_kernel_tallies_the_records_the_cpu_walks_on_the_same_streams(tmp_path):
+    # The GPU tallies each estimate into its cell as it walks (a hash table, atomic adds); the
+    # reference tallies with numpy the records of the same photons (the records kernel's, which
+    # are the CPU's on these streams), launch by launch (seed 5 + (launch << 32)), each record's
+    # batch its photon's number modulo 16. The table starts at 16 slots and has to grow.
+    from cuda_cases import CELLS_OPTICS
+    from ringlight.core.inversion.forward import Structure
+    from ringlight.core.inversion.white_cells import BATCHES, cell_moments, pixel_classes, tally_records
+
+    gpu = cuda_case("cells", tmp_path)
+    optics, structure = white_mc.SlabOptics(**CELLS_OPTICS), Structure((0, 1))
+    classes = pixel_classes(optics.reach)
+    keys, sums, batches = [], [], []
+    for launch in range(2):
+        records = white_mc.WhiteDatabase(optics, 32, *(gpu[f"launch{launch}_{name}"]
+                                                       for name in ("pixel", "value", "lengths", "photon")), 0.0)
+        unique, moments = tally_records(records, structure, classes)
+        weight = np.zeros((len(unique), BATCHES))
+        for batch in range(BATCHES):
+            mine = records.photon % BATCHES == batch
+            part = replace(records, pixel=records.pixel[mine], value=records.value[mine],
+                           lengths=records.lengths[mine], photon=records.photon[mine])
+            part_keys, part_moments = tally_records(part, structure, classes)
+            weight[np.searchsorted(unique, part_keys), batch] = part_moments[:, 0]
+        keys.append(unique)
+        sums.append(moments)
+        batches.append(weight)
+    cells, inverse = np.unique(np.concatenate(keys), return_inverse=True)
+    total, batch_weight = np.zeros((len(cells), sums[0].shape[1])), np.zeros((len(cells), BATCHES))
+    np.add.at(total, inverse, np.concatenate(sums))
+    np.add.at(batch_weight, inverse, np.concatenate(batches))
+    cpu = cell_moments(optics, structure, 64, cells, total, batch_weight, 0.0)
+    assert int(gpu["photons"]) == 64 and len(cells) > 64  # more cells than the first table's 16 slots
+    assert np.array_equal(gpu["cell_class"], cpu.cell_class)
+    for name in ("weight", "mean", "spread"):
+        assert_allclose(gpu[name], getattr(cpu, name), **SAME_WALKS)
+    assert_allclose(gpu["batch_weight"], cpu.batch_weight, rtol=1e-5, atol=1e-9)
 
 
 def test_stack_kernel_equals_the_cpu_stacks(tmp_path):

@@ -36,7 +36,7 @@ from ..device import Device
 from ..errors import RinglightError
 from . import white_cache
 from .forward import Structure
-from .white_mc import DatabaseError, SlabOptics, run_white
+from .white_mc import DatabaseError, SlabOptics, WhiteDatabase, run_white
 
 RATIO = 1.25
 SHORTEST = 0.01
@@ -101,47 +101,73 @@ def run_cells(optics: SlabOptics, structure: Structure, photons: int, seed: int 
               progress=None, device: Device | None = None) -> CellDatabase:
     """Trace ``photons`` (rounded up to chunks of :data:`CHUNK_PHOTONS` and whole blocks) without
     absorption and tally them for ``structure``; ``progress(fraction)`` after each chunk (raise
-    from it to cancel). Chunk ``k`` runs on seed ``seed + (k << 32)``: its own random streams, on
-    ``device`` (:func:`.white_mc.run_white`)."""
+    from it to cancel). Chunk ``k`` runs on seed ``seed + (k << 32)``: its own random streams. On a
+    CUDA ``device`` the cells are tallied on the GPU as the photons are traced
+    (:func:`.cells_cuda.run_cells_cuda`)."""
+    if device is not None and device.is_cuda:
+        from .cells_cuda import run_cells_cuda
+
+        return run_cells_cuda(optics, structure, photons, seed, progress)
     start = time.perf_counter()
-    layers = structure.layers
     chunks = BATCHES * max(1, -(-photons // (CHUNK_PHOTONS * BATCHES)))
     per_chunk = -(-photons // chunks)
     classes = pixel_classes(optics.reach)
-    pairs = np.triu_indices(layers)
-    cells = _Tally(1 + layers + len(pairs[0]))
+    cells = _Tally(moment_columns(structure.layers))
     traced = 0
     for chunk in range(chunks):
         records = run_white(optics, per_chunk, seed + (chunk << 32), device=device)
         traced += records.photons
-        lengths = np.add.reduceat(records.lengths, np.asarray(structure.starts), axis=1, dtype=np.float64)
-        key = classes[records.pixel].astype(np.int64)
-        for k in range(layers):
-            key = key * _LEVELS + _length_bin(lengths[:, k])
-        # The chunk's cells, one weighted sum per column (no (records, columns) array).
-        unique, inverse = np.unique(key, return_inverse=True)
-        value = records.value.astype(np.float64)
+        unique, moments = tally_records(records, structure, classes)
         del records
-        moments = np.empty((len(unique), cells.columns))
-        moments[:, 0] = np.bincount(inverse, value, len(unique))
-        for k in range(layers):
-            moments[:, 1 + k] = np.bincount(inverse, value * lengths[:, k], len(unique))
-        for column, (k, j) in enumerate(zip(*pairs), start=1 + layers):
-            moments[:, column] = np.bincount(inverse, value * lengths[:, k] * lengths[:, j], len(unique))
         cells.add(unique, moments, chunk % BATCHES)
         if progress is not None:
             progress((chunk + 1) / chunks)
     keys, sums, batch_weight = cells.arrays()
     del cells
+    return cell_moments(optics, structure, traced, keys, sums, batch_weight, time.perf_counter() - start)
+
+
+def moment_columns(layers: int) -> int:
+    """Moment sums a cell keeps for ``layers`` layers: its weight, each layer's weighted length and
+    each product of two layers' lengths (``k <= j``)."""
+    return 1 + layers + layers * (layers + 1) // 2
+
+
+def tally_records(records: WhiteDatabase, structure: Structure, classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, moments)``: the cells that ``records`` fall in for ``structure`` (sorted, distinct
+    int64 keys: the pixel class, then each layer's length bin, :data:`_LEVELS` to a layer) and each
+    cell's moment sums ``(cells, moment_columns(L))`` float64 (:class:`_Tally`'s columns);
+    ``classes`` is :func:`pixel_classes` of the records' reach."""
+    layers = structure.layers
+    lengths = np.add.reduceat(records.lengths, np.asarray(structure.starts), axis=1, dtype=np.float64)
+    key = classes[records.pixel].astype(np.int64)
+    for k in range(layers):
+        key = key * _LEVELS + _length_bin(lengths[:, k])
+    # One weighted sum per column (no (records, columns) array).
+    unique, inverse = np.unique(key, return_inverse=True)
+    value = records.value.astype(np.float64)
+    moments = np.empty((len(unique), moment_columns(layers)))
+    moments[:, 0] = np.bincount(inverse, value, len(unique))
+    for k in range(layers):
+        moments[:, 1 + k] = np.bincount(inverse, value * lengths[:, k], len(unique))
+    for column, (k, j) in enumerate(zip(*np.triu_indices(layers)), start=1 + layers):
+        moments[:, column] = np.bincount(inverse, value * lengths[:, k] * lengths[:, j], len(unique))
+    return unique, moments
+
+
+def cell_moments(optics: SlabOptics, structure: Structure, traced: int, keys: np.ndarray, sums: np.ndarray,
+                 batch_weight: np.ndarray, seconds: float) -> CellDatabase:
+    """The database of cells ``keys`` (M,) with moment sums ``sums`` (M, columns) and batch weights
+    ``(M, BATCHES)`` (:class:`_Tally`'s arrays): the sums made means and covariances."""
+    layers = structure.layers
     weight = sums[:, 0].copy()
     mean = sums[:, 1:1 + layers] / weight[:, None]
     spread = np.empty((len(weight), layers, layers))
-    for column, (k, j) in enumerate(zip(*pairs), start=1 + layers):
+    for column, (k, j) in enumerate(zip(*np.triu_indices(layers)), start=1 + layers):
         spread[:, k, j] = sums[:, column] / weight - mean[:, k] * mean[:, j]
         spread[:, j, k] = spread[:, k, j]
-    del sums
     return CellDatabase(optics, tuple(structure.starts), traced, keys // _LEVELS ** layers, weight, mean, spread,
-                        np.ascontiguousarray(batch_weight.T), time.perf_counter() - start)
+                        np.ascontiguousarray(batch_weight.T), seconds)
 
 
 def cells_path(optics: SlabOptics, structure: Structure, photons: int, seed: int) -> Path:
