@@ -15,7 +15,10 @@ from pathlib import Path
 import numpy as np
 from PySide6.QtWidgets import QFileDialog
 from ringlight.core import ImpulseDataset
+from ringlight.core.device import Device
 from ringlight.core.optics import Calibration, CalibrationError, OpticalMaps, model_profile, optical_maps, read_calibration
+from ringlight.core.optics.maps import sample_optics
+from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.table import DEFAULT_PHOTONS
 from ringlight.core.uncertainty_text import with_error
 from ringlight.widgets.job_indicator import JobIndicator
@@ -29,7 +32,9 @@ UNITS = {"per_mm": "/mm", "per_grid_step": "/grid step"}
 class OpticsRequest:
     """The maps of ``dataset`` under ``calibration``, with the table's white run of ``photons``, for
     index ``n`` and anisotropy ``g`` (None: the manifest's);
-    ``stop`` set asks the fit to stop (its cancel question between pixel blocks)."""
+    ``stop`` set asks the fit to stop (its cancel question between pixel blocks). On a CUDA
+    ``device`` the table's white run is traced there first, into the user cache where the maps
+    find it (as ``ringlight optics --device``); the fits run on the CPU."""
 
     dataset: ImpulseDataset
     calibration: Calibration | None
@@ -37,8 +42,12 @@ class OpticsRequest:
     stop: threading.Event
     n: float | None = None
     g: float | None = None
+    device: Device | None = None
 
     def run(self, progress) -> OpticalMaps:
+        if self.device is not None and self.device.is_cuda:
+            radial_run(*sample_optics(self.dataset, self.n, self.g), self.photons, progress=progress,
+                       device=self.device)
         return optical_maps(self.dataset, n=self.n, g=self.g, calibration=self.calibration, progress=progress,
                             cancelled=self.stop.is_set, photons=self.photons)
 
@@ -132,7 +141,7 @@ class OpticsView:
         self._optics_stop.set()  # a job still running stops at its next question
         self._optics_stop = threading.Event()
         request = OpticsRequest(self.loaded.dataset, self.optics_calibration, self.optics_photons, self._optics_stop,
-                                n, g)
+                                n, g, self.compute_device())
         self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
         self.optics_jobs.start("Optical maps", lambda progress: (request, request.run(progress)))
 

@@ -1,4 +1,4 @@
-"""The window's device setting: Settings > Device, where the stacks and the layer fits run.
+"""The window's device setting: Settings > Device, where the stacks, the layer fits and the optics tables run.
 
 A mixin of :class:`ringlight.app.window.MainWindow`, stored in its QSettings under ``device``.
 The choice is ``--device``'s (:data:`ringlight.core.device.CHOICES`); the window's workers pass
@@ -54,7 +54,8 @@ class WindowDevice:
             action = self.device_actions["auto"]
         action.setChecked(True)
         self.layer_tab.device = self.compute_device().kind
-        self.statusBar().showMessage(f"Stacks and layer fits run on {self.compute_device().name}", 5000)
+        self.statusBar().showMessage(f"Stacks, layer fits and optics tables run on {self.compute_device().name}",
+                                     5000)
 
     def compute_device(self) -> Device:
         """The device the checked choice runs on now (the CPU when its GPU has gone)."""

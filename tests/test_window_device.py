@@ -1,11 +1,13 @@
 """Settings > Device: the window's device setting, persisted, and handed by its workers to the
-core calls that take ``device=`` (the stacks' ring sums, the inverse fit's white runs)."""
+core calls that take ``device=`` (the stacks' ring sums, the inverse fit's white runs, the optics
+table's white run)."""
 
 import numpy as np
 import pytest
 from plain_view import plain_settings
 from reference import random_impulses, write_dataset
-from ringlight.app import window_device
+from optics_helpers import TEST_PHOTONS
+from ringlight.app import optics_view, window_device
 from ringlight.app.window import MainWindow
 from ringlight.core.device import Device, cuda_device
 from ringlight.core.rings import stack_request
@@ -78,4 +80,40 @@ def test_with_a_gpu_the_stack_worker_sums_the_rings_on_it(qtbot, tmp_path, monke
     _, transient = ring_and_transient_stacks(open_dataset(tmp_path / "ds"), pair.radii, pair.request.dr,
                                              pair.request.thickness)
     assert np.array_equal(pair.transient.images, transient.images, equal_nan=True)
+    window.shutdown()
+
+
+def test_with_a_gpu_the_optics_tab_traces_its_table_on_it(qtbot, tmp_path, monkeypatch):
+    # The Optics tab's worker traces the table's white run on the chosen GPU (recorded here, then
+    # traced on the CPU: no GPU on CI) for the manifest's n and the default g, before the fits,
+    # which then read it from the user cache: the maps are core's, to the last bit. (The dataset
+    # opens on the CPU, so that its stacks need no GPU.)
+    monkeypatch.setattr(window_device, "cuda_device", lambda: FAKE_GPU)
+    seen = []
+    original = optics_view.radial_run
+
+    def recording(n, g, photons, *arguments, device=None, **keywords):
+        seen.append((n, g, photons, device))
+        return original(n, g, photons, *arguments, **keywords)
+
+    monkeypatch.setattr(optics_view, "radial_run", recording)
+    window = make_window(qtbot, tmp_path / "settings.ini")
+    window.device_actions["cpu"].trigger()
+    window.optics_photons = TEST_PHOTONS
+    impulses = random_impulses(np.random.default_rng(5), 8, 8, support=3)
+    write_dataset(tmp_path / "ds", 8, 8, impulses, max_radius=3, extra={"sample": {"n": 1.33}})
+    with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
+        window.open_dataset(tmp_path / "ds")
+    qtbot.waitUntil(lambda: not window.stack_jobs.busy, timeout=TIMEOUT_MS)
+    monkeypatch.setattr(window_device, "choose_device", lambda choice: FAKE_GPU)
+    window.device_actions["cuda"].trigger()
+    window.optics_panel.compute_button.click()
+    qtbot.waitUntil(lambda: window.optics is not None, timeout=TIMEOUT_MS)
+    assert seen == [(1.33, 0.0, TEST_PHOTONS, FAKE_GPU)]
+    from ringlight.core import open_dataset
+    from ringlight.core.optics import optical_maps
+
+    direct = optical_maps(open_dataset(tmp_path / "ds"), photons=TEST_PHOTONS)
+    assert np.array_equal(window.optics.mua, direct.mua, equal_nan=True)
+    assert np.array_equal(window.optics.musp_se, direct.musp_se, equal_nan=True)
     window.shutdown()
