@@ -400,7 +400,8 @@ def test_missing_frames_are_said_in_order_without_a_run_each(long_dataset, monke
 def test_runs_read_side_by_side_say_each_problem_in_the_manifests_order(long_dataset, monkeypatch):
     """``info``'s check reads its runs on two threads at once (their system calls from compiled
     code, without the GIL): problems are still said in the manifest's order, each frame visited
-    once, exactly as the same check on one thread (the reference, run here) says them."""
+    once, exactly as the same check on one thread (the reference, run here) says them; on a
+    machine of many cores, at most four threads read (each holds a run's bytes)."""
     import threading
 
     from ringlight.core.dataset import checks, file_batch
@@ -426,3 +427,6 @@ def test_runs_read_side_by_side_say_each_problem_in_the_manifests_order(long_dat
     assert problems == alone == [{**missing, **truncated}[index] for index in sorted({**missing, **truncated})]
     present = [index for index in range(1, 1000) if index not in missing]
     assert sorted(visits) == [f"{long_dataset}/frames/{index:06d}.exr" for index in present]
+    threads.clear()
+    monkeypatch.setattr(checks, "reader_count", lambda: 16)  # a larger machine: at most MOST_READERS runs at once
+    assert check_files(manifest) == alone and 1 < len(set(threads)) <= checks.MOST_READERS == 4

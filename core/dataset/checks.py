@@ -25,6 +25,10 @@ from .manifest import Manifest
 
 RUN_FILES = 1024
 """Frames read in one run (:func:`.file_batch.read_run`): at most 64 MiB of small files' bytes."""
+MOST_READERS = 4
+"""Most threads reading runs at once (:func:`_checked_runs`): each run read ahead is held, so a
+check holds at most five runs' bytes (a run of 1024 10 x 10 frames is about 0.4 MB, of 1024
+files of 64 KiB, the most read whole, 64 MiB)."""
 
 
 def check_files(manifest: Manifest, allow_outside: bool = False,
@@ -146,16 +150,16 @@ def _checked_runs(resolver: FileResolver, names, start: int,
     """The frames ``names[start:]`` in runs of :data:`RUN_FILES`, in order: each run read
     (:func:`.file_batch.read_run`, with the header of ``shared``) and whether each of its frames'
     chunk table fits its file ((n,) bool). Runs are read by :func:`.file_batch.reader_count`
-    threads: the compiled calls that visit the files and check the tables release the GIL, so the
-    runs' system calls share the cores. At most one run a thread is read ahead of the one the
-    caller has (memory: a run's bytes, a few hundred KB for 1024 small frames, a thread)."""
+    threads (at most :data:`MOST_READERS`): the compiled calls that visit the files and check the
+    tables release the GIL, so the runs' system calls share the cores. At most one run a thread is
+    read ahead of the one the caller has."""
     def read(at: int) -> tuple[FileRun, np.ndarray]:
         run = read_run(resolver, names[at:at + RUN_FILES], shared.header_bytes)
         fits = np.zeros(len(run), np.bool_)
         chunk_tables_fit(run.data, run.starts, run.sizes, shared.layout.table_start, shared.layout.first, fits)
         return run, fits
 
-    readers = reader_count()
+    readers = min(reader_count(), MOST_READERS)
     with ThreadPoolExecutor(max_workers=readers) as pool:
         pending: deque[Future] = deque()
         try:
