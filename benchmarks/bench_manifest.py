@@ -18,13 +18,15 @@ each per frame in CPU time of the whole process (all threads; user + system: the
 the kernel's, mostly the four calls that open, stat, read and close each file) and in wall time,
 each as a ratio to the parse's. What a process pays once (imports, compiled kernels loaded: about
 0.4-0.5 s) is paid first by the check and open of a 1000-frame dataset, printed apart: counted in
-the steps, it made 2-4 us of a 100 000-frame check's "per frame". Measured on the 2-core
+the steps, it made 1-2 us of a 100 000-frame check's "per frame". Measured on the 2-core
 development machine (shared with other work), 100 000 frames, three runs of the code before
 (``info``'s runs of files read one after another) alternated with three of the code after (read
 on both cores), load average 2.0-5.3, us a frame before and after: parse CPU 6.6-11.2 and 6.1-7.3;
 check CPU 6.7-7.4 (0.7-1.0x the parse) and 6.6-7.4 (1.0-1.2x), wall 9.3-14.5 and 10.6-14.9 (the
-other core was busy: in one process, alternating one reader and two at load 5, the check's wall
-was 13.2-17.6 and 9.8-13.8 us, its CPU the same); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
+other core was busy; in one process, three runs each alternated, the check's wall with its runs
+read one after another and on two threads: 13.2-17.6 and 9.8-13.8 us at load 5, 13.2-14.0 and
+13.5-15.3 at load 6; on 10^6 frames at load 6.5-8, 11.9-14.8 and 11.1-13.9; its CPU the same within
+the runs' spread); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
 (1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's. Before the warm-up was paid
 apart (stop 45, load 4-9): parse 7.5-9.2, check 9.1-12.0, open 12.9-14.8. The commands on the same
 dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
