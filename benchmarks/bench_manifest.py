@@ -27,7 +27,9 @@ other core was busy; in one process, three runs each alternated, the check's wal
 read one after another and on two threads: 13.2-17.6 and 9.8-13.8 us at load 5, 13.2-14.0 and
 13.5-15.3 at load 6; on 10^6 frames at load 6.5-8, 11.9-14.8 and 11.1-13.9; its CPU the same within
 the runs' spread); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
-(1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's. Before the warm-up was paid
+(1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's (three more pairs at load
+7.7-9.5: parse 7.6-8.6 and 6.0-8.3, check 6.3-6.9 and 6.2-7.2, wall 12.4-14.7 and 12.9-14.8, open
+12.2-12.8 and 11.4-12.7). Before the warm-up was paid
 apart (stop 45, load 4-9): parse 7.5-9.2, check 9.1-12.0, open 12.9-14.8. The commands on the same
 dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
 31.8 s (each about 1.5 s of it the start of Python and its imports).
