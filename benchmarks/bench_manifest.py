@@ -9,19 +9,28 @@ time, the target and their ratio (over 1 means faster than the target).
 
 With ``--pipeline``, it times instead the work per frame after the parse (issue 40, case 12: "the
 per-frame work after parsing must be as cheap as the parse"): a dataset of ``--frames`` one-point
-frames on a 10 x 10 grid (max_radius 3), each frame a hard link to one of 50 small EXR files, then,
-in CPU seconds of the whole process (all threads): the parse (``read_manifest``), the check of
-every file's header (``find_file_problems``, what ``ringlight info`` does), the plan of the open
-(``plan_open``: with no store of this manifest, no file is stat'ed), the key a reopen makes
-(``cache.stat_key``: a stat a file) and the open itself (``open_dataset`` without the cache: every
-frame located, read, checked, decoded and scattered), each per frame (user + system: the system
-part is the kernel's, mostly the four calls that open, stat, read and close each file) and as a
-ratio to the parse. Measured on the 2-core development machine (shared with other work, load
-average about 4), 100 000 frames, two runs of the code before (the system calls made from Python)
-alternated with two of the code after (made from compiled code: ``core/dataset/native_files.py``),
-in us a frame before and after: parse 7.6-7.9 and 8.6-9.2, check 15.4-17.0 and 10.8-12.0, plan
-0.0, key 4.7 and 2.1-2.2, open 22.6-23.4 and 14.5-14.8 (two more pairs at load 8-9: check 12.6-15.9
-and 9.1-10.4, open 19.3-21.5 and 12.9-13.2). The commands on the same
+frames on a 10 x 10 grid (max_radius 3), each frame a hard link to one of 50 small EXR files, then
+the parse (``read_manifest``), the check of every file's header (``find_file_problems``, what
+``ringlight info`` does), the plan of the open (``plan_open``: with no store of this manifest, no
+file is stat'ed), the key a reopen makes (``cache.stat_key``: a stat a file) and the open itself
+(``open_dataset`` without the cache: every frame located, read, checked, decoded and scattered),
+each per frame in CPU time of the whole process (all threads; user + system: the system part is
+the kernel's, mostly the four calls that open, stat, read and close each file) and in wall time,
+each as a ratio to the parse's. What a process pays once (imports, compiled kernels loaded: about
+0.4-0.5 s) is paid first by the check and open of a 1000-frame dataset, printed apart: counted in
+the steps, it made 1-2 us of a 100 000-frame check's "per frame". Measured on the 2-core
+development machine (shared with other work), 100 000 frames, three runs of the code before
+(``info``'s runs of files read one after another) alternated with three of the code after (read
+on both cores), load average 2.0-5.3, us a frame before and after: parse CPU 6.6-11.2 and 6.1-7.3;
+check CPU 6.7-7.4 (0.7-1.0x the parse) and 6.6-7.4 (1.0-1.2x), wall 9.3-14.5 and 10.6-14.9 (the
+other core was busy; in one process, three runs each alternated, the check's wall with its runs
+read one after another and on two threads: 13.2-17.6 and 9.8-13.8 us at load 5, 13.2-14.0 and
+13.5-15.3 at load 6; on 10^6 frames at load 6.5-8, 11.9-14.8 and 11.1-13.9; its CPU the same within
+the runs' spread); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
+(1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's (three more pairs at load
+7.7-9.5: parse 7.6-8.6 and 6.0-8.3, check 6.3-6.9 and 6.2-7.2, wall 12.4-14.7 and 12.9-14.8, open
+12.2-12.8 and 11.4-12.7). Before the warm-up was paid
+apart (stop 45, load 4-9): parse 7.5-9.2, check 9.1-12.0, open 12.9-14.8. The commands on the same
 dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
 31.8 s (each about 1.5 s of it the start of Python and its imports).
 
@@ -131,25 +140,29 @@ def write_linked_dataset(folder: Path, frames: int, files: int = 50) -> None:
 
 
 def time_pipeline(frames: int) -> None:
-    """Print the CPU time of each step of an open per frame and against the parse (module docstring)."""
+    """Print the CPU and wall time of each step of an open per frame and against the parse (module
+    docstring), after a warm-up on a small dataset that pays the steps' costs once a process."""
     from ringlight.core import open_dataset
     from ringlight.core.dataset import cache
     from ringlight.core.dataset.checks import find_file_problems
     from ringlight.core.dataset.open_plan import plan_open
 
+    steps = {}
+
+    def timed(step, work):
+        started, wall = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        result = work()
+        wall, ended = time.perf_counter() - wall, resource.getrusage(resource.RUSAGE_SELF)
+        steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime, wall)
+        return result
+
     with tempfile.TemporaryDirectory() as folder:
-        folder = Path(folder) / "long"
+        warm, folder = Path(folder) / "warm", Path(folder) / "long"
+        write_linked_dataset(warm, WARM_FRAMES)
         write_linked_dataset(folder, frames)
         read_manifest(folder)  # warm: the page cache, lazy imports
-        steps = {}
-
-        def timed(step, work):
-            started = resource.getrusage(resource.RUSAGE_SELF)
-            result = work()
-            ended = resource.getrusage(resource.RUSAGE_SELF)
-            steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime)
-            return result
-
+        small = read_manifest(warm)
+        timed("warm-up", lambda: (find_file_problems(small), open_dataset(small, use_cache=False)))
         manifest = timed("parse", lambda: read_manifest(folder))
         shown, problems = timed("check", lambda: find_file_problems(manifest, keep=5))
         timed("plan", lambda: plan_open(manifest))
@@ -157,13 +170,20 @@ def time_pipeline(frames: int) -> None:
         dataset = timed("open", lambda: open_dataset(manifest, use_cache=False))
     if problems or not responses_match(dataset):
         raise SystemExit(f"the dataset did not open as written: {shown}")
-    print(f"{frames} one-point frames on a 10 x 10 grid (hard links to 50 EXR files), CPU seconds of all threads "
-          "(user + system, the system's in the kernel's calls):")
-    parse = sum(steps["parse"])
-    for step, (user, system) in steps.items():
-        seconds = user + system
-        print(f"  {step:6s} {seconds:7.2f} s  {seconds / frames * 1e6:7.1f} us a frame "
-              f"({user / frames * 1e6:5.1f} + {system / frames * 1e6:5.1f})  {seconds / parse:5.1f} x the parse")
+    user, system, wall = steps.pop("warm-up")
+    print(f"warm-up: the check and open of {WARM_FRAMES} frames first (imports, compiled kernels loaded), once a "
+          f"process: {user + system:.2f} s of CPU, {wall:.2f} s wall")
+    print(f"{frames} one-point frames on a 10 x 10 grid (hard links to 50 EXR files), us a frame: CPU of all threads "
+          "(user + system, the system's in the kernel's calls) and wall, each against the parse's:")
+    parse_cpu, parse_wall = sum(steps["parse"][:2]), steps["parse"][2]
+    for step, (user, system, wall) in steps.items():
+        seconds, us = user + system, 1e6 / frames
+        print(f"  {step:6s} CPU {seconds * us:6.1f} ({user * us:5.1f} + {system * us:5.1f}) "
+              f"{seconds / parse_cpu:4.1f} x   wall {wall * us:6.1f} {wall / parse_wall:4.1f} x")
+
+
+WARM_FRAMES = 1000
+"""Frames of the warm-up dataset (:func:`time_pipeline`)."""
 
 
 def responses_match(dataset) -> bool:

@@ -271,7 +271,7 @@ def test_a_first_open_stats_no_frame_and_decodes_them_in_a_compiled_call_a_run(l
     from ringlight.core.dataset import assembly, cache, file_batch, frame_batch
     from ringlight.core.dataset.frames import FrameReader
 
-    monkeypatch.setattr(assembly, "_reader_count", lambda: 2)  # 1000 frames in 8 groups of 125
+    monkeypatch.setattr(assembly, "reader_count", lambda: 2)  # 1000 frames in 8 groups of 125
     stats = counted(monkeypatch, os, "stat", lambda path, *args: os.fspath(path))
     compiled_visits(monkeypatch, cache, "stat_files", long_dataset, stats)
     opens = counted(monkeypatch, os, "open", lambda path, *args: os.fspath(path))
@@ -395,3 +395,38 @@ def test_missing_frames_are_said_in_order_without_a_run_each(long_dataset, monke
                  f"{len(data) - 20}, before the end of its last chunk)")
     missing = [f"{long_dataset}/frames/{index:06d}.exr: file not found" for index in range(100, 1000, 3)]
     assert problems == missing[:1] + [truncated] + missing[1:]
+
+
+def test_runs_read_side_by_side_say_each_problem_in_the_manifests_order(long_dataset, monkeypatch):
+    """``info``'s check reads its runs on two threads at once (their system calls from compiled
+    code, without the GIL): problems are still said in the manifest's order, each frame visited
+    once, exactly as the same check on one thread (the reference, run here) says them; on a
+    machine of many cores, at most four threads read (each holds a run's bytes)."""
+    import threading
+
+    from ringlight.core.dataset import checks, file_batch
+
+    for index in range(100, 1000, 7):
+        (long_dataset / "frames" / f"{index:06d}.exr").unlink()
+    data = (long_dataset / "frames" / "base.exr").read_bytes()
+    for index in (101, 556, 998):
+        (long_dataset / "frames" / f"{index:06d}.exr").unlink()
+        (long_dataset / "frames" / f"{index:06d}.exr").write_bytes(data[:-20])
+    manifest = load_manifest(long_dataset)
+    monkeypatch.setattr(checks, "RUN_FILES", 64)
+    monkeypatch.setattr(checks, "reader_count", lambda: 1)
+    alone = check_files(manifest)
+    monkeypatch.setattr(checks, "reader_count", lambda: 2)
+    threads = counted(monkeypatch, checks, "read_run", lambda *args: threading.get_ident())
+    visits = compiled_visits(monkeypatch, file_batch, "read_files", long_dataset)
+    problems = check_files(manifest)
+    assert len(threads) == 16 and len(set(threads)) == 2  # 999 frames in runs of 64, on two threads
+    truncated = {index: (f"{long_dataset}/frames/{index:06d}.exr: truncated or corrupt OpenEXR file (the file ends "
+                         f"at byte {len(data) - 20}, before the end of its last chunk)") for index in (101, 556, 998)}
+    missing = {index: f"{long_dataset}/frames/{index:06d}.exr: file not found" for index in range(100, 1000, 7)}
+    assert problems == alone == [{**missing, **truncated}[index] for index in sorted({**missing, **truncated})]
+    present = [index for index in range(1, 1000) if index not in missing]
+    assert sorted(visits) == [f"{long_dataset}/frames/{index:06d}.exr" for index in present]
+    threads.clear()
+    monkeypatch.setattr(checks, "reader_count", lambda: 16)  # a larger machine: at most MOST_READERS runs at once
+    assert check_files(manifest) == alone and 1 < len(set(threads)) <= checks.MOST_READERS == 4

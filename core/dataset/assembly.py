@@ -41,6 +41,7 @@ from ..phases import phase
 from .exr import whole_file_reader
 from .exr_header import quiet_library
 from .cache import IDENTITY_FIELDS
+from .file_batch import reader_count
 from .frame_batch import READ_ALONE, BatchDecoder, owners
 from .frames import FrameReader
 from .manifest import Manifest
@@ -121,7 +122,7 @@ class Assembler:
         Frames are scattered in batches (:class:`_Batch`; two of them, together up to
         ``batch_bytes``), point by point: a point's responses are one block, which a batch fills
         in one visit instead of one visit a frame. While one batch is scattered on every core,
-        :func:`_reader_count` threads decode the next one's frames and mark their owners.
+        :func:`.file_batch.reader_count` threads decode the next one's frames and mark their owners.
         ``progress`` gets the fraction of frames read. Raises DatasetError naming the first frame
         with NaN or Inf values, or the first that cannot be read."""
         frames = self.manifest.frames
@@ -134,7 +135,7 @@ class Assembler:
         done = 0
         whole = rows == self.height or self.reader.mapping is not None  # camera frames decode whole
         library_threads = 0 if whole and self.whole_file_reader else os.cpu_count() or 1
-        readers = _reader_count()
+        readers = reader_count()
         with _decoding_threads(library_threads), ThreadPoolExecutor(max_workers=readers) as pool:
             def submit(index: int) -> list:
                 """Queue the reads of batch ``index`` into buffer ``index % 2``: a task per group
@@ -259,12 +260,6 @@ class _Batch:
 
 def _owner_type(offsets: int) -> type:
     return np.int16 if offsets <= np.iinfo(np.int16).max else np.int32
-
-
-def _reader_count() -> int:
-    """Threads decoding frames: one a core (the owner marking, and OpenEXR's reader of whole files,
-    release the GIL; its selecting reader decodes on the library's own threads)."""
-    return max(1, os.cpu_count() or 1)
 
 
 def assemble_in_memory(assembler: Assembler, budget: int, progress: ProgressCallback | None = None,

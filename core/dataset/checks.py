@@ -6,7 +6,9 @@ known before a long open or stack, not halfway through one.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -15,7 +17,7 @@ from .exr import visit_exr
 from .exr_chunks import chunk_tables_fit
 from .exr_seen import HeaderCache, PassedHeader
 from .exr_header import RGB, quiet_library
-from .file_batch import read_run
+from .file_batch import FileRun, read_run, reader_count
 from .file_paths import FileResolver
 from .frames import dataset_channels
 from .manifest import Manifest
@@ -23,6 +25,10 @@ from .manifest import Manifest
 
 RUN_FILES = 1024
 """Frames read in one run (:func:`.file_batch.read_run`): at most 64 MiB of small files' bytes."""
+MOST_READERS = 4
+"""Most threads reading runs at once (:func:`_checked_runs`): each run read ahead is held, so a
+check holds at most five runs' bytes (a run of 1024 10 x 10 frames is about 0.4 MB, of 1024
+files of 64 KiB, the most read whole, 64 MiB)."""
 
 
 def check_files(manifest: Manifest, allow_outside: bool = False,
@@ -120,15 +126,16 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
                     shared = passed
                 done += 1
             else:
-                run = read_run(resolver, names[done:done + RUN_FILES], shared.header_bytes)
-                fits = np.zeros(len(run), np.bool_)
-                chunk_tables_fit(run.data, run.starts, run.sizes, shared.layout.table_start, shared.layout.first, fits)
-                for at in np.flatnonzero(~fits).tolist():  # checked alone, in order: its problem said as ever
-                    if at in run.errors:
-                        problem(run.errors[at])
-                    else:
-                        check(names[done + at], channels, frame_shape, "frame", size_of)
-                done += len(run)
+                for run, fits in _checked_runs(resolver, names, done, shared):
+                    for at in np.flatnonzero(~fits).tolist():  # checked alone, in order: its problem said as ever
+                        if at in run.errors:
+                            problem(run.errors[at])
+                        else:
+                            check(names[done + at], channels, frame_shape, "frame", size_of)
+                    done += len(run)
+                    if progress is not None:
+                        progress(done / files)
+                continue
             if progress is not None:
                 progress(done / files)
     for image in truth:
@@ -136,3 +143,32 @@ def find_file_problems(manifest: Manifest, allow_outside: bool = False,
     if progress is not None:
         progress(1.0)
     return problems, total
+
+
+def _checked_runs(resolver: FileResolver, names, start: int,
+                  shared: PassedHeader) -> Iterator[tuple[FileRun, np.ndarray]]:
+    """The frames ``names[start:]`` in runs of :data:`RUN_FILES`, in order: each run read
+    (:func:`.file_batch.read_run`, with the header of ``shared``) and whether each of its frames'
+    chunk table fits its file ((n,) bool). Runs are read by :func:`.file_batch.reader_count`
+    threads (at most :data:`MOST_READERS`): the compiled calls that visit the files and check the
+    tables release the GIL, so the runs' system calls share the cores. At most one run a thread is
+    read ahead of the one the caller has."""
+    def read(at: int) -> tuple[FileRun, np.ndarray]:
+        run = read_run(resolver, names[at:at + RUN_FILES], shared.header_bytes)
+        fits = np.zeros(len(run), np.bool_)
+        chunk_tables_fit(run.data, run.starts, run.sizes, shared.layout.table_start, shared.layout.first, fits)
+        return run, fits
+
+    readers = min(reader_count(), MOST_READERS)
+    with ThreadPoolExecutor(max_workers=readers) as pool:
+        pending: deque[Future] = deque()
+        try:
+            for at in range(start, len(names), RUN_FILES):
+                pending.append(pool.submit(read, at))
+                if len(pending) > readers:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:  # the caller stopped (an error): runs not started are not read
+            for future in pending:
+                future.cancel()

@@ -96,6 +96,13 @@ def read_run(resolver: FileResolver, names, header: bytes) -> FileRun:
     return FileRun(data, starts, sizes, identities, errors)
 
 
+def reader_count() -> int:
+    """Threads reading runs side by side: one a core (the compiled calls that visit the files, and
+    those that check or decode them, release the GIL; so do OpenEXR's reader of whole files, and
+    its selecting reader decodes on the library's own threads)."""
+    return max(1, os.cpu_count() or 1)
+
+
 @dataclass(frozen=True)
 class _NativeRun:
     """What :func:`.native_files.read_files` takes of a run: the dataset folder's descriptor, the
