@@ -179,7 +179,7 @@ def ring_errors(dataset: ImpulseDataset, radii: np.ndarray, progress=None) -> tu
 def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | None = None, calibration=None,
                  progress=None, cancelled=None, stack: Stack | None = None, errors: np.ndarray | None = None,
                  noise_source: str | None = None, photons: int = DEFAULT_PHOTONS,
-                 floor: float = MODEL_FLOOR) -> OpticalMaps:
+                 floor: float = MODEL_FLOOR, estimator: str = "nodes") -> OpticalMaps:
     """mu_a and mu_s' (and their standard errors) of every pixel and channel of ``dataset``.
 
     Parameters
@@ -202,6 +202,9 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         Photons of the table's white run (:func:`.table.table_for`).
     floor
         Relative standard deviation added to every ring (:data:`MODEL_FLOOR`).
+    estimator
+        ``"nodes"``: Gauss-Newton steps from a fine table's nodes (:mod:`.node_fit`); ``"full"``:
+        Levenberg-Marquardt on the table's splines (:mod:`.pixel_fit`), what region fits use.
 
     Returns
     -------
@@ -231,7 +234,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
-                          floor=floor, inflation=inflation)
+                          floor=floor, inflation=inflation, estimator=estimator)
     report.progress(1.0)
     whole = np.asarray([_ring_members(r) for r in radii])
     complete = (stack.counts == whole[:, None, None]).all(axis=0)
