@@ -9,12 +9,16 @@ mua 0.01 per grid step, 3 % noise on every response value, max_radius MAX_RADIUS
     what the map computes);
   - for comparison, the spread in a pass of its own (``stack_noise``, as the maps took it before);
   - the per-pixel fits of every pixel and channel (``fit_profiles`` on the cached table, each
-    fit making its rings' standard deviations from their errors);
+    fit making its rings' standard deviations from their errors), by the maps' estimator (Gauss-
+    Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`) and, for
+    comparison, by the full Levenberg-Marquardt fit on the table's splines (the maps' estimator
+    before, and the region fits');
+  - the fine table's nodes made from the table (once per table, as the table is: reported apart);
 in REPEATS rounds within this one process, each round taking every phase once, the order
 reversed every other round (a shared machine's load drifts; phases timed minutes apart in separate
 runs gave 3.00 x and 4.27 x). Each round gives its own ratios: the map's cost beyond the stack
 ((one pass - stack) + fits) over the stack's, and the whole map's from the dataset over the
-stack's; the median over the rounds is printed with the lowest and highest. The table's white
+stack's (each also with the full fits, and with the fine nodes made); the median over the rounds is printed with the lowest and highest. The table's white
 run is made (or read from the user cache) before the clock starts: once per n and g.
 Target (issue 38): the map costs at most the time of the stack it is computed from.
 
@@ -29,6 +33,7 @@ import time
 import numpy as np
 
 from ringlight.core.optics.pixel_fit import fit_profiles
+from ringlight.core.optics import node_fit
 from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, profile_radii, ring_errors, t_inflation
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.synthetic import homogeneous_dataset
@@ -72,16 +77,23 @@ def main() -> None:
     ring_stack(small, radii), ring_errors(small, radii)
     stack, errors = ring_stack_and_errors(small, radii)
     inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
-    fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR, inflation=inflation)
+    for estimator in ("nodes", "full"):
+        fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
+                     inflation=inflation, estimator=estimator)
 
     stack, errors = ring_stack_and_errors(dataset, radii)  # the fits' input, the same every round
 
-    def fits():
-        return fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
-                            inflation=inflation)
+    def fits(estimator):
+        return lambda: fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
+                                    inflation=inflation, estimator=estimator)
+
+    def fine_nodes():
+        node_fit._FINE.pop(table, None)  # made again: what a new table costs
+        return node_fit.fine_nodes(table)
 
     phases = {"stack": lambda: ring_stack(dataset, radii), "one pass": lambda: ring_stack_and_errors(dataset, radii),
-              "separate spread": lambda: ring_errors(dataset, radii), "fits": fits}
+              "separate spread": lambda: ring_errors(dataset, radii), "fits": fits("nodes"), "full fits": fits("full"),
+              "fine nodes": fine_nodes}
     times = {name: [] for name in phases}  # per phase, per round: (wall, CPU) seconds
     results = {}
     for round_ in range(max(1, args.repeats)):
@@ -91,30 +103,36 @@ def main() -> None:
             results[name] = phases[name]()
             times[name].append((time.perf_counter() - wall, time.process_time() - cpu))
     times = {name: np.asarray(value) for name, value in times.items()}  # (rounds, 2)
-    fitted = results["fits"]
     count = args.size * args.size * 3
-    converged = float(np.mean(fitted["status"] == 0))
-    musp = (1.0 - table.g) * np.exp(fitted["u"])
+
+    def outcome(fitted):
+        converged = float(np.mean(fitted["status"] == 0))
+        musp = (1.0 - table.g) * np.exp(fitted["u"])
+        return f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2"
 
     def spread(values):
         return f"{np.median(values):5.2f} ({np.min(values):.2f}-{np.max(values):.2f})"
 
     def line(label, name, extra=""):
         seconds, ratio = times[name], times[name] / times["stack"]
-        print(f"{label:34s} {spread(seconds[:, 0])} s wall, {spread(ratio[:, 0])} x; "
+        print(f"{label:44s} {spread(seconds[:, 0])} s wall, {spread(ratio[:, 0])} x; "
               f"{spread(seconds[:, 1])} s CPU, {spread(ratio[:, 1])} x{extra}")
 
-    print(f"{'phase':34s} median (lowest-highest) of {len(times['stack'])} rounds, and over the same round's stack")
+    print(f"{'phase':44s} median (lowest-highest) of {len(times['stack'])} rounds, and over the same round's stack")
     line(f"ring stack ({len(radii)} radii)", "stack")
     line("stack + errors in one pass", "one pass")
     line("errors in a pass of their own", "separate spread", "  (before; not in the map)")
-    line(f"fits ({count} pixel channels)", "fits", f"  ({np.median(times['fits'][:, 1]) / count * 1e6:.2f} us CPU each, "
-         f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2)")
+    for name, label in (("fits", "fits, node steps"), ("full fits", "fits, full (before)")):
+        line(f"{label} ({count} pixel channels)", name, f"  ({np.median(times[name][:, 1]) / count * 1e6:.2f} us CPU "
+             f"each, {outcome(results[name])})")
+    line("fine nodes (once per table)", "fine nodes")
     for index, unit in ((0, "wall"), (1, "CPU")):
-        whole = times["one pass"][:, index] + times["fits"][:, index]
-        own = whole - times["stack"][:, index]
-        print(f"map ({unit:4s}): from the dataset {spread(whole / times['stack'][:, index])} x the stack; "
-              f"beyond the stack (errors + fits) {spread(own / times['stack'][:, index])} x (target <= 1)")
+        for label, extra in (("", 0.0), (", full fits (before)", times["full fits"][:, index] - times["fits"][:, index]),
+                             (", fine nodes made", times["fine nodes"][:, index])):
+            whole = times["one pass"][:, index] + times["fits"][:, index] + extra
+            own = whole - times["stack"][:, index]
+            print(f"map ({unit:4s}{label}): from the dataset {spread(whole / times['stack'][:, index])} x the stack; "
+                  f"beyond the stack (errors + fits) {spread(own / times['stack'][:, index])} x (target <= 1)")
 
 if __name__ == "__main__":
     main()
