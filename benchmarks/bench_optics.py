@@ -18,8 +18,9 @@ in REPEATS rounds within this one process, each round taking every phase once, t
 reversed every other round (a shared machine's load drifts; phases timed minutes apart in separate
 runs gave 3.00 x and 4.27 x). Each round gives its own ratios: the map's cost beyond the stack
 ((one pass - stack) + fits) over the stack's, and the whole map's from the dataset over the
-stack's (each also with the full fits, and with the fine nodes made); the median over the rounds is printed with the lowest and highest. The table's white
-run is made (or read from the user cache) before the clock starts: once per n and g.
+stack's (each also with the full fits, and with the fine nodes made); the median over the rounds
+is printed with the lowest and highest. The table's white run is made (or read from the user
+cache) before the clock starts: once per n and g.
 Target (issue 38): the map costs at most the time of the stack it is computed from.
 
     python benchmarks/bench_optics.py [--size 800] [--max-radius 8] [--photons 1000000] [--repeats 5]
@@ -127,7 +128,8 @@ def main() -> None:
              f"each, {outcome(results[name])})")
     line("fine nodes (once per table)", "fine nodes")
     for index, unit in ((0, "wall"), (1, "CPU")):
-        for label, extra in (("", 0.0), (", full fits (before)", times["full fits"][:, index] - times["fits"][:, index]),
+        instead_full = times["full fits"][:, index] - times["fits"][:, index]
+        for label, extra in (("", 0.0), (", full fits (before)", instead_full),
                              (", fine nodes made", times["fine nodes"][:, index])):
             whole = times["one pass"][:, index] + times["fits"][:, index] + extra
             own = whole - times["stack"][:, index]

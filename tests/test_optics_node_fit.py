@@ -21,6 +21,11 @@ def table():
     return build_table(radial.radial_run(1.4, 0.0, TEST_PHOTONS, seed=0), np.arange(8.0))
 
 
+def spline(table, u, v):
+    """(R,) E of the table's spline look-up at u = log mus, v = log (mua / mus)."""
+    return table.profile(math.exp(u), math.exp(u + v))
+
+
 def test_fine_nodes_equal_the_tables_spline(table):
     nodes, u0, du, v0, dv = fine_nodes(table)
     rng = np.random.default_rng(3)
@@ -28,19 +33,19 @@ def test_fine_nodes_equal_the_tables_spline(table):
     picks.append((nodes.shape[0] - 1, nodes.shape[1] - 1))  # the spline range's last node
     checked = 0
     for k, j in picks:
-        # The spline and its derivatives (ProfileTable.profile's look-up; central differences of it).
+        # The spline and its derivatives (central differences of its look-up).
         u, v = min(u0 + k * du, u0 + (nodes.shape[0] - 1.0) * du - 1e-12), v0 + j * dv
-        model = table.profile(math.exp(u), math.exp(u + v))
+        model = spline(table, u, v)
         if not np.all(model > 1e-25):
             assert not np.isfinite(nodes[k, j, 0, model <= 1e-30]).any()  # too small for float32: sent to the full fit
             continue
         np.testing.assert_allclose(nodes[k, j, 0], model, rtol=1e-6)
         if 0 < k < nodes.shape[0] - 1 and 0 < j < nodes.shape[1] - 1:
-            h = 1e-5
-            d_u = (table.profile(math.exp(u + h), math.exp(u + h + v)) - table.profile(math.exp(u - h), math.exp(u - h + v)))
-            d_v = (table.profile(math.exp(u), math.exp(u + v + h)) - table.profile(math.exp(u), math.exp(u + v - h)))
-            np.testing.assert_allclose(nodes[k, j, 1], d_u / (2 * h), rtol=1e-4, atol=1e-6 * np.abs(model).max())
-            np.testing.assert_allclose(nodes[k, j, 2], d_v / (2 * h), rtol=1e-4, atol=1e-6 * np.abs(model).max())
+            h, tolerance = 1e-5, 1e-6 * np.abs(model).max()
+            slope_u = (spline(table, u + h, v) - spline(table, u - h, v)) / (2 * h)
+            slope_v = (spline(table, u, v + h) - spline(table, u, v - h)) / (2 * h)
+            np.testing.assert_allclose(nodes[k, j, 1], slope_u, rtol=1e-4, atol=tolerance)
+            np.testing.assert_allclose(nodes[k, j, 2], slope_v, rtol=1e-4, atol=tolerance)
         checked += 1
     assert checked > 200
 

@@ -10,11 +10,16 @@ that has one, scaled by the square root of their member counts (independent memb
 relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what the noise does not
 show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma`, made by each fit.
 
-Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a two-core machine at load 2-8):
-the stack with its errors 1.2-2.2 x the stack alone (the errors in a pass of their own took
-3.6-5.3 x), the 1.9 million fits 2.1-3.2 x, 0.56-0.78 us of CPU each. Timed in one process, the
-kernels alternating, the errors cost 0.67-0.78 x the stack beyond it (0.23 x on a 500 x 500 grid,
-one thread).
+Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`), within
+0.012 (the benchmark's map) to 0.014 (simulated slabs) of a standard error of the full
+Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
+fits the steps do not settle and region fits use.
+
+Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, 5 rounds alternated in one process
+on a two-core machine at load 6-8, CPU time, median (lowest-highest)): the stack with its errors
+1.60 (1.58-1.88) x the stack alone, the 1.9 million fits 1.52 (1.03-1.90) x, 0.34 us each (the
+full fits 3.21 (2.06-5.03) x, 0.70 us); the map beyond the stack 2.3 (1.7-2.5) x, 4.1 (2.7-5.6) x
+with the full fits.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
