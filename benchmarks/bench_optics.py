@@ -109,7 +109,10 @@ def main() -> None:
     def outcome(fitted):
         converged = float(np.mean(fitted["status"] == 0))
         musp = (1.0 - table.g) * np.exp(fitted["u"])
-        return f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2"
+        shares = np.bincount(fitted["node_steps"].ravel(), minlength=3) / fitted["node_steps"].size
+        steps = (f"; full fits {shares[0]:.1%}, from one node {shares[1]:.1%}, two {shares[2]:.1%}"
+                 if shares[0] < 1 else "")
+        return f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2{steps}"
 
     def spread(values):
         return f"{np.median(values):5.2f} ({np.min(values):.2f}-{np.max(values):.2f})"

@@ -83,12 +83,17 @@ def assert_fits_agree(full, nodes, bound):
 def test_node_fits_agree_with_the_full_fit_within_a_twentieth_of_a_standard_error(table, noise):
     measured, errors, counts = noisy_map(table, noise, seed=int(noise * 100))
     measured[:, 1, 20, 0] = np.nan  # a pixel without data: the next starts from the coarse search
-    fits = {estimator: fit_profiles(table, measured, errors, np.ones(3), counts=counts, floor=MODEL_FLOOR,
+    scale = np.array([1.0, 2.5, 0.4])  # a rig's scale per channel (calibration)
+    measured, errors = measured * scale.astype(np.float32), errors * scale.astype(np.float32)
+    fits = {estimator: fit_profiles(table, measured, errors, scale, counts=counts, floor=MODEL_FLOOR,
                                     inflation=np.full(8, 1.2), estimator=estimator) for estimator in ("full", "nodes")}
     assert fits["full"]["status"][1, 20, 0] == NO_DATA
     assert (fits["full"]["status"] == CONVERGED).sum() == measured[0].size - 1
     # Both stop within about 1 % of a standard error of the minimum (their own tolerances).
     assert_fits_agree(fits["full"], fits["nodes"], 0.05)
+    # Node steps made them: the full fit only for each row's and channel's first and after the gap.
+    assert (fits["nodes"]["node_steps"] == 0).sum() == 3 * 3 + 1 + 1
+    assert (fits["full"]["node_steps"] == 0).all()
 
 
 def test_node_fits_of_alternating_materials_agree_with_the_full_fit(table):
@@ -101,6 +106,8 @@ def test_node_fits_of_alternating_materials_agree_with_the_full_fit(table):
                                     estimator=estimator) for estimator in ("full", "nodes")}
     assert (fits["full"]["status"] == CONVERGED).all()
     assert_fits_agree(fits["full"], fits["nodes"], 0.05)
+    steps = np.bincount(fits["nodes"]["node_steps"].ravel(), minlength=5)
+    assert steps[0] > 3 * 3 and steps[2:].sum() > 0  # full fits beyond the rows' first, and several steps
 
 
 def test_unknown_estimator_is_refused(table):

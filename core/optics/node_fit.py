@@ -114,19 +114,20 @@ def _fill_nodes(log_profile, fine_u, fine_v, du, dv, nodes):
 @numba.njit(parallel=True, cache=True, nogil=True)
 def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
                   scale, errors_given, counts, floor, inflation, row0, row1, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                  rings_out, status):
+                  rings_out, status, steps):
     """The node fits of grid rows ``row0 .. row1`` into the (H, W, C) outputs (as
-    :func:`.pixel_fit.fit_profiles` fills them)."""
+    :func:`.pixel_fit.fit_profiles` fills them), and ``steps`` (H, W, C) int8: the nodes each fit
+    stepped from (0: the full fit's)."""
     for y in numba.prange(row0, row1):
         _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured,
                       sigma, scale, errors_given, counts, floor, inflation, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                      rings_out, status)
+                      rings_out, status, steps)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
                   scale, errors_given, counts, floor, inflation, y, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out,
-                  status):
+                  status, steps):
     """Row ``y``'s fits, every channel, pixel after pixel (a function of its own outside the
     parallel loop, as :func:`.pixel_fit._fit_row` is, for the same numba trap)."""
     width = measured.shape[2]
@@ -155,7 +156,7 @@ def _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
                 # full fit's (whose status says whether its minimum is at the table's edge).
                 k = int(round((u - node_u0) / node_du))
                 j = int(round((v - node_v0) / node_dv))
-                for _ in range(NODE_STEPS):
+                for step in range(NODE_STEPS):
                     if k < 2 or j < 2 or k > last_k - 2 or j > last_j - 2:
                         break
                     sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -190,6 +191,7 @@ def _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
                         cuv[y, x, c] = -a_uv / determinant
                         cvv[y, x, c] = a_uu / determinant
                         status[y, x, c] = CONVERGED
+                        steps[y, x, c] = step + 1
                         settled = True
                         break
                     k, j = next_k, next_j

@@ -65,8 +65,9 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     the stack, ``benchmarks/bench_optics.py``).
 
     Returns a dict of (H, W, C) float64 arrays ``u``, ``v``, ``cuu``, ``cuv``, ``cvv`` (the fit and
-    its covariance in the table's coordinates), ``chi2``, ``rings`` (used) and int8 ``status``
-    (:data:`CONVERGED` ...). ``cancelled()`` is asked between bands of rows; True stops the work by
+    its covariance in the table's coordinates), ``chi2``, ``rings`` (used), int8 ``status``
+    (:data:`CONVERGED` ...) and int8 ``node_steps`` (the nodes a node fit stepped from; 0 for a
+    full fit). ``cancelled()`` is asked between bands of rows; True stops the work by
     raising :class:`ringlight.core.errors.Cancelled`.
 
     ``estimator`` ``"full"`` fits each profile by Levenberg-Marquardt on the table's splines (this
@@ -83,6 +84,7 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     out = {name: np.full((height, width, channels), np.nan) for name in ("u", "v", "cuu", "cuv", "cvv", "chi2")}
     out["rings"] = np.zeros((height, width, channels), np.int32)
     out["status"] = np.full((height, width, channels), NO_DATA, np.int8)
+    out["node_steps"] = np.zeros((height, width, channels), np.int8)
     measured = np.ascontiguousarray(measured, np.float32)
     sigma = np.ascontiguousarray(sigma, np.float32)
     scale = np.asarray(scale, np.float64)
@@ -98,7 +100,8 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
         if estimator == "nodes":
             node_fit_rows(*fine_nodes(table), table.log_profile, coarse, table.u0, table.du, table.v0, table.dv,
                           measured, sigma, scale, errors_given, counts, float(floor), inflation, row0, row1, out["u"],
-                          out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+                          out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"],
+                          out["node_steps"])
             continue
         _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
                   errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
