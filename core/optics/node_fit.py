@@ -35,11 +35,11 @@ import numpy as np
 
 from .pixel_fit import (CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile, pixel_variance, prepare_profile,
                         row_scratch, write_fit)
-from .table import ProfileTable, _catmull_rom
+from .table import ProfileTable, catmull_rom
 
 REFINE = (4, 4)
 """Fine nodes per table node in u and in v (spacings 0.019 and 0.036 on the default table: 15 MB
-for 8 rings, made in 0.01-0.05 s)."""
+for 8 rings, made in 0.02-0.1 s)."""
 NODE_STEPS = 4
 """Gauss-Newton steps a fit may take from nodes before it is the full fit."""
 SMALLEST_MODEL = 1e-30
@@ -70,16 +70,16 @@ def fine_nodes(table: ProfileTable, refine: tuple[int, int] = REFINE) -> tuple[n
 @numba.njit(cache=True)
 def _spline_weights(index, refine, count):
     """The spline cell (table node k, 1 .. K - 3) of fine node ``index`` and the Catmull-Rom
-    weights there (:func:`.table._catmull_rom`); the last fine node is its last cell's end (t = 1)."""
+    weights there (:func:`.table.catmull_rom`); the last fine node is its last cell's end (t = 1)."""
     cell = min(index // refine, count - 1)
-    return 1 + cell, _catmull_rom((index - refine * cell) / refine)
+    return 1 + cell, catmull_rom((index - refine * cell) / refine)
 
 
 @numba.njit(parallel=True, cache=True)
 def _fill_nodes(log_profile, fine_u, fine_v, du, dv, nodes):
     """The table's spline (:func:`.table.interpolate`, the same sums) at every fine node, made
-    separably: each table row in u is first interpolated in v at every fine v (a fine node's
-    16 products per ring each cost 4), then those rows in u."""
+    separably: each table row in u is first interpolated in v at every fine v, then those rows in
+    u (4 products per ring and node in each pass, where the spline takes 16)."""
     count_u, count_v, rings = log_profile.shape[0], nodes.shape[1], log_profile.shape[2]
     rows = np.empty((count_u, count_v, 2, rings))  # along v: log E and its derivative by v's index
     for j in numba.prange(count_v):
