@@ -15,11 +15,11 @@ Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.no
 Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
 fits the steps do not settle and region fits use.
 
-Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, 5 rounds alternated in one process
-on a two-core machine at load 6-8, CPU time, median (lowest-highest)): the stack with its errors
-1.60 (1.58-1.88) x the stack alone, the 1.9 million fits 1.52 (1.03-1.90) x, 0.34 us each (the
-full fits 3.21 (2.06-5.03) x, 0.70 us); the map beyond the stack 2.3 (1.7-2.5) x, 4.1 (2.7-5.6) x
-with the full fits.
+Cost (``benchmarks/bench_optics.py --repeats 7``, 800 x 800, max_radius 8, the rounds alternated
+in one process on a two-core machine at load 3, CPU time, median (lowest-highest)): the stack with
+its errors 1.48 (1.23-1.94) x the stack alone, the 1.9 million fits 1.48 (0.89-2.11) x, 0.32 us
+each (the full fits 3.08 (1.85-4.72) x, 0.69 us); the map beyond the stack 2.11 (1.12-2.59) x,
+3.62 (2.09-5.20) x with the full fits.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased

@@ -39,7 +39,7 @@ from .table import ProfileTable, catmull_rom
 
 REFINE = (4, 4)
 """Fine nodes per table node in u and in v (spacings 0.019 and 0.036 on the default table: 15 MB
-for 8 rings, made in 0.02-0.1 s)."""
+for 8 rings, made in 0.03-0.07 s)."""
 NODE_STEPS = 4
 """Gauss-Newton steps a fit may take from nodes before it is the full fit."""
 SMALLEST_MODEL = 1e-30
