@@ -9,14 +9,21 @@ mua 0.01 per grid step, 3 % noise on every response value, max_radius MAX_RADIUS
     what the map computes);
   - for comparison, the spread in a pass of its own (``stack_noise``, as the maps took it before);
   - the per-pixel fits of every pixel and channel (``fit_profiles`` on the cached table, each
-    fit making its rings' standard deviations from their errors);
-each the best of REPEATS rounds that take them in turn;
-then the map's own cost beyond the stack ((one pass - stack) + fits) over the stack's,
-and the whole map's from the dataset over the stack's. The table's white run is made (or read
-from the user cache) before the clock starts: once per n and g.
+    fit making its rings' standard deviations from their errors), by the maps' estimator (Gauss-
+    Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`) and, for
+    comparison, by the full Levenberg-Marquardt fit on the table's splines (the maps' estimator
+    before, and the region fits');
+  - the fine table's nodes made from the table (once per table, as the table is: reported apart);
+in REPEATS rounds within this one process, each round taking every phase once, the order
+reversed every other round (a shared machine's load drifts; phases timed minutes apart in separate
+runs gave 3.00 x and 4.27 x). Each round gives its own ratios: the map's cost beyond the stack
+((one pass - stack) + fits) over the stack's, and the whole map's from the dataset over the
+stack's (each also with the full fits, and with the fine nodes made); the median over the rounds
+is printed with the lowest and highest. The table's white run is made (or read from the user
+cache) before the clock starts: once per n and g.
 Target (issue 38): the map costs at most the time of the stack it is computed from.
 
-    python benchmarks/bench_optics.py [--size 800] [--max-radius 8] [--photons 1000000] [--repeats 3]
+    python benchmarks/bench_optics.py [--size 800] [--max-radius 8] [--photons 1000000] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ import time
 import numpy as np
 
 from ringlight.core.optics.pixel_fit import fit_profiles
+from ringlight.core.optics import node_fit
 from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, profile_radii, ring_errors, t_inflation
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.synthetic import homogeneous_dataset
@@ -52,7 +60,7 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=800)
     parser.add_argument("--max-radius", type=float, default=8.0)
     parser.add_argument("--photons", type=int, default=1_000_000)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5, help="rounds (each times every phase once)")
     args = parser.parse_args()
     run = radial_run(1.4, 0.0, args.photons)  # cached: the table is made once per n and g
     radii = np.arange(0.0, np.floor(args.max_radius - 0.5) + 1.0)
@@ -70,44 +78,66 @@ def main() -> None:
     ring_stack(small, radii), ring_errors(small, radii)
     stack, errors = ring_stack_and_errors(small, radii)
     inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
-    fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR, inflation=inflation)
+    for estimator in ("nodes", "full"):
+        fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
+                     inflation=inflation, estimator=estimator)
 
-    best = {name: (np.inf, np.inf) for name in ("stack", "one pass", "separate spread", "fits")}
+    stack, errors = ring_stack_and_errors(dataset, radii)  # the fits' input, the same every round
 
-    def timed(name, function, *arguments):
-        wall, cpu = time.perf_counter(), time.process_time()
-        result = function(*arguments)
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-        best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
-        return result
+    def fits(estimator):
+        return lambda: fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
+                                    inflation=inflation, estimator=estimator)
 
-    for _ in range(args.repeats):  # each phase's best of the rounds, taken in turn (a busy machine)
-        timed("stack", ring_stack, dataset, radii)
-        stack, errors = timed("one pass", ring_stack_and_errors, dataset, radii)
-        timed("separate spread", ring_errors, dataset, radii)
-        fitted = timed("fits", lambda: fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts,
-                                                     floor=MODEL_FLOOR, inflation=inflation))
-    fits = args.size * args.size * 3
-    converged = float(np.mean(fitted["status"] == 0))
-    musp = (1.0 - table.g) * np.exp(fitted["u"])
-    wall, cpu = best["stack"]
+    def fine_nodes():
+        node_fit._FINE.pop(table, None)  # made again: what a new table costs
+        return node_fit.fine_nodes(table)
+
+    phases = {"stack": lambda: ring_stack(dataset, radii), "one pass": lambda: ring_stack_and_errors(dataset, radii),
+              "separate spread": lambda: ring_errors(dataset, radii), "fits": fits("nodes"), "full fits": fits("full"),
+              "fine nodes": fine_nodes}
+    times = {name: [] for name in phases}  # per phase, per round: (wall, CPU) seconds
+    results = {}
+    for round_ in range(max(1, args.repeats)):
+        order = list(phases) if round_ % 2 == 0 else list(phases)[::-1]
+        for name in order:
+            wall, cpu = time.perf_counter(), time.process_time()
+            results[name] = phases[name]()
+            times[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+    times = {name: np.asarray(value) for name, value in times.items()}  # (rounds, 2)
+    count = args.size * args.size * 3
+
+    def outcome(fitted):
+        converged = float(np.mean(fitted["status"] == 0))
+        musp = (1.0 - table.g) * np.exp(fitted["u"])
+        shares = np.bincount(fitted["node_steps"].ravel(), minlength=3) / fitted["node_steps"].size
+        steps = (f"; full fits {shares[0]:.1%}, from one node {shares[1]:.1%}, two {shares[2]:.1%}"
+                 if shares[0] < 1 else "")
+        return f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2{steps}"
+
+    def spread(values):
+        return f"{np.median(values):5.2f} ({np.min(values):.2f}-{np.max(values):.2f})"
 
     def line(label, name, extra=""):
-        print(f"{label:34s} {best[name][0]:6.2f} s wall ({best[name][0] / wall:5.2f} x), "
-              f"{best[name][1]:6.2f} s CPU ({best[name][1] / cpu:5.2f} x){extra}")
+        seconds, ratio = times[name], times[name] / times["stack"]
+        print(f"{label:44s} {spread(seconds[:, 0])} s wall, {spread(ratio[:, 0])} x; "
+              f"{spread(seconds[:, 1])} s CPU, {spread(ratio[:, 1])} x{extra}")
 
-    print(f"{'phase':34s} best of {args.repeats}, and over the stack's")
+    print(f"{'phase':44s} median (lowest-highest) of {len(times['stack'])} rounds, and over the same round's stack")
     line(f"ring stack ({len(radii)} radii)", "stack")
     line("stack + errors in one pass", "one pass")
     line("errors in a pass of their own", "separate spread", "  (before; not in the map)")
-    line(f"fits ({fits} pixel channels)", "fits", f"  ({best['fits'][1] / fits * 1e6:.2f} us CPU each, "
-         f"{converged:.1%} converged, median mus' {np.nanmedian(musp):.4f} for 0.2)")
+    for name, label in (("fits", "fits, node steps"), ("full fits", "fits, full (before)")):
+        line(f"{label} ({count} pixel channels)", name, f"  ({np.median(times[name][:, 1]) / count * 1e6:.2f} us CPU "
+             f"each, {outcome(results[name])})")
+    line("fine nodes (once per table)", "fine nodes")
     for index, unit in ((0, "wall"), (1, "CPU")):
-        whole = best["one pass"][index] + best["fits"][index]
-        own = whole - best["stack"][index]
-        print(f"map ({unit}): {whole:.2f} s from the dataset = {whole / best['stack'][index]:.2f} x the stack; "
-              f"beyond the stack (errors + fits) {own / best['stack'][index]:.2f} x (target <= 1)")
-
+        instead_full = times["full fits"][:, index] - times["fits"][:, index]
+        for label, extra in (("", 0.0), (", full fits (before)", instead_full),
+                             (", fine nodes made", times["fine nodes"][:, index])):
+            whole = times["one pass"][:, index] + times["fits"][:, index] + extra
+            own = whole - times["stack"][:, index]
+            print(f"map ({unit:4s}{label}): from the dataset {spread(whole / times['stack'][:, index])} x the stack; "
+                  f"beyond the stack (errors + fits) {spread(own / times['stack'][:, index])} x (target <= 1)")
 
 if __name__ == "__main__":
     main()

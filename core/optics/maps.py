@@ -10,11 +10,16 @@ that has one, scaled by the square root of their member counts (independent memb
 relative noise). A relative :data:`MODEL_FLOOR` is added to every ring for what the noise does not
 show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma`, made by each fit.
 
-Cost (``benchmarks/bench_optics.py``, 800 x 800, max_radius 8, a two-core machine at load 2-8):
-the stack with its errors 1.2-2.2 x the stack alone (the errors in a pass of their own took
-3.6-5.3 x), the 1.9 million fits 2.1-3.2 x, 0.56-0.78 us of CPU each. Timed in one process, the
-kernels alternating, the errors cost 0.67-0.78 x the stack beyond it (0.23 x on a 500 x 500 grid,
-one thread).
+Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`), within
+0.012 (the benchmark's map) to 0.014 (simulated slabs) of a standard error of the full
+Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
+fits the steps do not settle and region fits use.
+
+Cost (``benchmarks/bench_optics.py --repeats 7``, 800 x 800, max_radius 8, the rounds alternated
+in one process on a two-core machine at load 3, CPU time, median (lowest-highest)): the stack with
+its errors 1.48 (1.23-1.94) x the stack alone, the 1.9 million fits 1.48 (0.89-2.11) x, 0.32 us
+each (the full fits 3.08 (1.85-4.72) x, 0.69 us); the map beyond the stack 2.11 (1.12-2.59) x,
+3.62 (2.09-5.20) x with the full fits.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
@@ -179,7 +184,7 @@ def ring_errors(dataset: ImpulseDataset, radii: np.ndarray, progress=None) -> tu
 def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | None = None, calibration=None,
                  progress=None, cancelled=None, stack: Stack | None = None, errors: np.ndarray | None = None,
                  noise_source: str | None = None, photons: int = DEFAULT_PHOTONS,
-                 floor: float = MODEL_FLOOR) -> OpticalMaps:
+                 floor: float = MODEL_FLOOR, estimator: str = "nodes") -> OpticalMaps:
     """mu_a and mu_s' (and their standard errors) of every pixel and channel of ``dataset``.
 
     Parameters
@@ -202,6 +207,9 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         Photons of the table's white run (:func:`.table.table_for`).
     floor
         Relative standard deviation added to every ring (:data:`MODEL_FLOOR`).
+    estimator
+        ``"nodes"``: Gauss-Newton steps from a fine table's nodes (:mod:`.node_fit`); ``"full"``:
+        Levenberg-Marquardt on the table's splines (:mod:`.pixel_fit`), what region fits use.
 
     Returns
     -------
@@ -231,7 +239,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
-                          floor=floor, inflation=inflation)
+                          floor=floor, inflation=inflation, estimator=estimator)
     report.progress(1.0)
     whole = np.asarray([_ring_members(r) for r in radii])
     complete = (stack.counts == whole[:, None, None]).all(axis=0)

@@ -54,7 +54,7 @@ the minimum lies on the table's edge (beyond the scattering or absorption it spa
 
 def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, scale: np.ndarray,
                  cancelled=None, counts: np.ndarray | None = None, floor: float = 0.0,
-                 inflation: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 inflation: np.ndarray | None = None, estimator: str = "full") -> dict[str, np.ndarray]:
     """Fit every pixel and channel of ``measured`` (R, H, W, C) with ``sigma`` (R, H, W, C) and the
     rig's ``scale`` (C,).
 
@@ -65,16 +65,26 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     the stack, ``benchmarks/bench_optics.py``).
 
     Returns a dict of (H, W, C) float64 arrays ``u``, ``v``, ``cuu``, ``cuv``, ``cvv`` (the fit and
-    its covariance in the table's coordinates), ``chi2``, ``rings`` (used) and int8 ``status``
-    (:data:`CONVERGED` ...). ``cancelled()`` is asked between bands of rows; True stops the work by
+    its covariance in the table's coordinates), ``chi2``, ``rings`` (used), int8 ``status``
+    (:data:`CONVERGED` ...) and int8 ``node_steps`` (the nodes a node fit stepped from; 0 for a
+    full fit). ``cancelled()`` is asked between bands of rows; True stops the work by
     raising :class:`ringlight.core.errors.Cancelled`.
+
+    ``estimator`` ``"full"`` fits each profile by Levenberg-Marquardt on the table's splines (this
+    module); ``"nodes"`` by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`, the
+    maps' estimator), the full fit where those steps do not settle.
     """
     from ..errors import Cancelled
+    from .node_fit import fine_nodes, node_fit_rows
+
+    if estimator not in ("full", "nodes"):
+        raise ValueError(f"estimator must be 'full' or 'nodes', not {estimator!r}")
 
     rings, height, width, channels = measured.shape
     out = {name: np.full((height, width, channels), np.nan) for name in ("u", "v", "cuu", "cuv", "cvv", "chi2")}
     out["rings"] = np.zeros((height, width, channels), np.int32)
     out["status"] = np.full((height, width, channels), NO_DATA, np.int8)
+    out["node_steps"] = np.zeros((height, width, channels), np.int8)
     measured = np.ascontiguousarray(measured, np.float32)
     sigma = np.ascontiguousarray(sigma, np.float32)
     scale = np.asarray(scale, np.float64)
@@ -87,6 +97,12 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
         if cancelled is not None and cancelled():
             raise Cancelled("cancelled")
         row1 = min(height, row0 + band)
+        if estimator == "nodes":
+            node_fit_rows(*fine_nodes(table), table.log_profile, coarse, table.u0, table.du, table.v0, table.dv,
+                          measured, sigma, scale, errors_given, counts, float(floor), inflation, row0, row1, out["u"],
+                          out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"],
+                          out["node_steps"])
+            continue
         _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
                   errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
                   out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
@@ -111,23 +127,12 @@ def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors
     width = measured.shape[2]
     channels = measured.shape[3]
     rings = measured.shape[0]
-    # Scratch arrays once per row (an allocation per fit cost a tenth of its time).
-    result = np.empty(10)
-    variance = np.empty(rings)
-    data = np.empty(rings)
-    weight = np.empty(rings)
-    values = np.empty(rings)
-    slopes = np.empty((2, rings))
+    result, variance, data, weight, values, slopes = row_scratch(rings)
     for c in range(channels):
         start_u = math.nan
         start_v = math.nan
         for x in range(width):
-            if errors_given:
-                profile_variance(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, variance)
-            else:
-                for r in range(rings):
-                    deviation = np.float64(sigma[r, y, x, c])
-                    variance[r] = deviation * deviation if deviation > 0.0 else math.nan
+            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance)
             # ``values`` and ``slopes`` hold the model at (start_u, start_v): the previous fit's last look-up.
             _fit_one(log_profile, coarse, u0, du, v0, dv, measured[:, y, x, c], variance, scale[c],
                      start_u, start_v, result, data, weight, values, slopes)
@@ -136,18 +141,44 @@ def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors
             rings_out[y, x, c] = int(result[6])
             if code == NO_DATA:
                 continue
-            u_out[y, x, c] = result[0]
-            v_out[y, x, c] = result[1]
-            cuu[y, x, c] = result[2]
-            cuv[y, x, c] = result[3]
-            cvv[y, x, c] = result[4]
-            chi2_out[y, x, c] = result[5]
+            write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
             if code == CONVERGED:
                 start_u = result[8]
                 start_v = result[9]
             else:
                 start_u = math.nan
                 start_v = math.nan
+
+
+@numba.njit(cache=True, inline="always")
+def row_scratch(rings):
+    """A row's scratch arrays for its fits: ``result`` (10,), ``variance``, ``data``, ``weight``,
+    ``values`` (R,) and ``slopes`` (2, R) (once per row: an allocation per fit cost a tenth of its time)."""
+    return np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings), np.empty((2, rings))
+
+
+@numba.njit(cache=True, inline="always")
+def pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance):
+    """Fill ``variance`` (R,) with the rings' variances of pixel (y, x), channel c: made from the
+    standard errors ``sigma`` where ``errors_given`` (:func:`.ring_sigma.profile_variance`), else
+    ``sigma`` squared (NaN where not positive)."""
+    if errors_given:
+        profile_variance(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, variance)
+    else:
+        for r in range(variance.shape[0]):
+            deviation = np.float64(sigma[r, y, x, c])
+            variance[r] = deviation * deviation if deviation > 0.0 else math.nan
+
+
+@numba.njit(cache=True, inline="always")
+def write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out):
+    """A fit's ``result`` (:func:`_fit_one`'s) into the maps' (H, W, C) outputs at pixel (y, x), channel c."""
+    u_out[y, x, c] = result[0]
+    v_out[y, x, c] = result[1]
+    cuu[y, x, c] = result[2]
+    cuv[y, x, c] = result[3]
+    cvv[y, x, c] = result[4]
+    chi2_out[y, x, c] = result[5]
 
 
 @numba.njit(cache=True, inline="always")
@@ -199,17 +230,12 @@ def _coarse_start(coarse, u0, du, v0, dv, data, weight, scale):
 
 
 @numba.njit(cache=True, inline="always")
-def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight,
-             values, slopes):
-    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
-    look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
-    and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
-    model at the last look-up's (u, v) on return."""
-    result[:] = math.nan
-    rings = measured.shape[0]
+def prepare_profile(measured, variance, data, weight):
+    """Fill ``data`` and ``weight`` (1 / variance) (R,) of one profile's ``measured`` E and
+    ``variance``; a ring not used (not finite, or no positive variance) weighs 0 and its value is
+    0, not NaN, so that the fit's sums need no test. Returns the rings used."""
     count = 0
-    for r in range(rings):
-        # A ring not used weighs 0 (its value 0, not NaN): the sums need no test.
+    for r in range(measured.shape[0]):
         if math.isfinite(measured[r]) and math.isfinite(variance[r]) and variance[r] > 0.0:
             data[r] = measured[r]
             weight[r] = 1.0 / variance[r]
@@ -217,17 +243,13 @@ def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, sta
         else:
             data[r] = 0.0
             weight[r] = 0.0
-    result[6] = count
-    if count < MIN_RINGS:
-        result[7] = NO_DATA
-        return
-    if math.isfinite(start_u):
-        fit = _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, start_u, start_v, True, values,
-                                   slopes)
-        if fit[0] != CONVERGED:
-            fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
-    else:
-        fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
+    return count
+
+
+@numba.njit(cache=True, inline="always")
+def _store_fit(fit, result):
+    """A minimiser's return (:func:`_levenberg_marquardt`) into ``result`` (u, v, Cuu, Cuv, Cvv,
+    chi2, -, status, last look-up's u, v): the covariance C = A^-1 where A is positive definite."""
     status, u, v, a_uu, a_uv, a_vv, chi2, last_u, last_v = fit
     determinant = a_uu * a_vv - a_uv * a_uv
     result[0] = u
@@ -240,6 +262,38 @@ def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, sta
     result[7] = status
     result[8] = last_u
     result[9] = last_v
+
+
+@numba.njit(cache=True, inline="always")
+def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight,
+             values, slopes):
+    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
+    look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
+    and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
+    model at the last look-up's (u, v) on return."""
+    result[:] = math.nan
+    count = prepare_profile(measured, variance, data, weight)
+    result[6] = count
+    if count < MIN_RINGS:
+        result[7] = NO_DATA
+        return
+    if math.isfinite(start_u):
+        fit = _levenberg_marquardt(log_profile, u0, du, v0, dv, data, weight, scale, start_u, start_v, True, values,
+                                   slopes)
+        if fit[0] != CONVERGED:
+            fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
+    else:
+        fit = _fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes)
+    _store_fit(fit, result)
+
+
+@numba.njit(cache=True)
+def fit_one_profile(log_profile, coarse, u0, du, v0, dv, data, weight, scale, result, values, slopes):
+    """The full fit of one profile's ``data`` and ``weight`` (:func:`prepare_profile`) from the
+    coarse search into ``result`` (as :func:`_fit_one` fills it, but the rings used): the
+    estimator of :mod:`.node_fit` calls it where its steps do not settle."""
+    result[:] = math.nan
+    _store_fit(_fit_from_coarse(log_profile, coarse, u0, du, v0, dv, data, weight, scale, values, slopes), result)
 
 
 @numba.njit(cache=True)

@@ -202,7 +202,7 @@ def build_table(run: RadialRun, radii, thickness: float = 1.0, antialias: bool =
 
 
 @numba.njit(cache=True, inline="always")
-def _catmull_rom(t):
+def catmull_rom(t):
     """Weights of the four nodes around ``t`` in [0, 1] and their derivatives by ``t``."""
     t2 = t * t
     t3 = t2 * t
@@ -229,8 +229,8 @@ def interpolate(log_profile, u0, du, v0, dv, u, v, values, slopes):
     j = int(math.floor(sv))
     if k < 1 or j < 1 or k > log_profile.shape[0] - 3 or j > log_profile.shape[1] - 3:
         return False
-    wu = _catmull_rom(su - k)
-    wv = _catmull_rom(sv - j)
+    wu = catmull_rom(su - k)
+    wv = catmull_rom(sv - j)
     for r in range(log_profile.shape[2]):
         value = 0.0
         slope_u = 0.0
