@@ -33,8 +33,8 @@ import weakref
 import numba
 import numpy as np
 
-from .pixel_fit import (CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile, pixel_variance, prepare_profile,
-                        row_scratch, write_fit)
+from .pixel_data import pixel_variance, prepare_profile, row_scratch, write_fit
+from .pixel_fit import CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile
 from .table import ProfileTable, catmull_rom
 
 REFINE = (4, 4)

@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from .ring_sigma import profile_variance
+from .pixel_data import pixel_variance, prepare_profile, row_scratch, write_fit
 from .table import ProfileTable, interpolate
 
 MIN_RINGS = 3
@@ -151,37 +151,6 @@ def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors
 
 
 @numba.njit(cache=True, inline="always")
-def row_scratch(rings):
-    """A row's scratch arrays for its fits: ``result`` (10,), ``variance``, ``data``, ``weight``,
-    ``values`` (R,) and ``slopes`` (2, R) (once per row: an allocation per fit cost a tenth of its time)."""
-    return np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings), np.empty((2, rings))
-
-
-@numba.njit(cache=True, inline="always")
-def pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance):
-    """Fill ``variance`` (R,) with the rings' variances of pixel (y, x), channel c: made from the
-    standard errors ``sigma`` where ``errors_given`` (:func:`.ring_sigma.profile_variance`), else
-    ``sigma`` squared (NaN where not positive)."""
-    if errors_given:
-        profile_variance(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, variance)
-    else:
-        for r in range(variance.shape[0]):
-            deviation = np.float64(sigma[r, y, x, c])
-            variance[r] = deviation * deviation if deviation > 0.0 else math.nan
-
-
-@numba.njit(cache=True, inline="always")
-def write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out):
-    """A fit's ``result`` (:func:`_fit_one`'s) into the maps' (H, W, C) outputs at pixel (y, x), channel c."""
-    u_out[y, x, c] = result[0]
-    v_out[y, x, c] = result[1]
-    cuu[y, x, c] = result[2]
-    cuv[y, x, c] = result[3]
-    cvv[y, x, c] = result[4]
-    chi2_out[y, x, c] = result[5]
-
-
-@numba.njit(cache=True, inline="always")
 def _chi2(log_profile, u0, du, v0, dv, data, weight, scale, u, v, values, slopes):
     """chi2 at (u, v), or inf outside the table; fills ``values`` with the model's E (scale
     included) and ``slopes`` with d log E / d(u, v), every ring's (the next fit may use others)."""
@@ -227,23 +196,6 @@ def _coarse_start(coarse, u0, du, v0, dv, data, weight, scale):
                 best_u = u0 + (2 + COARSE_STRIDE * k) * du
                 best_v = v0 + (2 + COARSE_STRIDE * j) * dv
     return best_u, best_v
-
-
-@numba.njit(cache=True, inline="always")
-def prepare_profile(measured, variance, data, weight):
-    """Fill ``data`` and ``weight`` (1 / variance) (R,) of one profile's ``measured`` E and
-    ``variance``; a ring not used (not finite, or no positive variance) weighs 0 and its value is
-    0, not NaN, so that the fit's sums need no test. Returns the rings used."""
-    count = 0
-    for r in range(measured.shape[0]):
-        if math.isfinite(measured[r]) and math.isfinite(variance[r]) and variance[r] > 0.0:
-            data[r] = measured[r]
-            weight[r] = 1.0 / variance[r]
-            count += 1
-        else:
-            data[r] = 0.0
-            weight[r] = 0.0
-    return count
 
 
 @numba.njit(cache=True, inline="always")
