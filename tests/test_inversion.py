@@ -467,6 +467,24 @@ def test_rings_no_white_photon_reaches_and_an_underflowing_model_do_not_stop_a_f
     assert "does not fit" in inversion.warning and not any(layer.determined for layer in inversion.layers)
 
 
+def test_a_known_structure_fit_makes_no_search_database(layers3_sample, shared_cache, monkeypatch):
+    """Structure, scattering and index given: nothing is compared, so the search's white database
+    (14-43 MB read for nothing) is not made; the fit's own cells are, and its notes do not speak of
+    a search."""
+    import ringlight.core.inversion.layers as layers_module
+
+    def refused(*args, **kwargs):
+        raise AssertionError("a known-structure fit made a search's white database")
+
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(shared_cache))
+    monkeypatch.setattr(layers_module, "white_database", refused)
+    dataset = open_dataset(layers3_sample)
+    inversion = invert_region(dataset, np.ones(dataset.grid_shape, bool), "all pixels",
+                              replace(LAYERS3, final_photons=20_000)).inversion
+    assert len(inversion.layers) == 3 and "white photons on " in inversion.notes
+    assert "the search's" not in inversion.notes
+
+
 def test_a_profile_of_no_more_rings_than_layers_is_refused_before_fitting():
     from ringlight.core.inversion.settings import InversionError
 

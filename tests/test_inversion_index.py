@@ -238,6 +238,30 @@ def test_a_profiled_end_follows_the_valley_of_a_correlated_pair_to_its_analytic_
         assert 0.0 <= sign * (end - exact) <= 2 * PROFILE_TOLERANCE
 
 
+def test_an_end_sought_first_at_another_fits_end_is_still_the_analytic_end():
+    """The correlated pair above, its end sought first at a hint (another fit's end of the same
+    data, as the allowed-width fit takes the main fit's) 0.02 or 0.2 beyond the analytic end, or 0.2
+    or 1 within it, its refits started from the unguided profile's valley: the end is still c_0 -+
+    sqrt(JOINT_CHI2 Sigma_00) to PROFILE_TOLERANCE, never narrower; from a hint beyond, from fewer
+    profile values than without one."""
+    centre = np.log([0.05, 0.01])
+    root = np.array([[1.0, 0.0], [1.0, 0.5]])
+    residuals = lambda theta: root @ (theta - centre)
+    jacobian = lambda theta: root
+    low, high = math.log(1e-5), math.log(10.0)
+    sigma = np.linalg.inv(root.T @ root)
+    for bound, sign in ((high, 1.0), (low, -1.0)):
+        exact = centre[0] + sign * math.sqrt(JOINT_CHI2 * sigma[0, 0])
+        unguided = fit_module._Profile(residuals, jacobian, centre.copy(), 0, low, high)
+        fit_module._profile_end(unguided, centre[0], bound, 0.0)
+        for offset in (0.02, 0.2, -0.2, -1.0):
+            profile = fit_module._Profile(residuals, jacobian, centre.copy(), 0, low, high, unguided.solved)
+            end = fit_module._profile_end(profile, centre[0], bound, 0.0, hint=exact + sign * offset)
+            assert 0.0 <= sign * (end - exact) <= 2 * PROFILE_TOLERANCE, (bound, offset)
+            if offset > 0:
+                assert len(profile.values) < len(unguided.values)
+
+
 def test_the_cli_fits_at_the_datasets_index_and_reports_what_the_data_allow(tmp_path, shared_cache, monkeypatch,
                                                                               capsys, place_sample):
     """``ringlight layers --method inverse`` with no --n on layers3 (simulated at n 1.3, stated in
@@ -304,9 +328,10 @@ def test_the_exact_model_interval_is_where_the_data_chi_square_alone_rises_by_th
 
 
 def test_the_exact_models_regions_from_the_main_fits_minima_equal_those_from_the_start_grid():
-    """exact_regions started from the main fits' first-pass minima (the same weights: the data's
-    noise alone) against exact_regions searching the start grid itself, as it did before: the same
-    absorptions and, to 1e-4 in xy, the same regions."""
+    """exact_regions guided by the main fits (started from their first-pass minima, of the same
+    weights: the data's noise alone; their interval ends sought first at the main fits' and their
+    refits started from the main fits' valleys) against exact_regions unguided, searching the
+    start grid itself, as it did before: the same absorptions and, to 1e-4 in xy, the same regions."""
     forward = _forward()
     mua = np.array([[0.3, 0.02], [0.05, 0.05], [0.01, 0.2]])
     clean = np.stack([forward.profile(row) for row in mua], axis=1)

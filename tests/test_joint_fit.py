@@ -4,16 +4,19 @@ sampled chromaticities; and how a layer's region joins its ellipse (layer_colour
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from scipy.linalg import block_diag
 from scipy.optimize import minimize
+from scipy.spatial import ConvexHull
 from scipy.stats import chi2 as chi2_distribution
 
 from ringlight.core.colour.chroma import chromaticity
 from ringlight.core.inversion.fit import RELATIVE_FLOOR, ChannelFit, fit_channels
 from ringlight.core.inversion.forward import Forward, Structure, ring_matrix
 from ringlight.core.inversion.joint import ELLIPSE_POINTS, JointFit, chromaticity_ellipse, fit_jointly
-from ringlight.core.inversion.layer_colour import layer_colours, region_contains
+from ringlight.core.inversion.layer_colour import GRADIENT_STEP, chromaticity_gradient, layer_colours, region_contains
 from ringlight.core.inversion.white_mc import SlabOptics, run_white
 from ringlight.core.simulate.adding_doubling import thick_slab_reflectance
 
@@ -236,3 +239,27 @@ def test_layer_region_joins_the_ellipse_only_where_the_chi_square_is_quadratic()
     box = region([0.3, 0.3, 2.0])
     assert not any(region_contains(box, point) for point in ellipse)
     assert np.ptp(box, axis=0).max() < 0.2 * np.ptp(quadratic, axis=0).max()
+
+
+def test_a_layers_box_and_colour_gradient_equal_every_corner_and_step_solved_whole():
+    """Each channel's colour is solved at its own absorptions only (a thick slab's channel depends
+    on its own absorption): the box's image equals the hull of the colours of all 8 corners solved
+    as whole RGB triples, and the gradient equals central differences of xy solved whole at each
+    step, to 1e-12 (in float32 for the hull's vertices)."""
+    optics = SlabOptics((1.0,) * 3, 0.0, 1.3, 8.0, REACH)
+    mua = np.array([0.2, 0.03, 0.01])
+    interval = np.stack([0.7 * mua, 1.6 * mua], axis=1)
+    fits = [ChannelFit(np.array([m]), interval[c][None], np.zeros(1, bool), 7, 5.0, np.ones(7), np.ones(7))
+            for c, m in enumerate(mua)]
+    (layer,) = layer_colours(fits, Structure((0,)), optics, "sRGB")
+    corners = np.array(list(itertools.product(*interval)))  # (8, 3) absorptions
+    xy = np.array([chromaticity(thick_slab_reflectance(np.ones(3), corner, 0.0, 1.3), "sRGB") for corner in corners])
+    hull = xy[ConvexHull(xy).vertices].astype(np.float32)
+    assert len(layer.region) == len(hull)
+    for vertex in hull:
+        assert np.abs(layer.region - vertex).max(axis=1).min() <= 1e-7
+    whole = lambda theta: chromaticity(thick_slab_reflectance(np.ones(3), np.exp(theta), 0.0, 1.3), "sRGB")
+    theta = np.log(mua)
+    brute = np.stack([(whole(theta + GRADIENT_STEP * e) - whole(theta - GRADIENT_STEP * e)) / (2 * GRADIENT_STEP)
+                      for e in np.eye(3)], axis=1)
+    np.testing.assert_allclose(chromaticity_gradient(1.0, mua, optics, "sRGB"), brute, rtol=1e-12, atol=1e-12)

@@ -89,9 +89,9 @@ def test_cell_derivatives_match_finite_differences(cells):
 
 @pytest.mark.parametrize("layers", [1, 2, 3, 4])
 def test_the_cell_kernels_sum_each_cells_formula_as_numpy_does(layers):
-    """The compiled kernels (cells sorted by class, rows padded to four layers, classes no ring
-    weighs dropped) against ``W exp(-a . mu) (1 + a^T S a / 2)`` and its derivatives summed over
-    every cell in numpy: equal to 1e-10, with means and covariances rounded to float32 as the
+    """The compiled kernels (cells sorted by class, columns padded to four layers, classes no ring
+    weighs dropped, vectorised with their exp written out) against ``W exp(-a . mu) (1 + a^T S a /
+    2)`` and its derivatives summed over every cell in numpy: equal to 1e-10, with means and covariances rounded to float32 as the
     kernels store them; the batches' covariance likewise."""
     rng = np.random.default_rng(layers)
     count = 3000

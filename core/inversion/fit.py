@@ -89,6 +89,10 @@ class ChannelFit:
         (L,) log absorptions each: the fits of the first pass, weighted by the data's noise alone
         (:func:`data_sigma`), which a fit of the same data with the model taken as exact finds
         first (:func:`.limit.exact_regions` starts from them).
+    valleys
+        Per layer ``k``, a dict: at each log absorption of layer ``k`` held along its profile
+        likelihood (the searches for its interval's ends), the other layers' refitted log
+        absorptions ((L - 1,)). Another fit of the same data starts its own refits from them.
     """
 
     mua: np.ndarray
@@ -99,6 +103,7 @@ class ChannelFit:
     model: np.ndarray
     sigma: np.ndarray
     data_minima: tuple[np.ndarray, ...] = ()
+    valleys: tuple[dict[float, np.ndarray], ...] = ()
 
     @property
     def dof(self) -> int:
@@ -112,15 +117,14 @@ def used_rings(measured: np.ndarray, sigma: np.ndarray) -> int:
 
 
 def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True,
-                 floor: float = RELATIVE_FLOOR, data_minima: list[tuple[np.ndarray, ...]] | None = None
-                 ) -> list[ChannelFit]:
+                 floor: float = RELATIVE_FLOOR, guides: list[ChannelFit] | None = None) -> list[ChannelFit]:
     """:func:`fit_channel` for each channel of ``measured`` and ``error`` (R, C) (with its
-    ``data_minima`` when given), the channels in threads (the forward model's kernel releases the
+    ``guides`` fit when given), the channels in threads (the forward model's kernel releases the
     GIL, and it is most of a fit's time)."""
     channels = measured.shape[1]
-    minima = data_minima or [None] * channels
+    guides = guides or [None] * channels
     with ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1))) as pool:
-        return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals, floor, minima[c]),
+        return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals, floor, guides[c]),
                              range(channels)))
 
 
@@ -139,13 +143,16 @@ def ring_sigma(error: np.ndarray, white_variance: np.ndarray, measured: np.ndarr
 
 
 def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True,
-                floor: float = RELATIVE_FLOOR, data_minima: tuple[np.ndarray, ...] | None = None) -> ChannelFit:
+                floor: float = RELATIVE_FLOOR, guide: ChannelFit | None = None) -> ChannelFit:
     """Fit one channel: ``measured`` and ``error`` (R,) are the region's E(r) and its standard
     error at ``forward.radii``; ``floor`` the relative floor (:func:`data_sigma`). Without
     ``intervals`` (a structure search's quick fit) the fit starts from equal absorptions only and
-    no intervals are computed. ``data_minima``, a fit's :attr:`ChannelFit.data_minima` of the same
-    data, ``floor`` and ``forward``'s profile, are where the first pass's fits end: they start
-    there, not from the start grid."""
+    no intervals are computed. ``guide``, a fit of the same data, ``floor`` and ``forward``'s profile
+    whose second pass weighed by other white-run noise (:func:`.limit.exact_regions` fits the
+    model taken as exact, guided by the main fit), lends its first pass's minima
+    (:attr:`ChannelFit.data_minima`: where this fit's first pass ends, as its weights are the
+    same), so the start grid is not searched again; and its intervals and valleys
+    (:attr:`ChannelFit.valleys`), where this fit's ends are sought first and its refits start."""
     layers = forward.structure.layers
     low, high = math.log(MUA_BOUNDS[0]), math.log(MUA_BOUNDS[1])
     sigma = data_sigma(error, measured, floor)
@@ -165,8 +172,8 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
                 for start in starts]
 
     residuals, jacobian = weighted(sigma)
-    if data_minima:
-        starts = list(data_minima)
+    if guide is not None and guide.data_minima:
+        starts = list(guide.data_minima)
     elif intervals:
         starts = _starts(residuals, jacobian, layers, low, high)
     else:  # a structure search's quick fit: equal starting absorptions only
@@ -191,16 +198,22 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
     chi2 = 2.0 * best.cost
     interval = np.full((layers, 2), np.nan)
     unbounded = np.zeros(layers, bool)
+    valleys = []
     if intervals:
         covariance = np.linalg.pinv(best.jac.T @ best.jac)
         spread = math.sqrt(JOINT_CHI2) * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        guided = guide is not None and len(guide.valleys) == layers
         for k in range(layers):
-            ends = [_interval_end(residuals, jacobian, theta, k, spread[k], bound, chi2, low, high)
-                    for bound in (low, high)]
-            interval[k] = np.exp(ends)
-            unbounded[k] = ends[1] >= high - 1e-9
+            valley = {}
+            for side, bound in enumerate((low, high)):
+                profile = _Profile(residuals, jacobian, theta, k, low, high, guide.valleys[k] if guided else None)
+                hint = math.log(guide.interval[k, side]) if guided else None
+                interval[k, side] = math.exp(_interval_end(profile, spread[k], bound, chi2, hint))
+                valley.update(profile.solved)
+            valleys.append(valley)
+            unbounded[k] = math.log(interval[k, 1]) >= high - 1e-9
     return ChannelFit(np.exp(theta), interval, unbounded, used, chi2, forward.profile(np.exp(theta)), sigma,
-                      tuple(result.x for result in results))
+                      tuple(result.x for result in results), tuple(valleys))
 
 
 def _starts(residuals, jacobian, layers: int, low: float, high: float) -> list[np.ndarray]:
@@ -231,25 +244,26 @@ def _objective(forward: Forward, used: int, target: np.ndarray, relative: np.nda
     return (lambda theta: evaluate(theta)[0]), (lambda theta: evaluate(theta)[1])
 
 
-def _interval_end(residuals, jacobian, theta: np.ndarray, k: int, spread: float, bound: float, chi2: float,
-                  low: float, high: float) -> float:
-    """The end of ``theta[k]``'s interval toward ``bound`` (``low`` or ``high``): the Wald end
-    ``theta[k] -+ spread`` where it is narrow, inside the bounds and confirmed by the profile
-    chi-square there; else the profile likelihood's end (:func:`_profile_end`), searched beyond the
-    Wald end where only the confirmation failed."""
-    if abs(theta[k] - bound) <= 1e-9:
+def _interval_end(profile: _Profile, spread: float, bound: float, chi2: float, hint: float | None = None) -> float:
+    """The end of ``profile``'s layer's interval toward ``bound`` (``low`` or ``high``), from its
+    fit ``theta[k]`` of chi-square ``chi2``: the Wald end ``theta[k] -+ spread`` where it is narrow,
+    inside the bounds and confirmed by the profile chi-square there; else the profile likelihood's
+    end (:func:`_profile_end`, sought first at ``hint`` when given), searched beyond the Wald end
+    where only the confirmation failed."""
+    theta = profile.theta[profile.k]
+    if abs(theta - bound) <= 1e-9:
         return bound
-    profile = _Profile(residuals, jacobian, theta, k, low, high)
-    wald = theta[k] + math.copysign(spread, bound - theta[k])
+    wald = theta + math.copysign(spread, bound - theta)
     step = max(BRACKET_STEP * min(spread, WALD_LIMIT) / WALD_LIMIT, 10 * PROFILE_TOLERANCE)
-    if spread > WALD_LIMIT or (wald - bound) * (theta[k] - bound) <= 0.0:  # wide, or at or past the bound
-        return _profile_end(profile, theta[k], bound, chi2, step)
+    if spread > WALD_LIMIT or (wald - bound) * (theta - bound) <= 0.0:  # wide, or at or past the bound
+        return _profile_end(profile, theta, bound, chi2, step, hint)
     if profile.chi2(wald) - chi2 < JOINT_CHI2:
-        return _profile_end(profile, wald, bound, chi2, step)
+        return _profile_end(profile, wald, bound, chi2, step, hint)
     return wald
 
 
-def _profile_end(profile: _Profile, start: float, bound: float, chi2: float, step: float = BRACKET_STEP) -> float:
+def _profile_end(profile: _Profile, start: float, bound: float, chi2: float, step: float = BRACKET_STEP,
+                 hint: float | None = None) -> float:
     """Where, from ``start`` (inside the region) toward ``bound``, the profile chi-square exceeds the
     minimum ``chi2`` by :data:`JOINT_CHI2`: ``bound`` if it never does there, else to within
     :data:`PROFILE_TOLERANCE`, taken that far outward (an interval errs wide, never narrow).
@@ -258,13 +272,21 @@ def _profile_end(profile: _Profile, start: float, bound: float, chi2: float, ste
     starts near the last (from the bound back it took 6-29 model evaluations a refit); Brent's method
     then finds the root of ``sqrt(profile chi2 - chi2) - sqrt(JOINT_CHI2)``, the same end, which is
     close to linear where the chi-square is close to quadratic (the chi-square itself rises 10^8-fold
-    towards an opaque layer, and Brent's method crawled along it: 13-17 refits an end)."""
+    towards an opaque layer, and Brent's method crawled along it: 13-17 refits an end). ``hint``,
+    the end of another fit of the same data (under other weights), is tried first: beyond the end,
+    it closes the bracket; within, the steps go on from it, from :data:`PROFILE_TOLERANCE` ten times
+    (the ends of layers3's allowed-width fit lay 0.001-0.36 from the main fit's)."""
     excess = lambda value: profile.chi2(value) - chi2 - JOINT_CHI2
     if excess(bound) < 0.0:
         return bound
     direction = math.copysign(1.0, bound - start)
     inner, outer = start, bound
-    while (bound - inner) * direction > 2.0 * step:
+    if hint is not None and min((hint - start) * direction, (bound - hint) * direction) > PROFILE_TOLERANCE:
+        if excess(hint) >= 0.0:
+            outer = hint
+        else:
+            inner, step = hint, 10 * PROFILE_TOLERANCE
+    while outer == bound and (bound - inner) * direction > 2.0 * step:
         trial = inner + direction * step
         if excess(trial) >= 0.0:
             outer = trial
@@ -282,11 +304,16 @@ class _Profile:
     evaluations a refit where starting at the minimum took 10-20; extrapolating along the valley
     cut layers3's red intervals from 242 evaluations to 198)."""
 
-    def __init__(self, residuals, jacobian, theta: np.ndarray, k: int, low: float, high: float):
+    def __init__(self, residuals, jacobian, theta: np.ndarray, k: int, low: float, high: float,
+                 valley: dict[float, np.ndarray] | None = None):
         self.residuals, self.jacobian, self.theta, self.k = residuals, jacobian, theta, k
         self.low, self.high = low, high
         self.others = [j for j in range(len(theta)) if j != k]
         self.solved = {float(theta[k]): theta[self.others]}
+        """The other layers' refits at each value held (and at the fit itself)."""
+        self.valley = dict(valley or {})
+        """Another fit's :attr:`solved` of the same data (:attr:`ChannelFit.valleys`): refits start
+        from it too, this profile's own refits taking the place of its values."""
         self.values: dict[float, float] = {}
         """The profile chi-square at each value held so far (Brent's method asks again for its
         bracket's ends)."""
@@ -298,15 +325,16 @@ class _Profile:
         return self.values[value]
 
     def _start(self, value: float) -> np.ndarray:
-        """Where the refit at ``value`` starts: the other layers' fits at the two nearest values held,
-        extrapolated along the line through them to ``value`` (within the bounds), or the nearest's
-        alone while only one is held."""
-        nearest = sorted(self.solved, key=lambda held: abs(held - value))[:2]
+        """Where the refit at ``value`` starts: the other layers' fits at the two nearest values held
+        (or in :attr:`valley`), extrapolated along the line through them to ``value`` (within the
+        bounds), or the nearest's alone while only one is held."""
+        points = {**self.valley, **self.solved}
+        nearest = sorted(points, key=lambda held: abs(held - value))[:2]
         if len(nearest) < 2:
-            return self.solved[nearest[0]]
+            return points[nearest[0]]
         near, far = nearest
-        slope = (self.solved[near] - self.solved[far]) / (near - far)
-        return np.clip(self.solved[near] + slope * (value - near), self.low, self.high)
+        slope = (points[near] - points[far]) / (near - far)
+        return np.clip(points[near] + slope * (value - near), self.low, self.high)
 
     def _refitted(self, value: float) -> float:
         if not self.others:

@@ -174,13 +174,15 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     share = 1.0 / (len(choices) + 2 + base_search + refine + screening)
     for index, (n, mus) in enumerate(choices):
         optics = database_optics(settings, mus, n)
+        if len(structures) == 1 and len(choices) == 1:
+            # Nothing to compare: the one model is fitted with a white run of its own below, and
+            # the search's database (14-43 MB to read) is not needed.
+            candidates.append(Candidate(0.0, 0.0, mus, structures[0], optics))
+            break
         what = f"white Monte Carlo for {_optics_text(optics, mus)}"
         report(index * share, what)
         keep(white_database(optics, settings.photons, device=device,
                             progress=lambda fraction: report((index + 0.5 * fraction) * share, what)))
-        if len(structures) == 1 and len(choices) == 1:
-            candidates.append(Candidate(0.0, 0.0, mus, structures[0], optics))
-            break
         # With several scatterings (or indices) to try, each is scouted on the structures with even
         # boundaries; the others are tried for the best one only.
         scouts = scout_structures(structures) if len(choices) > 1 else structures
@@ -280,8 +282,11 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
              f"{searched_mus if settings.mus is None else ''}"
              f"{' (assumes every layer scatters alike)' if not isinstance(mus, tuple) and structure.layers > 1 else ''}, "
              f"n {optics.n:g}{searched_n if settings.n is None else ''}, g {optics.g:g}, {forward.database.photons} white "
-             f"photons (the search's {settings.photons} each"
-             + (f"; {len(screened)} model(s) ranked again with every photon" if screened else "") + f") on {device.name}"
+             f"photons"
+             + (f" (the search's {settings.photons} each"
+                + (f"; {len(screened)} model(s) ranked again with every photon" if screened else "") + ")"
+                if screening else "")
+             + f" on {device.name}"
              + (f"; regions also span {len(rivals)} other model(s) within chi-square {PLAUSIBLE_CHI2:g} of it"
                 + (f" (n {', '.join(f'{n:g}' for n in other_indices)} among them)" if other_indices else "")
                 if rivals else "")

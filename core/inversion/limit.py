@@ -124,11 +124,12 @@ def exact_regions(forward, measured: np.ndarray, error: np.ndarray, colorspace: 
     """Each layer's two-sigma region in xy ((K, 2) each) from the channels' profile-likelihood
     intervals (:func:`.fit.fit_channels`, :func:`.layer_colour.layer_colours`) when ``forward``'s
     model is exact (:class:`ExactForward`): ``measured`` and ``error`` (R, C), relative ``floor``.
-    ``fitted``, the channels' fits of these data with ``forward`` itself, lend their first passes
-    (:attr:`.fit.ChannelFit.data_minima`: weighted by the data's noise alone, those are the exact
-    model's fits too), so the start grid is not searched again."""
-    minima = [fit.data_minima for fit in fitted] if fitted is not None else None
-    fits = fit_channels(ExactForward(forward), measured, error, floor=floor, data_minima=minima)
+    ``fitted``, the channels' fits of these data with ``forward`` itself, guide these fits
+    (:func:`.fit.fit_channel`): their first passes (:attr:`.fit.ChannelFit.data_minima`: weighted
+    by the data's noise alone, those are the exact model's fits too), so the start grid is not
+    searched again, and their intervals' ends and valleys, near which these intervals' ends lie
+    (the weights differ only by the white run's variance)."""
+    fits = fit_channels(ExactForward(forward), measured, error, floor=floor, guides=fitted)
     return [layer.region for layer in layer_colours(fits, forward.structure, forward.database.optics, colorspace)]
 
 
