@@ -156,7 +156,6 @@ def test_the_line_profile_dock_follows_the_shown_image_and_exports_csv(qtbot, wi
 
 
 def test_colour_map_choices_survive_a_restart(qtbot, window, tmp_path):
-    from PySide6.QtCore import QSettings
     from ringlight.app.window import MainWindow
 
     window.display_controls.set_colormap_name("channel", "inferno")

@@ -204,7 +204,6 @@ def test_layer_recovery_says_colour_needs_an_rgb_camera(tmp_path, grey_impulses,
 
 
 def test_the_layers_tab_says_a_monochrome_dataset_has_no_colours(qtbot, tmp_path, grey_impulses):
-    from PySide6.QtCore import QSettings
     from ringlight.app.window import MainWindow
 
     write_dataset(tmp_path / "mono", HEIGHT, WIDTH, grey_impulses)

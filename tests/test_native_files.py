@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from reference import write_rgb
-from ringlight.core import DatasetError
 from ringlight.core.dataset import cache, file_batch
 from ringlight.core.dataset.exr_chunks import HEAD_BYTES
 from ringlight.core.dataset.file_paths import FileResolver

@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 import pyqtgraph as pg
 import pytest
-from PySide6.QtCore import QSettings
 from PySide6.QtGui import QKeySequence
 from plain_view import plain_settings
 from reference import brute_ring_image, random_impulses, write_dataset

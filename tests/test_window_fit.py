@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("PySide6")
-from PySide6.QtCore import QRectF, QSettings, Qt  # noqa: E402
+from PySide6.QtCore import QRectF, Qt  # noqa: E402
 from plain_view import plain_settings  # noqa: E402
 from reference import random_impulses, write_dataset, write_rgb  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402

@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QSettings
 from plain_view import plain_settings
 from reference import random_impulses, write_dataset
 from ringlight.app.window import MainWindow

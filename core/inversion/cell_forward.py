@@ -24,8 +24,6 @@ taken in vector lanes, in another order):
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 

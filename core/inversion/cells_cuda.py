@@ -107,6 +107,9 @@ def _kernel():
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(tally))
 
+    # The kernel is written here, not shared with white_cuda's records kernel (whose preamble it
+    # repeats): numba's CUDA simulator puts its own ``cuda`` module into a module's globals only
+    # while a kernel of that module runs, and ``tally`` uses cuda.atomic from this module's.
     @cuda.jit
     def cells_kernel(mus, majorant, g, n, depth, reach, constant, photons, first_photon, states, control, classes,
                      keys, sums, batches):
