@@ -11,7 +11,7 @@ It is ``exp`` to within one unit in the last place (``tests/test_vector_exp.py``
 infinite above, NaN for NaN. Its fast-math flags are set explicitly (``contract`` only: fused
 multiply-adds, which keep the reduction exact): numba otherwise compiles a function called from a
 fast-math loop with that loop's flags, and caches it so; with ``reassoc`` LLVM merged the two parts
-of ln 2 and the values near |x| = 700 were 211 units in the last place off.
+of ln 2 and the values near ``|x| = 700`` were 211 units in the last place off.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ _SHIFTER = 6755399441055744.0
 """1.5 * 2^52: an integer ``k`` (``|k| < 2^51``) added to it is held in the low bits of the sum's
 mantissa, so the sum's bits plus 1023, shifted left by 52, are the bits of ``2^k``."""
 _TERMS = 14
-"""Taylor terms of exp(r), |r| <= ln 2 / 2: the first left out, r^14 / 14!, is below 2^-53 r."""
+"""Taylor terms of exp(r), ``|r| <= ln 2 / 2``: the first left out, r^14 / 14!, is below 2^-53 r."""
 _COEFFICIENTS = tuple(1.0 / np.prod(np.arange(1.0, n + 1)) for n in range(_TERMS - 1, -1, -1))
 """1 / n! for n from :data:`_TERMS` - 1 down to 0 (Horner's order)."""
 
