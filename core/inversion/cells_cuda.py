@@ -27,7 +27,7 @@ import numpy as np
 from numba import cuda, float32, float64, int64, uint64
 
 from ..simulate.steps import CPU, cuda_steps
-from ..simulate.streams import walk_and_estimator_states
+from ..simulate.streams import thread_share, thread_streams, walk_and_estimator_states
 from .forward import Structure
 from .white_cells import (_LEVELS, BATCHES, RATIO, SHORTEST, CellDatabase, cell_moments, moment_columns,
                           pixel_classes)
@@ -106,6 +106,7 @@ def _kernel():
         return count + 1
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(tally))
+    streams_of, share_of = cuda.jit(device=True)(thread_streams), cuda.jit(device=True)(thread_share)
 
     # The kernel is written here, not shared with white_cuda's records kernel (whose preamble it
     # repeats): numba's CUDA simulator puts its own ``cuda`` module into a module's globals only
@@ -119,17 +120,13 @@ def _kernel():
             return
         state = cuda.local.array(2, uint64)
         estimator_state = cuda.local.array(2, uint64)
-        for i in range(2):
-            state[i] = states[stream, i]
-            estimator_state[i] = states[streams + stream, i]
+        streams_of(states, stream, streams, state, estimator_state)
         lengths = cuda.local.array(MOST_BINS, float64)
         up = cuda.local.array(MOST_BINS, float64)
-        share = photons // streams
-        extra = photons % streams
-        first = first_photon + stream * share + min(stream, extra)
-        for p in range(share + (1 if stream < extra else 0)):
-            trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up, first + p,
-                         0, control, classes, keys, sums, batches)
+        first, count = share_of(photons, streams, stream)
+        for p in range(count):
+            trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up,
+                         first_photon + first + p, 0, control, classes, keys, sums, batches)
 
     return cells_kernel
 

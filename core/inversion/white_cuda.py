@@ -20,7 +20,7 @@ import numpy as np
 from numba import cuda, float64, uint64
 
 from ..simulate.steps import CPU, cuda_steps
-from ..simulate.streams import walk_and_estimator_states
+from ..simulate.streams import thread_share, thread_streams, walk_and_estimator_states
 from .white_mc import (BLOCKS, DatabaseError, SlabOptics, WhiteDatabase, _white_block, compile_walk,
                        write_record)
 
@@ -44,6 +44,7 @@ def _kernel():
         return count + 1
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(record))
+    streams_of, share_of = cuda.jit(device=True)(thread_streams), cuda.jit(device=True)(thread_share)
 
     @cuda.jit
     def white_kernel(mus, majorant, g, n, depth, reach, constant, photons, states, counter, pixel, value,
@@ -54,15 +55,11 @@ def _kernel():
             return
         state = cuda.local.array(2, uint64)
         estimator_state = cuda.local.array(2, uint64)
-        for i in range(2):
-            state[i] = states[stream, i]
-            estimator_state[i] = states[streams + stream, i]
+        streams_of(states, stream, streams, state, estimator_state)
         lengths = cuda.local.array(MOST_BINS, float64)
         up = cuda.local.array(MOST_BINS, float64)
-        share = photons // streams
-        extra = photons % streams
-        first = stream * share + min(stream, extra)
-        for p in range(share + (1 if stream < extra else 0)):
+        first, count = share_of(photons, streams, stream)
+        for p in range(count):
             trace_photon(state, estimator_state, mus, majorant, g, n, depth, reach, constant, lengths, up, first + p,
                          0, counter, pixel, value, lengths_out, photon_out)
 

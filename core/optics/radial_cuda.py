@@ -20,7 +20,7 @@ import numpy as np
 from numba import cuda, uint64
 
 from ..simulate.steps import CPU, cuda_steps
-from ..simulate.streams import seed_states
+from ..simulate.streams import seed_states, thread_share
 from .radial import LONGEST, PATH_CELLS, RHO_CELLS, RadialRun, compile_walk, traced_photons
 
 STREAMS = 1 << 16
@@ -36,6 +36,7 @@ def _kernel():
         cuda.atomic.add(sums, (i, j), value)
 
     trace_photon = compile_walk(cuda.jit(device=True), cuda_steps(), cuda.jit(device=True)(add))
+    share_of = cuda.jit(device=True)(thread_share)
 
     @cuda.jit
     def radial_kernel(g, n, longest, constant, photons, states, weight, rho_sum, path_sum):
@@ -46,7 +47,7 @@ def _kernel():
         state = cuda.local.array(2, uint64)
         state[0] = states[stream, 0]
         state[1] = states[stream, 1]
-        for _ in range(photons // streams + (1 if stream < photons % streams else 0)):
+        for _ in range(share_of(photons, streams, stream)[1]):
             trace_photon(state, g, n, longest, constant, weight, rho_sum, path_sum)
 
     return radial_kernel

@@ -21,7 +21,7 @@ from numba import cuda, float64, uint64
 from .camera import compile_estimate
 from .walk import RECORD_FIELDS, WEIGHTS, compile_walk, fill_walker
 from .steps import cuda_steps
-from .streams import walk_and_estimator_states
+from .streams import thread_streams, walk_and_estimator_states
 from .tables import MU_T
 
 THREADS_PER_BLOCK = 64
@@ -40,14 +40,6 @@ def atomic_add(array, index, value):
 
 def no_record(records, count, photon, entry_y, entry_x, surface_y, surface_x, length, values, sign, channels):
     """The device keeps no event list (the CPU's is for tests and inspection)."""
-
-
-def thread_streams(states, i, count, state, estimator_state):
-    """Thread ``i``'s walk state (row ``i`` of ``states``) and its estimator's (row ``count + i``),
-    copied into ``state`` and ``estimator_state`` (2 uint64 each)."""
-    for k in range(2):
-        state[k] = states[i, k]
-        estimator_state[k] = states[count + i, k]
 
 
 @functools.cache

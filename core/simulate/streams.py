@@ -46,6 +46,24 @@ def walk_and_estimator_states(seed: int, streams: np.ndarray) -> np.ndarray:
     return np.concatenate([seed_states(seed, streams), seed_states(seed, streams + ESTIMATOR_STREAM)])
 
 
+
+def thread_streams(states, i, count, state, estimator_state):
+    """Thread ``i``'s walk state (row ``i`` of ``states``, as :func:`walk_and_estimator_states`
+    stacks them for ``count`` threads) and its estimator's (row ``count + i``), copied into
+    ``state`` and ``estimator_state`` (2 uint64 each). Compiled into the CUDA kernels."""
+    for k in range(2):
+        state[k] = states[i, k]
+        estimator_state[k] = states[count + i, k]
+
+
+def thread_share(photons, threads, thread):
+    """``(first, count)``: thread ``thread``'s share of ``photons`` shared among ``threads``, the
+    first ``photons % threads`` threads one more each, numbered from photon 0. Compiled into the
+    CUDA kernels."""
+    share = photons // threads
+    extra = photons % threads
+    return thread * share + min(thread, extra), share + (1 if thread < extra else 0)
+
 fresh_state = CPU.fresh_state
 """``fresh_state(seeder, state)``: reseed ``state`` (2 uint64, in place) from the next output of
 ``seeder`` (advanced): independent streams one after another, for walks that must be replayed
