@@ -35,6 +35,7 @@ import numpy as np
 
 from ringlight.core.optics.pixel_fit import fit_profiles
 from ringlight.core.optics import node_fit
+from ringlight.core.optics.one_pass import fit_in_one_pass
 from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, profile_radii, ring_errors, t_inflation
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.synthetic import homogeneous_dataset
@@ -81,6 +82,7 @@ def main() -> None:
     for estimator in ("nodes", "full"):
         fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
                      inflation=inflation, estimator=estimator)
+    fit_in_one_pass(small, radii, table, np.ones(3), MODEL_FLOOR, inflation)
 
     stack, errors = ring_stack_and_errors(dataset, radii)  # the fits' input, the same every round
 
@@ -92,7 +94,9 @@ def main() -> None:
         node_fit._FINE.pop(table, None)  # made again: what a new table costs
         return node_fit.fine_nodes(table)
 
-    phases = {"stack": lambda: ring_stack(dataset, radii), "one pass": lambda: ring_stack_and_errors(dataset, radii),
+    phases = {"stack": lambda: ring_stack(dataset, radii),
+              "map pass": lambda: fit_in_one_pass(dataset, radii, table, np.ones(3), MODEL_FLOOR, inflation)[0],
+              "one pass": lambda: ring_stack_and_errors(dataset, radii),
               "separate spread": lambda: ring_errors(dataset, radii), "fits": fits("nodes"), "full fits": fits("full"),
               "fine nodes": fine_nodes}
     times = {name: [] for name in phases}  # per phase, per round: (wall, CPU) seconds
@@ -124,17 +128,19 @@ def main() -> None:
 
     print(f"{'phase':44s} median (lowest-highest) of {len(times['stack'])} rounds, and over the same round's stack")
     line(f"ring stack ({len(radii)} radii)", "stack")
-    line("stack + errors in one pass", "one pass")
+    line("the map's pass: stack, errors and fits, by row", "map pass", f"  ({outcome(results['map pass'])})")
+    line("stack + errors in one pass (before)", "one pass")
     line("errors in a pass of their own", "separate spread", "  (before; not in the map)")
     for name, label in (("fits", "fits, node steps"), ("full fits", "fits, full (before)")):
         line(f"{label} ({count} pixel channels)", name, f"  ({np.median(times[name][:, 1]) / count * 1e6:.2f} us CPU "
              f"each, {outcome(results[name])})")
     line("fine nodes (once per table)", "fine nodes")
     for index, unit in ((0, "wall"), (1, "CPU")):
-        instead_full = times["full fits"][:, index] - times["fits"][:, index]
-        for label, extra in (("", 0.0), (", full fits (before)", instead_full),
-                             (", fine nodes made", times["fine nodes"][:, index])):
-            whole = times["one pass"][:, index] + times["fits"][:, index] + extra
+        separate = times["one pass"][:, index] + times["fits"][:, index]
+        for label, whole in (("", times["map pass"][:, index]),
+                             (", fine nodes made", times["map pass"][:, index] + times["fine nodes"][:, index]),
+                             (", stack + errors, then fits (before)", separate),
+                             (", then full fits (before)", times["one pass"][:, index] + times["full fits"][:, index])):
             own = whole - times["stack"][:, index]
             print(f"map ({unit:4s}{label}): from the dataset {spread(whole / times['stack'][:, index])} x the stack; "
                   f"beyond the stack (errors + fits) {spread(own / times['stack'][:, index])} x (target <= 1)")

@@ -43,6 +43,7 @@ from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
 from ..rings.stack_spread import ring_stack_and_errors
 from ..rings.stacks import Stack, ring_stack
+from .one_pass import fit_in_one_pass
 from .pixel_fit import CONVERGED, fit_profiles
 from .table import DEFAULT_PHOTONS, ProfileTable, table_for
 
@@ -219,6 +220,14 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     n, g = sample_optics(dataset, n, g)
     radii = profile_radii(dataset)
     report = _Phases(progress, cancelled)
+    scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
+    if stack is None and errors is None and len(dataset.manifest.replicates) <= 1 and estimator == "nodes":
+        # The rings, their spread and the fits in one pass over the responses, row by row.
+        table = table_for(n, g, radii, photons=photons, progress=report.part(0.0, 0.1))
+        inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
+        fitted, complete = fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
+                                           progress=report.part(0.1, 1.0), cancelled=report.cancelled)
+        return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
     inflation = np.ones(len(radii))  # errors given are taken as they are
     if stack is None and errors is None and len(dataset.manifest.replicates) <= 1:
         # The rings and their spread in one pass over the responses (one read of them, not two).
@@ -237,7 +246,6 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     report.check()
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
-    scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
                           floor=floor, inflation=inflation, estimator=estimator)
     report.progress(1.0)

@@ -119,17 +119,19 @@ def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
     :func:`.pixel_fit.fit_profiles` fills them), and ``steps`` (H, W, C) int8: the nodes each fit
     stepped from (0: the full fit's)."""
     for y in numba.prange(row0, row1):
-        _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured,
-                      sigma, scale, errors_given, counts, floor, inflation, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                      rings_out, status, steps)
+        node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured,
+                     sigma, scale, errors_given, counts, floor, inflation, y, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
+                     rings_out, status, steps)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
-                  scale, errors_given, counts, floor, inflation, y, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out,
-                  status, steps):
-    """Row ``y``'s fits, every channel, pixel after pixel (a function of its own outside the
-    parallel loop, as :func:`.pixel_fit._fit_row` is, for the same numba trap)."""
+def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
+                 scale, errors_given, counts, floor, inflation, source, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
+                 rings_out, status, steps):
+    """Row ``y``'s fits, every channel, pixel after pixel, of the profiles in row ``source`` of
+    ``measured``, ``sigma`` and ``counts`` (the grid's row, or a row just stacked,
+    :mod:`.one_pass`). A function of its own outside the parallel loop, as
+    :func:`.pixel_fit._fit_row` is, for the same numba trap."""
     width = measured.shape[2]
     channels = measured.shape[3]
     rings = measured.shape[0]
@@ -141,8 +143,8 @@ def _node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
         start_v = math.nan
         model_scale = scale[c]
         for x in range(width):
-            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance)
-            count = prepare_profile(measured[:, y, x, c], variance, data, weight)
+            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, source, x, c, variance)
+            count = prepare_profile(measured[:, source, x, c], variance, data, weight)
             rings_out[y, x, c] = count
             if count < MIN_RINGS:
                 status[y, x, c] = NO_DATA

@@ -81,10 +81,7 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
         raise ValueError(f"estimator must be 'full' or 'nodes', not {estimator!r}")
 
     rings, height, width, channels = measured.shape
-    out = {name: np.full((height, width, channels), np.nan) for name in ("u", "v", "cuu", "cuv", "cvv", "chi2")}
-    out["rings"] = np.zeros((height, width, channels), np.int32)
-    out["status"] = np.full((height, width, channels), NO_DATA, np.int8)
-    out["node_steps"] = np.zeros((height, width, channels), np.int8)
+    out = fit_outputs(height, width, channels)
     measured = np.ascontiguousarray(measured, np.float32)
     sigma = np.ascontiguousarray(sigma, np.float32)
     scale = np.asarray(scale, np.float64)
@@ -106,6 +103,16 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
         _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
                   errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
                   out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+    return out
+
+
+def fit_outputs(height: int, width: int, channels: int) -> dict[str, np.ndarray]:
+    """The (H, W, C) outputs of :func:`fit_profiles` before any fit: NaN values, no rings used,
+    status :data:`NO_DATA`."""
+    out = {name: np.full((height, width, channels), np.nan) for name in ("u", "v", "cuu", "cuv", "cvv", "chi2")}
+    out["rings"] = np.zeros((height, width, channels), np.int32)
+    out["status"] = np.full((height, width, channels), NO_DATA, np.int8)
+    out["node_steps"] = np.zeros((height, width, channels), np.int8)
     return out
 
 

@@ -18,6 +18,7 @@ cancellation, 1e-10 of the variance at 0.1 % noise per member.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -39,28 +40,60 @@ def ring_stack_and_errors(dataset: ImpulseDataset, radii, progress: ProgressCall
     ``progress(fraction)`` after each band (may raise ``Cancelled``).
     """
     radii = as_radii(radii)
-    check_reach(dataset, radii, 0.0, 1.0, False)
-    tables = _ring_tables(dataset, radii, 1.0, False)
-    unweighted = unit_weight_rings(tables)  # every default ring's weights are 1
-    first, stop = tables[0], tables[1]
-    groups, ring_groups = _ring_distance_groups(dataset.offsets, first, stop)
+    rings = spread_rings(dataset, radii)
     height, width = dataset.grid_shape
     images = np.empty((len(radii), height, width, 3), np.float32)
     errors = np.empty((len(radii), height, width, 3), np.float32)
     counts = np.empty((len(radii), height, width), np.int32)
-    lit = np.ascontiguousarray(dataset.lit, np.uint8)
-    dy = np.ascontiguousarray(dataset.offsets[:, 0])
-    dx = np.ascontiguousarray(dataset.offsets[:, 1])
     for row0, row1 in dataset.bands():
-        counts[:, row0:row1], _ = ring_members(dataset.lit, dataset.observed, dataset.offsets, tables, unweighted,
-                                               row0, row1)
-        _stack_spread_kernel(np.ascontiguousarray(dataset.rows(row0, row1)), lit, dy, dx, row0, first, stop,
-                             groups, ring_groups, counts[:, row0:row1], images[:, row0:row1],
-                             errors[:, row0:row1])
+        counts[:, row0:row1] = band_members(dataset, rings, row0, row1)
+        _stack_spread_kernel(np.ascontiguousarray(dataset.rows(row0, row1)), row0, *rings.kernel_arguments,
+                             counts[:, row0:row1], images[:, row0:row1], errors[:, row0:row1])
         if progress is not None:
             progress(row1 / height)
     stack = Stack("ring", radii, 1.0, False, dataset.colorspace, images, counts)
     return stack, errors
+
+
+@dataclass(frozen=True, eq=False)
+class SpreadRings:
+    """Default rings on a dataset's offset axis, as :func:`spread_row` reads them.
+
+    Attributes
+    ----------
+    tables
+        The rings' runs and weights (:func:`.stacks._ring_tables`).
+    unweighted
+        (n,) bool: every default ring's weights are 1.
+    kernel_arguments
+        ``(lit, dy, dx, first, stop, groups, ring_groups)``: the (H, W) uint8 lit points, the
+        offsets (K,) int, the rings' runs ``[first, stop)`` (n,) and their distance ``groups``
+        (G, 2) of ring j ``ring_groups[j] .. ring_groups[j + 1]`` (:func:`_ring_distance_groups`).
+    """
+
+    tables: tuple
+    unweighted: np.ndarray
+    kernel_arguments: tuple
+
+
+def spread_rings(dataset: ImpulseDataset, radii: np.ndarray) -> SpreadRings:
+    """The default rings at ``radii`` (grid steps, checked within the dataset's reach) for
+    :func:`spread_row`: made once per pass."""
+    check_reach(dataset, radii, 0.0, 1.0, False)
+    tables = _ring_tables(dataset, radii, 1.0, False)
+    first, stop = tables[0], tables[1]
+    groups, ring_groups = _ring_distance_groups(dataset.offsets, first, stop)
+    lit = np.ascontiguousarray(dataset.lit, np.uint8)
+    dy = np.ascontiguousarray(dataset.offsets[:, 0])
+    dx = np.ascontiguousarray(dataset.offsets[:, 1])
+    return SpreadRings(tables, unit_weight_rings(tables), (lit, dy, dx, first, stop, groups, ring_groups))
+
+
+def band_members(dataset: ImpulseDataset, rings: SpreadRings, row0: int, row1: int) -> np.ndarray:
+    """(n, row1 - row0, W) int32 members of each ring at the band's points
+    (:func:`.members.ring_members`: 0 at unobserved points)."""
+    counts, _ = ring_members(dataset.lit, dataset.observed, dataset.offsets, rings.tables, rings.unweighted, row0, row1)
+    return counts
 
 
 def _ring_distance_groups(offsets: np.ndarray, first: np.ndarray, stop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,64 +153,73 @@ def _lit_group_sums(pixel, start, end, lit, py, px, dy, dx):
     return n, s0, s1, s2, z0, z1, z2
 
 
-@numba.njit(parallel=True, cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _stack_spread_kernel(responses, lit, dy, dx, row0, first, stop, groups, ring_groups, counts, images, errors):
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _stack_spread_kernel(responses, row0, lit, dy, dx, first, stop, groups, ring_groups, counts, images, errors):
     """Fill ``images`` and ``errors`` (n, rows, W, 3) of the band of grid rows from ``row0``, from its
-    ``responses`` (rows, W, K, 3) C-contiguous, the (H, W) uint8 ``lit`` points, the offsets ``dy``,
+    ``responses`` (rows, W, K, 3) C-contiguous and the members' ``counts`` (n, rows, W), row by row
+    (:func:`spread_row`; the other arguments are :attr:`SpreadRings.kernel_arguments`)."""
+    rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
+    flat = responses.reshape(rows, width, offsets * 3)
+    for y in numba.prange(rows):
+        spread_row(flat[y], row0 + y, lit, dy, dx, first, stop, groups, ring_groups, counts[:, y], images[:, y],
+                   errors[:, y])
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def spread_row(pixels, py, lit, dy, dx, first, stop, groups, ring_groups, counts, images, errors):
+    """Fill ``images`` and ``errors`` (n, W, 3) of grid row ``py`` from its ``pixels``' responses
+    (W, K * 3: each offset's R, G, B), the (H, W) uint8 ``lit`` points, the offsets ``dy``,
     ``dx`` (K,), the rings' runs ``first``, ``stop`` (n,), their distance ``groups`` (G, 2) (offset
-    bounds) of ring j ``ring_groups[j] .. ring_groups[j + 1]`` and the members' ``counts`` (n, rows, W)
+    bounds) of ring j ``ring_groups[j] .. ring_groups[j + 1]`` and the members' ``counts`` (n, W)
     (:func:`.members.ring_members`: 0 at unobserved points).
 
     A pixel all of whose rings are whole (counts equal the runs' lengths) reads no validity: every
     member is inside the grid and lit. Elsewhere a member counts when its lit point is inside the
     grid and lit (its response is 0 otherwise, by the dataset's invariant, so sums need no flag).
     """
-    rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
-    flat = responses.reshape(rows, width, offsets * 3)
+    width = pixels.shape[0]
     rings = first.size
-    for y in numba.prange(rows):
-        for x in range(width):
-            pixel = flat[y, x]
-            whole = True
-            for j in range(rings):
-                if counts[j, y, x] != stop[j] - first[j]:
-                    whole = False
-            for j in range(rings):
-                if counts[j, y, x] == 0:
-                    for channel in range(3):
-                        images[j, y, x, channel] = np.nan
-                        errors[j, y, x, channel] = np.nan
-                    continue
-                t0 = t1 = t2 = 0.0
-                q0 = q1 = q2 = 0.0
-                dof = 0.0
-                members = 0
-                for g in range(ring_groups[j], ring_groups[j + 1]):
-                    if whole:
-                        n = groups[g, 1] - groups[g, 0]
-                        s0, s1, s2, z0, z1, z2 = _whole_group_sums(pixel, 3 * groups[g, 0], 3 * groups[g, 1])
-                    else:
-                        n, s0, s1, s2, z0, z1, z2 = _lit_group_sums(pixel, groups[g, 0], groups[g, 1], lit,
-                                                                    row0 + y, x, dy, dx)
-                    t0 += s0
-                    t1 += s1
-                    t2 += s2
-                    members += n
-                    if n >= 2:
-                        q0 += z0 - s0 * s0 / n
-                        q1 += z1 - s1 * s1 / n
-                        q2 += z2 - s2 * s2 / n
-                        dof += n - 1.0
-                images[j, y, x, 0] = t0 / members
-                images[j, y, x, 1] = t1 / members
-                images[j, y, x, 2] = t2 / members
-                if dof == 0.0:
-                    errors[j, y, x, 0] = np.nan
-                    errors[j, y, x, 1] = np.nan
-                    errors[j, y, x, 2] = np.nan
-                    continue
-                # SE^2 = s^2 / N, s^2 pooled within the groups (unit weights: V1 = V2 = N).
-                factor = 1.0 / (dof * members)
-                errors[j, y, x, 0] = math.sqrt(max(q0, 0.0) * factor)
-                errors[j, y, x, 1] = math.sqrt(max(q1, 0.0) * factor)
-                errors[j, y, x, 2] = math.sqrt(max(q2, 0.0) * factor)
+    for x in range(width):
+        pixel = pixels[x]
+        whole = True
+        for j in range(rings):
+            if counts[j, x] != stop[j] - first[j]:
+                whole = False
+        for j in range(rings):
+            if counts[j, x] == 0:
+                for channel in range(3):
+                    images[j, x, channel] = np.nan
+                    errors[j, x, channel] = np.nan
+                continue
+            t0 = t1 = t2 = 0.0
+            q0 = q1 = q2 = 0.0
+            dof = 0.0
+            members = 0
+            for g in range(ring_groups[j], ring_groups[j + 1]):
+                if whole:
+                    n = groups[g, 1] - groups[g, 0]
+                    s0, s1, s2, z0, z1, z2 = _whole_group_sums(pixel, 3 * groups[g, 0], 3 * groups[g, 1])
+                else:
+                    n, s0, s1, s2, z0, z1, z2 = _lit_group_sums(pixel, groups[g, 0], groups[g, 1], lit, py, x, dy, dx)
+                t0 += s0
+                t1 += s1
+                t2 += s2
+                members += n
+                if n >= 2:
+                    q0 += z0 - s0 * s0 / n
+                    q1 += z1 - s1 * s1 / n
+                    q2 += z2 - s2 * s2 / n
+                    dof += n - 1.0
+            images[j, x, 0] = t0 / members
+            images[j, x, 1] = t1 / members
+            images[j, x, 2] = t2 / members
+            if dof == 0.0:
+                errors[j, x, 0] = np.nan
+                errors[j, x, 1] = np.nan
+                errors[j, x, 2] = np.nan
+                continue
+            # SE^2 = s^2 / N, s^2 pooled within the groups (unit weights: V1 = V2 = N).
+            factor = 1.0 / (dof * members)
+            errors[j, x, 0] = math.sqrt(max(q0, 0.0) * factor)
+            errors[j, x, 1] = math.sqrt(max(q1, 0.0) * factor)
+            errors[j, x, 2] = math.sqrt(max(q2, 0.0) * factor)
