@@ -124,7 +124,10 @@ def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
                      rings_out, status, steps)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+# Reassociation lets the compiler vectorise the sums over rings and reciprocals replace divisions:
+# 0.42 -> 0.24 us a fit, within 5e-13 of a standard error of the strict order's (no nnan / ninf:
+# the fits test for NaN). The full fit it falls back on keeps the strict order by its own flags.
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "arcp", "nsz"})
 def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
                  scale, errors_given, counts, floor, inflation, source, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
                  rings_out, status, steps):

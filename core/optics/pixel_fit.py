@@ -246,7 +246,9 @@ def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, sta
     _store_fit(fit, result)
 
 
-@numba.njit(cache=True)
+# fastmath False stated: numba would give it the flags of whichever caller compiles it first
+# (the node fit's reassociation), and the full fit is the reference.
+@numba.njit(cache=True, fastmath=False)
 def fit_one_profile(log_profile, coarse, u0, du, v0, dv, data, weight, scale, result, values, slopes):
     """The full fit of one profile's ``data`` and ``weight`` (:func:`prepare_profile`) from the
     coarse search into ``result`` (as :func:`_fit_one` fills it, but the rings used): the
