@@ -5,22 +5,24 @@ mua 0.01 per grid step, 3 % noise on every response value, max_radius MAX_RADIUS
 ``optical_maps`` does it, phase by phase, each timed in this run (wall clock and process CPU time):
   - the ring stack E_r at radii 0 .. max_radius - 1/2 alone (``ring_stack``: what the map is
     computed from, the yardstick);
-  - the stack and its standard errors (the members' spread) in one pass (``ring_stack_and_errors``,
-    what the map computes);
-  - for comparison, the spread in a pass of its own (``stack_noise``, as the maps took it before);
-  - the per-pixel fits of every pixel and channel (``fit_profiles`` on the cached table, each
-    fit making its rings' standard deviations from their errors), by the maps' estimator (Gauss-
-    Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`) and, for
-    comparison, by the full Levenberg-Marquardt fit on the table's splines (the maps' estimator
-    before, and the region fits');
+  - the map's pass (:func:`ringlight.core.optics.one_pass.fit_in_one_pass`, what ``optical_maps``
+    runs): each grid row's rings and their standard errors (the members' spread), then that row's
+    fits (Gauss-Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`);
+  - for comparison, the same in two passes as the maps took it before: the stack and its standard
+    errors over the whole grid (``ring_stack_and_errors``), then the per-pixel fits of every pixel
+    and channel (``fit_profiles`` on the cached table, each fit making its rings' standard
+    deviations from their errors) by the node steps and by the full Levenberg-Marquardt fit on the
+    table's splines (the region fits'); and the spread in a pass of its own (``stack_noise``);
   - the fine table's nodes made from the table (once per table, as the table is: reported apart);
 in REPEATS rounds within this one process, each round taking every phase once, the order
 reversed every other round (a shared machine's load drifts; phases timed minutes apart in separate
 runs gave 3.00 x and 4.27 x). Each round gives its own ratios: the map's cost beyond the stack
-((one pass - stack) + fits) over the stack's, and the whole map's from the dataset over the
-stack's (each also with the full fits, and with the fine nodes made); the median over the rounds
+(the map's pass less the stack) over the stack's, and the whole map's from the dataset over the
+stack's (also with the fine nodes made, and by the two passes before); the median over the rounds
 is printed with the lowest and highest. The table's white run is made (or read from the user
-cache) before the clock starts: once per n and g.
+cache) before the clock starts: once per n and g. The maps' conversion of the fits to mu_a and
+mu_s' and their standard errors (:func:`ringlight.core.optics.maps.maps_from_fit`, numpy over the
+whole grid) is timed on its own line, outside the ratios (as before).
 Target (issue 38): the map costs at most the time of the stack it is computed from.
 
     python benchmarks/bench_optics.py [--size 800] [--max-radius 8] [--photons 1000000] [--repeats 5]
@@ -36,7 +38,7 @@ import numpy as np
 from ringlight.core.optics.pixel_fit import fit_profiles
 from ringlight.core.optics import node_fit
 from ringlight.core.optics.one_pass import fit_in_one_pass
-from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, profile_radii, ring_errors, t_inflation
+from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, maps_from_fit, profile_radii, ring_errors, t_inflation
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.synthetic import homogeneous_dataset
 from ringlight.core.optics.table import table_for
@@ -85,6 +87,7 @@ def main() -> None:
     fit_in_one_pass(small, radii, table, np.ones(3), MODEL_FLOOR, inflation)
 
     stack, errors = ring_stack_and_errors(dataset, radii)  # the fits' input, the same every round
+    fitted, complete = fit_in_one_pass(dataset, radii, table, np.ones(3), MODEL_FLOOR, inflation)  # the conversion's
 
     def fits(estimator):
         return lambda: fit_profiles(table, stack.images, errors, np.ones(3), counts=stack.counts, floor=MODEL_FLOOR,
@@ -98,7 +101,8 @@ def main() -> None:
               "map pass": lambda: fit_in_one_pass(dataset, radii, table, np.ones(3), MODEL_FLOOR, inflation)[0],
               "one pass": lambda: ring_stack_and_errors(dataset, radii),
               "separate spread": lambda: ring_errors(dataset, radii), "fits": fits("nodes"), "full fits": fits("full"),
-              "fine nodes": fine_nodes}
+              "fine nodes": fine_nodes,
+              "conversion": lambda: maps_from_fit(fitted, table, None, complete, radii, "ring spread", np.ones(3))}
     times = {name: [] for name in phases}  # per phase, per round: (wall, CPU) seconds
     results = {}
     for round_ in range(max(1, args.repeats)):
@@ -135,6 +139,7 @@ def main() -> None:
         line(f"{label} ({count} pixel channels)", name, f"  ({np.median(times[name][:, 1]) / count * 1e6:.2f} us CPU "
              f"each, {outcome(results[name])})")
     line("fine nodes (once per table)", "fine nodes")
+    line("the fits to mu_a, mu_s' maps (not in the map's)", "conversion")
     for index, unit in ((0, "wall"), (1, "CPU")):
         separate = times["one pass"][:, index] + times["fits"][:, index]
         for label, whole in (("", times["map pass"][:, index]),

@@ -13,13 +13,14 @@ show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma
 Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`), within
 0.012 (the benchmark's map) to 0.014 (simulated slabs) of a standard error of the full
 Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
-fits the steps do not settle and region fits use.
+fits the steps do not settle and region fits use. Without replicates, a stack or errors given, each
+grid row is fitted as soon as its rings and their spread are stacked (:mod:`.one_pass`): no
+(R, H, W, 3) stack or errors are written.
 
-Cost (``benchmarks/bench_optics.py --repeats 7``, 800 x 800, max_radius 8, the rounds alternated
-in one process on a two-core machine at load 3, CPU time, median (lowest-highest)): the stack with
-its errors 1.48 (1.23-1.94) x the stack alone, the 1.9 million fits 1.48 (0.89-2.11) x, 0.32 us
-each (the full fits 3.08 (1.85-4.72) x, 0.69 us); the map beyond the stack 2.11 (1.12-2.59) x,
-3.62 (2.09-5.20) x with the full fits.
+Cost (``benchmarks/bench_optics.py --repeats 5``, 800 x 800, max_radius 8, the rounds alternated
+in one process on a two-core machine at load 4.5-8, CPU time, median (lowest-highest)): the map
+beyond the stack 0.70 (0.38-0.91) x the stack, 0.79, 0.81 and 1.01 x in three more runs (1.64 and
+2.06 x for the two passes before, alternated with them); the node fits 0.26-0.29 us each.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased

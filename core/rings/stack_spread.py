@@ -12,7 +12,9 @@ group's members and their squares::
 fewer than 2 members add nothing but their members to N; :mod:`.noise` gives the estimator), the
 same quantities as the two functions to float rounding (``tests/test_stack_spread.py``). The
 sums are float64: the one-pass variance loses about 1e-16 of the members' mean square to
-cancellation, 1e-10 of the variance at 0.1 % noise per member.
+cancellation, 1e-10 of the variance at 0.1 % noise per member. The pass is made row by row
+(:func:`spread_row`), so that a caller can use each row at once: the maps fit it while it is in
+cache (:mod:`ringlight.core.optics.one_pass`).
 """
 
 from __future__ import annotations
