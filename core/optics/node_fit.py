@@ -119,9 +119,10 @@ def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
     :func:`.pixel_fit.fit_profiles` fills them), and ``steps`` (H, W, C) int8: the nodes each fit
     stepped from (0: the full fit's)."""
     for y in numba.prange(row0, row1):
+        starts = np.full((measured.shape[3], 2), np.nan)
         node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured,
-                     sigma, scale, errors_given, counts, floor, inflation, y, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                     rings_out, status, steps)
+                     sigma, scale, errors_given, counts, floor, inflation, y, y, 0, starts, u_out, v_out, cuu, cuv, cvv,
+                     chi2_out, rings_out, status, steps)
 
 
 # Reassociation lets the compiler vectorise the sums over rings and reciprocals replace divisions:
@@ -129,12 +130,14 @@ def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
 # the fits test for NaN). The full fit it falls back on keeps the strict order by its own flags.
 @numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "arcp", "nsz"})
 def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
-                 scale, errors_given, counts, floor, inflation, source, y, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                 rings_out, status, steps):
-    """Row ``y``'s fits, every channel, pixel after pixel, of the profiles in row ``source`` of
-    ``measured``, ``sigma`` and ``counts`` (the grid's row, or a row just stacked,
-    :mod:`.one_pass`). A function of its own outside the parallel loop, as
-    :func:`.pixel_fit._fit_row` is, for the same numba trap."""
+                 scale, errors_given, counts, floor, inflation, source, y, x0, starts, u_out, v_out, cuu, cuv, cvv,
+                 chi2_out, rings_out, status, steps):
+    """The fits of row ``y``'s pixels from column ``x0``, every channel, pixel after pixel, of the
+    profiles in row ``source`` of ``measured``, ``sigma`` and ``counts`` (the grid's row, or the
+    pixels just stacked, :mod:`.one_pass`; their column 0 is the grid's ``x0``). ``starts`` (C, 2)
+    holds each channel's start (u, v), NaN for none, and on return the start of the pixel after
+    these. A function of its own outside the parallel loop, as :func:`.pixel_fit._fit_row` is, for
+    the same numba trap."""
     width = measured.shape[2]
     channels = measured.shape[3]
     rings = measured.shape[0]
@@ -142,12 +145,13 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
     last_k = nodes.shape[0] - 1
     last_j = nodes.shape[1] - 1
     for c in range(channels):
-        start_u = math.nan
-        start_v = math.nan
+        start_u = starts[c, 0]
+        start_v = starts[c, 1]
         model_scale = scale[c]
-        for x in range(width):
-            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, source, x, c, variance)
-            count = prepare_profile(measured[:, source, x, c], variance, data, weight)
+        for column in range(width):
+            x = x0 + column
+            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, source, column, c, variance)
+            count = prepare_profile(measured[:, source, column, c], variance, data, weight)
             rings_out[y, x, c] = count
             if count < MIN_RINGS:
                 status[y, x, c] = NO_DATA
@@ -209,6 +213,8 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
             # The next fit starts from this minimum; from the coarse search where there is none.
             start_u = result[0] if int(result[7]) == CONVERGED else math.nan
             start_v = result[1]
+        starts[c, 0] = start_u
+        starts[c, 1] = start_v
 
 
 @numba.njit(cache=True, inline="always")

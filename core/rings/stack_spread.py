@@ -163,14 +163,14 @@ def _stack_spread_kernel(responses, row0, lit, dy, dx, first, stop, groups, ring
     rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
     flat = responses.reshape(rows, width, offsets * 3)
     for y in numba.prange(rows):
-        spread_row(flat[y], row0 + y, lit, dy, dx, first, stop, groups, ring_groups, counts[:, y], images[:, y],
+        spread_row(flat[y], row0 + y, 0, lit, dy, dx, first, stop, groups, ring_groups, counts[:, y], images[:, y],
                    errors[:, y])
 
 
 @numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def spread_row(pixels, py, lit, dy, dx, first, stop, groups, ring_groups, counts, images, errors):
-    """Fill ``images`` and ``errors`` (n, W, 3) of grid row ``py`` from its ``pixels``' responses
-    (W, K * 3: each offset's R, G, B), the (H, W) uint8 ``lit`` points, the offsets ``dy``,
+def spread_row(pixels, py, px, lit, dy, dx, first, stop, groups, ring_groups, counts, images, errors):
+    """Fill ``images`` and ``errors`` (n, W, 3) of W pixels of grid row ``py`` from column ``px``
+    from their responses ``pixels`` (W, K * 3: each offset's R, G, B), the (H, W) uint8 ``lit`` points, the offsets ``dy``,
     ``dx`` (K,), the rings' runs ``first``, ``stop`` (n,), their distance ``groups`` (G, 2) (offset
     bounds) of ring j ``ring_groups[j] .. ring_groups[j + 1]`` and the members' ``counts`` (n, W)
     (:func:`.members.ring_members`: 0 at unobserved points).
@@ -202,7 +202,8 @@ def spread_row(pixels, py, lit, dy, dx, first, stop, groups, ring_groups, counts
                     n = groups[g, 1] - groups[g, 0]
                     s0, s1, s2, z0, z1, z2 = _whole_group_sums(pixel, 3 * groups[g, 0], 3 * groups[g, 1])
                 else:
-                    n, s0, s1, s2, z0, z1, z2 = _lit_group_sums(pixel, groups[g, 0], groups[g, 1], lit, py, x, dy, dx)
+                    n, s0, s1, s2, z0, z1, z2 = _lit_group_sums(pixel, groups[g, 0], groups[g, 1], lit, py, px + x, dy,
+                                                                dx)
                 t0 += s0
                 t1 += s1
                 t2 += s2
