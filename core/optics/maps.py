@@ -18,10 +18,9 @@ grid row is fitted as soon as its rings and their spread are stacked (:mod:`.one
 (R, H, W, 3) stack or errors are written.
 
 Cost (``benchmarks/bench_optics.py --repeats 5``, 800 x 800, max_radius 8, the rounds alternated
-in one process on a two-core machine at load 4.5-8, CPU time, median (lowest-highest)): the map
-beyond the stack 0.70 (0.38-0.91) x the stack, 0.79, 0.81, 1.01 and 1.19 x in four more runs (1.64
-and 2.06 x for the two passes before, alternated with two of them); the node fits 0.26-0.29 us
-each.
+in one process on a two-core machine at load 4.5-8, CPU time): the map beyond the stack, the
+median over a run's rounds, 0.70-1.19 x the stack in seven runs (1.64 and 2.06 x for the two
+passes before, run alternately with two of them); the node fits 0.25-0.29 us each.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
