@@ -13,9 +13,9 @@ show (the table's own Monte Carlo noise, a rig's calibration): :mod:`.ring_sigma
 Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`), within
 0.012 (the benchmark's map) to 0.014 (simulated slabs) of a standard error of the full
 Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
-fits the steps do not settle and region fits use. Without replicates, a stack or errors given, each
-grid row is fitted as soon as its rings and their spread are stacked (:mod:`.one_pass`): no
-(R, H, W, 3) stack or errors are written.
+fits the steps do not settle and region fits use. Without replicates, a stack or errors given,
+pixels are fitted as soon as their rings and their spread are stacked, 64 of a row at a time
+(:mod:`.one_pass`): no (R, H, W, 3) stack or errors are written.
 
 Cost (``benchmarks/bench_optics.py --repeats 5``, 800 x 800, max_radius 8, the rounds alternated
 in one process on a two-core machine at load 4.5-8, CPU time): the map beyond the stack, the

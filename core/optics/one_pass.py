@@ -1,6 +1,6 @@
-"""The maps' fits inside the stack's pass: each grid row's rings and their spread
-(:func:`ringlight.core.rings.stack_spread.spread_row`), then at once that row's node fits
-(:func:`.node_fit.node_fit_row`) while its profiles are in the core's cache.
+"""The maps' fits inside the stack's pass: :data:`CHUNK` pixels of a grid row at a time, their
+rings and their spread (:func:`ringlight.core.rings.stack_spread.spread_row`), then at once those
+pixels' node fits (:func:`.node_fit.node_fit_row`) while their profiles are in the core's cache.
 
 The fits read the same float32 E_r and SE(E_r) as :func:`.pixel_fit.fit_profiles` reads from
 :func:`ringlight.core.rings.stack_spread.ring_stack_and_errors`, by the same compiled code, so the
