@@ -19,8 +19,8 @@ pixels are fitted as soon as their rings and their spread are stacked, 64 of a r
 
 Cost (``benchmarks/bench_optics.py --repeats 5``, 800 x 800, max_radius 8, the rounds alternated
 in one process on a two-core machine at load 4.5-8, CPU time): the map beyond the stack, the
-median over a run's rounds, 0.70-1.19 x the stack in seven runs (1.64 and 2.06 x for the two
-passes before, run alternately with two of them); the node fits 0.25-0.29 us each.
+median over a run's rounds, 0.70-1.19 x the stack in eight runs (1.64-2.06 x for the two passes
+before, run alternately with three of them); the node fits 0.25-0.29 us each.
 
 A pixel whose rings are cut by the grid's edge is fitted with the whole rings' model and flagged
 (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
