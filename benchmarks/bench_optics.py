@@ -132,7 +132,7 @@ def main() -> None:
 
     print(f"{'phase':44s} median (lowest-highest) of {len(times['stack'])} rounds, and over the same round's stack")
     line(f"ring stack ({len(radii)} radii)", "stack")
-    line("the map's pass: stack, errors and fits, by row", "map pass", f"  ({outcome(results['map pass'])})")
+    line("the map's pass: stack, errors, fits together", "map pass", f"  ({outcome(results['map pass'])})")
     line("stack + errors in one pass (before)", "one pass")
     line("errors in a pass of their own", "separate spread", "  (before; not in the map)")
     for name, label in (("fits", "fits, node steps"), ("full fits", "fits, full (before)")):
