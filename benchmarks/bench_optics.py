@@ -6,8 +6,8 @@ mua 0.01 per grid step, 3 % noise on every response value, max_radius MAX_RADIUS
   - the ring stack E_r at radii 0 .. max_radius - 1/2 alone (``ring_stack``: what the map is
     computed from, the yardstick);
   - the map's pass (:func:`ringlight.core.optics.one_pass.fit_in_one_pass`, what ``optical_maps``
-    runs): each grid row's rings and their standard errors (the members' spread), then that row's
-    fits (Gauss-Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`);
+    runs): 64 pixels of a row at a time, their rings and standard errors (the members' spread),
+    then their fits (Gauss-Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`);
   - for comparison, the same in two passes as the maps took it before: the stack and its standard
     errors over the whole grid (``ring_stack_and_errors``), then the per-pixel fits of every pixel
     and channel (``fit_profiles`` on the cached table, each fit making its rings' standard
