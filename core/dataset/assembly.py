@@ -341,7 +341,7 @@ def warm_up_assembly() -> None:
               np.zeros((1, 1, 3), np.float32))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64), first=False)
-    _unpack(np.frombuffer(bytes(2), np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
+    _unpack(np.zeros(2, np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
             _HALF_TO_FLOAT, np.zeros((1, 1, 1), np.float32))
 
 

@@ -194,11 +194,21 @@ def read_files(folder, names, name_starts, inside, flags, limit, header, data, u
                 data = grown
             # One byte more than its size: a file that grew since is not taken as whole.
             got = _read(descriptor, data[used:].ctypes.data, size + 1)
-            if got == size and size >= header.size and (data[used:used + header.size] == header).all():
+            if got == size and size >= header.size and _starts_with(data, used, header):
                 sizes[i] = size
                 used += size
         _close(descriptor)
     return data, used
+
+
+@numba.njit(cache=True, nogil=True)
+def _starts_with(data, at, header):  # pragma: no cover - compiled
+    """Whether ``data[at:]`` starts with the bytes ``header`` (compared in place: a comparison of
+    slices makes an array a file)."""
+    for i in range(header.size):
+        if data[at + i] != header[i]:
+            return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True)
