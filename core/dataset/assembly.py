@@ -47,7 +47,7 @@ from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
 from .response_store import StoreWriter
-from .scatter import _scatter_batch, _scatter_rows, scatter, slots_to_offsets
+from .scatter import _scatter_batch, _scatter_frames, _scatter_rows, scatter, slots_to_offsets
 
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
@@ -329,6 +329,7 @@ def warm_up_assembly() -> None:
         owners(owner, radiance, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
         _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
         _scatter_rows(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1, 0, 1)
+        _scatter_frames(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
         if NATIVE_INFLATE:  # one frame, marked to be read alone: loads the kernel, runs nothing
             _load_frames(np.frombuffer(b"", np.uint8), one, np.full(1, -1, np.int64), np.zeros(LAYOUT_FIELDS, np.int64),
                          1, one, np.ones(1, np.bool_), one, _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32),
