@@ -139,9 +139,19 @@ def write_linked_dataset(folder: Path, frames: int, files: int = 50) -> None:
                                                      "grid": {"height": 10, "width": 10}, "frames": entries}))
 
 
-def time_pipeline(frames: int) -> None:
+def measured(steps: dict, step: str, work):
+    """``work()``, its user and system CPU (all threads) and wall seconds kept as ``steps[step]``."""
+    started, wall = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    result = work()
+    wall, ended = time.perf_counter() - wall, resource.getrusage(resource.RUSAGE_SELF)
+    steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime, wall)
+    return result
+
+
+def time_pipeline(frames: int, pieces: bool = False) -> None:
     """Print the CPU and wall time of each step of an open per frame and against the parse (module
-    docstring), after a warm-up on a small dataset that pays the steps' costs once a process."""
+    docstring), after a warm-up on a small dataset that pays the steps' costs once a process; with
+    ``pieces``, those of the open's pieces too (:func:`open_pieces`)."""
     from ringlight.core import open_dataset
     from ringlight.core.dataset import cache
     from ringlight.core.dataset.checks import find_file_problems
@@ -150,11 +160,7 @@ def time_pipeline(frames: int) -> None:
     steps = {}
 
     def timed(step, work):
-        started, wall = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        result = work()
-        wall, ended = time.perf_counter() - wall, resource.getrusage(resource.RUSAGE_SELF)
-        steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime, wall)
-        return result
+        return measured(steps, step, work)
 
     with tempfile.TemporaryDirectory() as folder:
         warm, folder = Path(folder) / "warm", Path(folder) / "long"
@@ -168,6 +174,8 @@ def time_pipeline(frames: int) -> None:
         timed("plan", lambda: plan_open(manifest))
         timed("key", lambda: cache.stat_key(manifest, cache.manifest_key(manifest, 3.0)))
         dataset = timed("open", lambda: open_dataset(manifest, use_cache=False))
+        if pieces:
+            open_pieces(manifest, steps)
     if problems or not responses_match(dataset):
         raise SystemExit(f"the dataset did not open as written: {shown}")
     user, system, wall = steps.pop("warm-up")
@@ -178,12 +186,41 @@ def time_pipeline(frames: int) -> None:
     parse_cpu, parse_wall = sum(steps["parse"][:2]), steps["parse"][2]
     for step, (user, system, wall) in steps.items():
         seconds, us = user + system, 1e6 / frames
-        print(f"  {step:6s} CPU {seconds * us:6.1f} ({user * us:5.1f} + {system * us:5.1f}) "
+        print(f"  {step:7s} CPU {seconds * us:6.1f} ({user * us:5.1f} + {system * us:5.1f}) "
               f"{seconds / parse_cpu:4.1f} x   wall {wall * us:6.1f} {wall / parse_wall:4.1f} x")
 
 
 WARM_FRAMES = 1000
 """Frames of the warm-up dataset (:func:`time_pipeline`)."""
+PIECE_RUN = 1024
+"""Frames of a run in :func:`open_pieces`: an open's group (a batch of 8192 frames on two readers)."""
+
+
+def open_pieces(manifest, steps: dict) -> None:
+    """Add to ``steps`` the open's pieces, on this thread, in runs of :data:`PIECE_RUN` frames:
+    ``read``, the files read (:func:`.file_batch.read_run`: the system calls); ``+decode``, read
+    again and decoded, scaled and marked (:meth:`.frame_batch.BatchDecoder.load`); ``scatter``, the
+    decoded runs scattered into the responses."""
+    import numpy as np
+    from ringlight.core.dataset.assembly import Assembler, _Batch
+    from ringlight.core.dataset.disc import disc_offsets
+    from ringlight.core.dataset.file_batch import read_run
+    from ringlight.core.dataset.frames import dataset_channels
+    from ringlight.core.dataset.impulse_dataset import effective_max_radius
+    from ringlight.core.dataset.scatter import scatter
+
+    assembler = Assembler(manifest, disc_offsets(effective_max_radius(manifest)), channels=dataset_channels(manifest))
+    decoder, shape = assembler.batches, (manifest.height, manifest.width)
+    runs = [(start, min(start + PIECE_RUN, len(manifest.frames))) for start in range(0, len(manifest.frames), PIECE_RUN)]
+    batch = _Batch(PIECE_RUN, *shape, len(assembler.offsets))
+    responses, steady = np.zeros((*shape, len(assembler.offsets), 3), np.float32), np.zeros((*shape, 3))
+    arguments = (assembler.dy, assembler.dx, assembler.offset_index, assembler.inverse_counts)
+    measured(steps, "read", lambda: [read_run(decoder.reader.resolver, manifest.frames.files[start:stop],
+                                              decoder.passed.header_bytes) for start, stop in runs])
+    measured(steps, "+decode", lambda: [decoder.load(start, stop, 0, shape[0], batch.radiance, batch.owner, 0,
+                                                     arguments) for start, stop in runs])
+    measured(steps, "scatter", lambda: [scatter(responses, steady, batch.radiance, batch.owner, stop - start)
+                                        for start, stop in runs])
 
 
 def responses_match(dataset) -> bool:
@@ -202,12 +239,13 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=100_000)
     parser.add_argument("--hostile", action="store_true", help="time the fuzz tests' hostile values instead")
     parser.add_argument("--pipeline", action="store_true", help="time the steps of an open after the parse instead")
+    parser.add_argument("--pieces", action="store_true", help="with --pipeline, time the open's pieces too")
     args = parser.parse_args()
     if args.hostile:
         time_hostile()
         return
     if args.pipeline:
-        time_pipeline(args.frames)
+        time_pipeline(args.frames, args.pieces)
         return
     for multiplexed in (False, True):
         with tempfile.TemporaryDirectory() as folder:
