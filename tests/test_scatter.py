@@ -44,3 +44,16 @@ def test_a_small_band_scattered_frame_by_frame_sums_as_point_by_point_and_by_bru
         assert sums["frames"][0].view(np.uint32).tobytes() == sums[name][0].view(np.uint32).tobytes(), name
         assert sums["frames"][1].view(np.uint64).tobytes() == sums[name][1].view(np.uint64).tobytes(), name
     assert np.count_nonzero(sums["frames"][0]) > rows * width * offsets  # most slots were reached
+
+
+def test_blocks_put_in_offset_order_on_one_thread_and_in_parallel_are_numpys_take():
+    """Offset k of each point's block is slot ``slot_of[k]``: numpy's fancy indexing is the
+    reference, for the one-thread path (a small band) and the parallel one (called directly)."""
+    rng = np.random.default_rng(3)
+    slot_of = rng.permutation(11)
+    responses = rng.normal(size=(3, 4, 11, 3)).astype(np.float32)
+    expected = responses[:, :, slot_of]
+    for order in (scatter.slots_to_offsets, scatter._offset_order):
+        ordered = responses.copy()
+        order(ordered, slot_of)
+        assert np.array_equal(ordered, expected), order.__name__

@@ -75,13 +75,31 @@ def _scatter_rows(responses, steady, radiance, owner, count, row0, row1):  # pra
                         steady[y, x, c] += light
 
 
-@numba.njit(parallel=True, cache=True, nogil=True)
-def slots_to_offsets(responses, slot_of):  # pragma: no cover - compiled
+def slots_to_offsets(responses, slot_of) -> None:
     """Put every point's (K, 3) block of ``responses`` from slot order into offset order in place:
-    offset k is slot ``slot_of[k]``. Parallel over rows, one block (K x 12 bytes) copied at a time."""
-    rows, width, count = responses.shape[0], responses.shape[1], responses.shape[2]
-    for y in numba.prange(rows):
-        block = np.empty((count, 3), np.float32)
+    offset k is slot ``slot_of[k]``. In parallel over rows, or on this thread for a band of
+    :data:`CACHED_BLOCKS` or less, where starting the threads and their wait cost more than the
+    work (14 ms of CPU for a 10 x 10 grid)."""
+    if responses.nbytes <= CACHED_BLOCKS:
+        _offset_order_rows(responses, slot_of, 0, responses.shape[0])
+    else:
+        _offset_order(responses, slot_of)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _offset_order(responses, slot_of):  # pragma: no cover - compiled
+    """:func:`slots_to_offsets` in parallel over rows."""
+    for y in numba.prange(responses.shape[0]):
+        _offset_order_rows(responses, slot_of, y, y + 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _offset_order_rows(responses, slot_of, row0, row1):  # pragma: no cover - compiled
+    """:func:`slots_to_offsets` of rows ``row0 .. row1``, on this thread, one block (K x 12 bytes)
+    copied at a time."""
+    width, count = responses.shape[1], responses.shape[2]
+    block = np.empty((count, 3), np.float32)
+    for y in range(row0, row1):
         for x in range(width):
             block[:] = responses[y, x]
             for k in range(count):
