@@ -18,28 +18,25 @@ each per frame in CPU time of the whole process (all threads; user + system: the
 the kernel's, mostly the four calls that open, stat, read and close each file) and in wall time,
 each as a ratio to the parse's. What a process pays once (imports, compiled kernels loaded: about
 0.4-0.5 s) is paid first by the check and open of a 1000-frame dataset, printed apart: counted in
-the steps, it made 1-2 us of a 100 000-frame check's "per frame". Measured on the 2-core
-development machine (shared with other work), 100 000 frames, three runs of the code before
-(``info``'s runs of files read one after another) alternated with three of the code after (read
-on both cores), load average 2.0-5.3, us a frame before and after: parse CPU 6.6-11.2 and 6.1-7.3;
-check CPU 6.7-7.4 (0.7-1.0x the parse) and 6.6-7.4 (1.0-1.2x), wall 9.3-14.5 and 10.6-14.9 (the
-other core was busy; in one process, three runs each alternated, the check's wall with its runs
-read one after another and on two threads: 13.2-17.6 and 9.8-13.8 us at load 5, 13.2-14.0 and
-13.5-15.3 at load 6; on 10^6 frames at load 6.5-8, 11.9-14.8 and 11.1-13.9; its CPU the same within
-the runs' spread); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
-(1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's (three more pairs at load
-7.7-9.5: parse 7.6-8.6 and 6.0-8.3, check 6.3-6.9 and 6.2-7.2, wall 12.4-14.7 and 12.9-14.8, open
-12.2-12.8 and 11.4-12.7). Before the warm-up was paid
-apart (stop 45, load 4-9): parse 7.5-9.2, check 9.1-12.0, open 12.9-14.8. The commands on the same
-dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
-31.8 s (each about 1.5 s of it the start of Python and its imports).
+the steps, it made 1-2 us of a 100 000-frame check's "per frame". With ``--pieces``, the open's
+pieces are timed after it, on one thread, in runs of 1024 frames (:func:`open_pieces`): the reads
+alone, the reads with the decode, and the scatter.
+
+Measured on the 2-core development machine (shared with other work), 100 000 frames, three runs
+of the code before the last change (stop 46) alternated with three after it, load average
+5.4-7.6, us of CPU a frame before and after: parse 5.9-8.7 and 5.3-6.5; check 6.7-7.7 and 5.5-5.9; open 12.0-13.2 (user 7.0-8.2,
+system 5.0-5.5; 1.5-2.0x the parse) and 9.7-11.2 (user 4.5-5.4, system 5.2-5.8; 1.5-2.1x). The
+system part, the kernel's four calls a file, is by itself about the parse's cost. The pieces
+after it (load 4-5): reads 6.5 (user 0.8, system 5.7), reads and decode 9.4, scatter 0.1. At stop
+46 (load 2-5): parse 6.1-7.3, check 6.6-7.4, open 11.7-13.1. Before issue 40's work, on the same
+dataset: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack`` 31.8 s.
 
 With ``--hostile``, it times instead the raw JSON values the fuzz tests
 (``tests/test_fuzz_input.py``) plant in manifests (deep nesting, 5000-digit numbers, NaN, lone
 surrogates), each in every field of a small manifest: the slowest case, which the tests no longer
 time (issue 39: wall times fail on a loaded machine; the tests bound memory instead).
 
-    python benchmarks/bench_manifest.py [--frames 100000] [--hostile | --pipeline]
+    python benchmarks/bench_manifest.py [--frames 100000] [--hostile | --pipeline [--pieces]]
 """
 
 from __future__ import annotations
