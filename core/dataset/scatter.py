@@ -36,6 +36,17 @@ CACHED_BLOCKS = 2**18
 (within a core's second-level cache)."""
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_light(responses, steady, radiance, owner, b, y, x):  # pragma: no cover - compiled
+    """Point [y, x]'s light in frame ``b`` of the batch added to its owner's slot and its steady state."""
+    k = owner[b, y, x]
+    if k >= 0:
+        for c in range(3):
+            light = radiance[b, y, x, c]
+            responses[y, x, k, c] += light
+            steady[y, x, c] += light
+
+
 @numba.njit(cache=True, nogil=True)
 def _scatter_frames(responses, steady, radiance, owner, count):  # pragma: no cover - compiled
     """:func:`_scatter_batch` frame by frame, on this thread: the batch read in its order."""
@@ -43,12 +54,7 @@ def _scatter_frames(responses, steady, radiance, owner, count):  # pragma: no co
     for b in range(count):
         for y in range(rows):
             for x in range(width):
-                k = owner[b, y, x]
-                if k >= 0:
-                    for c in range(3):
-                        light = radiance[b, y, x, c]
-                        responses[y, x, k, c] += light
-                        steady[y, x, c] += light
+                _add_light(responses, steady, radiance, owner, b, y, x)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -67,12 +73,7 @@ def _scatter_rows(responses, steady, radiance, owner, count, row0, row1):  # pra
     for y in range(row0, row1):
         for x in range(width):
             for b in range(count):
-                k = owner[b, y, x]
-                if k >= 0:
-                    for c in range(3):
-                        light = radiance[b, y, x, c]
-                        responses[y, x, k, c] += light
-                        steady[y, x, c] += light
+                _add_light(responses, steady, radiance, owner, b, y, x)
 
 
 def slots_to_offsets(responses, slot_of) -> None:
