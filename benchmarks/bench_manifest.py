@@ -22,14 +22,15 @@ the steps, it made 1-2 us of a 100 000-frame check's "per frame". With ``--piece
 pieces are timed after it, on one thread, in runs of 1024 frames (:func:`open_pieces`): the reads
 alone, the reads with the decode, and the scatter.
 
-Measured on the 2-core development machine (shared with other work), 100 000 frames, three runs of
-the code before the last change (stop 46) alternated with three after it, load average 5.4-7.6, us
-of CPU a frame before and after: parse 5.9-8.7 and 5.3-6.5; check 6.7-7.7 and 5.5-5.9; open
-12.0-13.2 (user 7.0-8.2, system 5.0-5.5; 1.5-2.0x the parse) and 9.7-11.2 (user 4.5-5.4, system
-5.2-5.8; 1.5-2.1x). The system part, the kernel's four calls a file, is by itself about the parse's
-cost. The pieces after it (load 4-5): reads 6.5 (user 0.8, system 5.7), reads and decode 9.4,
-scatter 0.1. At stop 46 (load 2-5): parse 6.1-7.3, check 6.6-7.4, open 11.7-13.1. Before issue 40's
-work, on the same dataset: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack`` 31.8 s.
+Measured on the 2-core development machine (shared with other work), 100 000 frames, four runs of
+the code before the last change (stop 46) alternated with four after it, load average 3.8-7.6, us of
+CPU a frame before and after: parse 5.8-8.7 and 5.3-6.5; check 6.5-7.7 and 5.5-5.9; open 11.7-13.2
+(user 6.4-8.2, system 5.0-5.5; 1.5-2.0x the parse) and 9.7-11.2 (user 4.5-5.4, system 5.0-5.8;
+1.5-2.1x). The system part, the kernel's four calls a file, is by itself about the parse's cost. The
+pieces after it (two runs, load 4-5): reads 5.9-6.5 (user 0.5-0.8, system 5.3-5.7), reads and decode
+9.4-10.1, scatter 0.1-0.2. At stop 46 (load 2-5): parse 6.1-7.3, check 6.6-7.4, open 11.7-13.1.
+Before issue 40's work, on the same dataset: ``ringlight info`` 10.3 s of CPU, a first ``ringlight
+stack`` 31.8 s.
 
 With ``--hostile``, it times instead the raw JSON values the fuzz tests
 (``tests/test_fuzz_input.py``) plant in manifests (deep nesting, 5000-digit numbers, NaN, lone
