@@ -18,28 +18,26 @@ each per frame in CPU time of the whole process (all threads; user + system: the
 the kernel's, mostly the four calls that open, stat, read and close each file) and in wall time,
 each as a ratio to the parse's. What a process pays once (imports, compiled kernels loaded: about
 0.4-0.5 s) is paid first by the check and open of a 1000-frame dataset, printed apart: counted in
-the steps, it made 1-2 us of a 100 000-frame check's "per frame". Measured on the 2-core
-development machine (shared with other work), 100 000 frames, three runs of the code before
-(``info``'s runs of files read one after another) alternated with three of the code after (read
-on both cores), load average 2.0-5.3, us a frame before and after: parse CPU 6.6-11.2 and 6.1-7.3;
-check CPU 6.7-7.4 (0.7-1.0x the parse) and 6.6-7.4 (1.0-1.2x), wall 9.3-14.5 and 10.6-14.9 (the
-other core was busy; in one process, three runs each alternated, the check's wall with its runs
-read one after another and on two threads: 13.2-17.6 and 9.8-13.8 us at load 5, 13.2-14.0 and
-13.5-15.3 at load 6; on 10^6 frames at load 6.5-8, 11.9-14.8 and 11.1-13.9; its CPU the same within
-the runs' spread); key CPU 2.0-2.2 and 1.9-2.2; open CPU 12.6-13.8
-(1.2-2.0x) and 11.7-13.1 (1.7-2.0x), about 5-6 of it the kernel's (three more pairs at load
-7.7-9.5: parse 7.6-8.6 and 6.0-8.3, check 6.3-6.9 and 6.2-7.2, wall 12.4-14.7 and 12.9-14.8, open
-12.2-12.8 and 11.4-12.7). Before the warm-up was paid
-apart (stop 45, load 4-9): parse 7.5-9.2, check 9.1-12.0, open 12.9-14.8. The commands on the same
-dataset before issue 40's work: ``ringlight info`` 10.3 s of CPU, a first ``ringlight stack``
-31.8 s (each about 1.5 s of it the start of Python and its imports).
+the steps, it made 1-2 us of a 100 000-frame check's "per frame". With ``--pieces``, the open's
+pieces are timed after it, on one thread, in runs of 1024 frames (:func:`open_pieces`): the reads
+alone, the reads with the decode, and the scatter.
+
+Measured on the 2-core development machine (shared with other work), 100 000 frames, four runs of
+the code before the last change (stop 46) alternated with four after it, load average 3.8-7.6, us of
+CPU a frame before and after: parse 5.8-8.7 and 5.3-6.5; check 6.5-7.7 and 5.5-5.9; open 11.7-13.2
+(user 6.4-8.2, system 5.0-5.5; 1.5-2.0x the parse) and 9.7-11.2 (user 4.5-5.4, system 5.0-5.8;
+1.5-2.1x). The system part, the kernel's four calls a file, is by itself about the parse's cost. The
+pieces after it (two runs, load 4-5): reads 5.9-6.5 (user 0.5-0.8, system 5.3-5.7), reads and decode
+9.4-10.1, scatter 0.1-0.2. At stop 46 (load 2-5): parse 6.1-7.3, check 6.6-7.4, open 11.7-13.1.
+Before issue 40's work, on the same dataset: ``ringlight info`` 10.3 s of CPU, a first ``ringlight
+stack`` 31.8 s.
 
 With ``--hostile``, it times instead the raw JSON values the fuzz tests
 (``tests/test_fuzz_input.py``) plant in manifests (deep nesting, 5000-digit numbers, NaN, lone
 surrogates), each in every field of a small manifest: the slowest case, which the tests no longer
 time (issue 39: wall times fail on a loaded machine; the tests bound memory instead).
 
-    python benchmarks/bench_manifest.py [--frames 100000] [--hostile | --pipeline]
+    python benchmarks/bench_manifest.py [--frames 100000] [--hostile | --pipeline [--pieces]]
 """
 
 from __future__ import annotations
@@ -139,9 +137,19 @@ def write_linked_dataset(folder: Path, frames: int, files: int = 50) -> None:
                                                      "grid": {"height": 10, "width": 10}, "frames": entries}))
 
 
-def time_pipeline(frames: int) -> None:
+def measured(steps: dict, step: str, work):
+    """``work()``, its user and system CPU (all threads) and wall seconds kept as ``steps[step]``."""
+    started, wall = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    result = work()
+    wall, ended = time.perf_counter() - wall, resource.getrusage(resource.RUSAGE_SELF)
+    steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime, wall)
+    return result
+
+
+def time_pipeline(frames: int, pieces: bool = False) -> None:
     """Print the CPU and wall time of each step of an open per frame and against the parse (module
-    docstring), after a warm-up on a small dataset that pays the steps' costs once a process."""
+    docstring), after a warm-up on a small dataset that pays the steps' costs once a process; with
+    ``pieces``, those of the open's pieces too (:func:`open_pieces`)."""
     from ringlight.core import open_dataset
     from ringlight.core.dataset import cache
     from ringlight.core.dataset.checks import find_file_problems
@@ -150,11 +158,7 @@ def time_pipeline(frames: int) -> None:
     steps = {}
 
     def timed(step, work):
-        started, wall = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-        result = work()
-        wall, ended = time.perf_counter() - wall, resource.getrusage(resource.RUSAGE_SELF)
-        steps[step] = (ended.ru_utime - started.ru_utime, ended.ru_stime - started.ru_stime, wall)
-        return result
+        return measured(steps, step, work)
 
     with tempfile.TemporaryDirectory() as folder:
         warm, folder = Path(folder) / "warm", Path(folder) / "long"
@@ -168,6 +172,8 @@ def time_pipeline(frames: int) -> None:
         timed("plan", lambda: plan_open(manifest))
         timed("key", lambda: cache.stat_key(manifest, cache.manifest_key(manifest, 3.0)))
         dataset = timed("open", lambda: open_dataset(manifest, use_cache=False))
+        if pieces:
+            open_pieces(manifest, steps)
     if problems or not responses_match(dataset):
         raise SystemExit(f"the dataset did not open as written: {shown}")
     user, system, wall = steps.pop("warm-up")
@@ -178,12 +184,41 @@ def time_pipeline(frames: int) -> None:
     parse_cpu, parse_wall = sum(steps["parse"][:2]), steps["parse"][2]
     for step, (user, system, wall) in steps.items():
         seconds, us = user + system, 1e6 / frames
-        print(f"  {step:6s} CPU {seconds * us:6.1f} ({user * us:5.1f} + {system * us:5.1f}) "
+        print(f"  {step:7s} CPU {seconds * us:6.1f} ({user * us:5.1f} + {system * us:5.1f}) "
               f"{seconds / parse_cpu:4.1f} x   wall {wall * us:6.1f} {wall / parse_wall:4.1f} x")
 
 
 WARM_FRAMES = 1000
 """Frames of the warm-up dataset (:func:`time_pipeline`)."""
+PIECE_RUN = 1024
+"""Frames of a run in :func:`open_pieces`: an open's group (a batch of 8192 frames on two readers)."""
+
+
+def open_pieces(manifest, steps: dict) -> None:
+    """Add to ``steps`` the open's pieces, on this thread, in runs of :data:`PIECE_RUN` frames:
+    ``read``, the files read (:func:`.file_batch.read_run`: the system calls); ``+decode``, read
+    again and decoded, scaled and marked (:meth:`.frame_batch.BatchDecoder.load`); ``scatter``, the
+    decoded runs scattered into the responses."""
+    import numpy as np
+    from ringlight.core.dataset.assembly import Assembler, _Batch
+    from ringlight.core.dataset.disc import disc_offsets
+    from ringlight.core.dataset.file_batch import read_run
+    from ringlight.core.dataset.frames import dataset_channels
+    from ringlight.core.dataset.impulse_dataset import effective_max_radius
+    from ringlight.core.dataset.scatter import scatter
+
+    assembler = Assembler(manifest, disc_offsets(effective_max_radius(manifest)), channels=dataset_channels(manifest))
+    decoder, shape = assembler.batches, (manifest.height, manifest.width)
+    runs = [(start, min(start + PIECE_RUN, len(manifest.frames))) for start in range(0, len(manifest.frames), PIECE_RUN)]
+    batch = _Batch(PIECE_RUN, *shape, len(assembler.offsets))
+    responses, steady = np.zeros((*shape, len(assembler.offsets), 3), np.float32), np.zeros((*shape, 3))
+    arguments = (assembler.dy, assembler.dx, assembler.offset_index, assembler.inverse_counts)
+    measured(steps, "read", lambda: [read_run(decoder.reader.resolver, manifest.frames.files[start:stop],
+                                              decoder.passed.header_bytes) for start, stop in runs])
+    measured(steps, "+decode", lambda: [decoder.load(start, stop, 0, shape[0], batch.radiance, batch.owner, 0,
+                                                     arguments) for start, stop in runs])
+    measured(steps, "scatter", lambda: [scatter(responses, steady, batch.radiance, batch.owner, stop - start)
+                                        for start, stop in runs])
 
 
 def responses_match(dataset) -> bool:
@@ -202,12 +237,13 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=100_000)
     parser.add_argument("--hostile", action="store_true", help="time the fuzz tests' hostile values instead")
     parser.add_argument("--pipeline", action="store_true", help="time the steps of an open after the parse instead")
+    parser.add_argument("--pieces", action="store_true", help="with --pipeline, time the open's pieces too")
     args = parser.parse_args()
     if args.hostile:
         time_hostile()
         return
     if args.pipeline:
-        time_pipeline(args.frames)
+        time_pipeline(args.frames, args.pieces)
         return
     for multiplexed in (False, True):
         with tempfile.TemporaryDirectory() as folder:

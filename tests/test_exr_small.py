@@ -52,7 +52,8 @@ def decode_in_run(path, names, rows=None):
     decoded = exr_small._decode_frame(np.frombuffer(data, np.uint8), 0, len(data),
                                       exr_small.layout_array(small, chunks.table_start, first), small.width,
                                       *exr_small._picked(small, tuple(names)), exr_small._HALF_TO_FLOAT, image,
-                                      np.zeros(2, exr_small.LENGTH_TYPE))
+                                      np.zeros(2, exr_small.LENGTH_TYPE),
+                                      np.empty(small.lines * small.line_bytes, np.uint8))
     return image if decoded else None
 
 

@@ -47,7 +47,8 @@ from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
 from .response_store import StoreWriter
-from .scatter import _scatter_batch, _scatter_rows, scatter, slots_to_offsets
+from .scatter import (_offset_order, _offset_order_rows, _scatter_batch, _scatter_frames, _scatter_rows, scatter,
+                      slots_to_offsets)
 
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
@@ -158,12 +159,15 @@ class Assembler:
                     queued = submit(index + 1) if index + 1 < len(starts) else []
                     loaded = 0
                     for future in pending:
-                        for bad in future.result():
-                            if bad:
-                                bad_values += bad
-                                bad_frames += 1
-                                first_bad = first_bad or self.manifest.folder / frames[starts[index] + loaded].file
-                            loaded += 1
+                        counts = future.result()
+                        if any(counts):  # a frame with NaN or Inf values (a step a frame only then)
+                            for offset, bad in enumerate(counts):
+                                if bad:
+                                    bad_values += bad
+                                    bad_frames += 1
+                                    first_bad = first_bad or \
+                                        self.manifest.folder / frames[starts[index] + loaded + offset].file
+                        loaded += len(counts)
                         if progress is not None:
                             progress((done + loaded) / len(frames))
                     done += loaded
@@ -329,19 +333,21 @@ def warm_up_assembly() -> None:
         owners(owner, radiance, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
         _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
         _scatter_rows(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1, 0, 1)
+        _scatter_frames(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
         if NATIVE_INFLATE:  # one frame, marked to be read alone: loads the kernel, runs nothing
             _load_frames(np.frombuffer(b"", np.uint8), one, np.full(1, -1, np.int64), np.zeros(LAYOUT_FIELDS, np.int64),
                          1, one, np.ones(1, np.bool_), one, _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32),
                          np.zeros(2, LENGTH_TYPE), np.ones(1, np.float32), np.zeros((0, 0, 3), np.float32), False,
                          radiance[None], owner[None], 0, np.zeros((1, 2), np.int64), np.zeros(2, np.int64), one, one,
                          one, np.ones((1, 1), np.float32), 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    slots_to_offsets(np.zeros((1, 1, 1, 3), np.float32), one)
+    _offset_order(np.zeros((1, 1, 1, 3), np.float32), one)
+    _offset_order_rows(np.zeros((1, 1, 1, 3), np.float32), one, 0, 1)
     _put_half(np.zeros((1, 1), np.uint16), _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32), 0)
     _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
               np.zeros((1, 1, 3), np.float32))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
     close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64), first=False)
-    _unpack(np.frombuffer(bytes(2), np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
+    _unpack(np.zeros(2, np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
             _HALF_TO_FLOAT, np.zeros((1, 1, 1), np.float32))
 
 

@@ -109,7 +109,7 @@ def visit_exr(path: str | os.PathLike, names: tuple[str, ...],
             if passed is not None:
                 header, layout = passed.header, passed.layout
             else:
-                header = read_exr_header(Path(location), names, part)
+                header = read_exr_header(Path(location), names, part, magic_checked=True)
                 _check_header(Path(location), header, names, expected_shape, what, size_of, colorspace)
                 if headers is not None:
                     headers.library_reads += 1

@@ -220,8 +220,10 @@ def frame_channels(path: str | os.PathLike, part: str | None = None) -> tuple[st
 
 
 def read_exr_header(path: str | os.PathLike, names: tuple[str, ...] | None = None,
-                    part: str | None = None) -> ExrHeader:
-    """The header of the part of an EXR file that holds ``names`` (see :func:`_choose_part`).
+                    part: str | None = None, magic_checked: bool = False) -> ExrHeader:
+    """The header of the part of an EXR file that holds ``names`` (see :func:`_choose_part`);
+    ``magic_checked``: the caller has read the file's magic number from its open regular file
+    (:func:`.exr.visit_exr`), which is not opened again for it.
 
     Raises
     ------
@@ -231,7 +233,8 @@ def read_exr_header(path: str | os.PathLike, names: tuple[str, ...] | None = Non
         the display window (both named), an empty window or one over :data:`MAX_PIXELS`.
     """
     path = Path(path)
-    _check_magic(path)
+    if not magic_checked:
+        _check_magic(path)
     parts = _parts(path)
     if not parts:
         raise DatasetError(f"{path}: truncated or corrupt OpenEXR file (no part)")

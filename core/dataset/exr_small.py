@@ -129,7 +129,7 @@ def decode_small(data: bytes, layout: SmallLayout, chunks: ChunkLayout, names: t
                 return False
             if len(payload) != raw_size or not inflater.eof or inflater.unconsumed_tail:
                 return False
-        _unpack(np.frombuffer(payload, np.uint8), zipped, rows, top - first, layout.width, *picked,
+        _unpack(np.frombuffer(bytearray(payload), np.uint8), zipped, rows, top - first, layout.width, *picked,
                 _HALF_TO_FLOAT, image)
     return True
 
@@ -158,25 +158,21 @@ _HALF_TO_FLOAT = np.arange(2**16, dtype=np.uint32).astype(np.uint16).view(np.flo
 def _unpack(raw, zipped, rows, top, width, starts, halves, targets, half_to_float, image):  # pragma: no cover
     """Scanlines ``top .. top + rows`` (in ``image``'s rows; those outside it skipped) from one
     chunk's bytes ``raw``: with ``zipped``, zlib's output, in which the format's predictor is undone
-    (each byte the previous one's plus its delta, less 128, modulo 256) and its two halves
-    interleaved again (the first half holds the even bytes). Each scanline holds every channel's
-    samples in turn, little-endian; the picked ones go to ``image[y, x, targets[c]]`` as float32."""
+    in place (each byte the previous one's plus its delta, less 128, modulo 256: ``raw`` must be
+    writable) and whose two halves hold the even and the odd bytes of the scanlines. Each
+    scanline holds every channel's samples in turn, little-endian; the picked ones go to
+    ``image[y, x, targets[c]]`` as float32."""
     count = raw.size
     if zipped:
-        undone = np.empty(count, np.uint8)
         previous = np.int64(raw[0])
-        undone[0] = raw[0]
         for i in range(1, count):
             previous = (previous + np.int64(raw[i]) - 128) & 0xFF
-            undone[i] = previous
-        half = (count + 1) // 2
-        data = np.empty(count, np.uint8)
-        for i in range(half):
-            data[2 * i] = undone[i]
-        for i in range(count - half):
-            data[2 * i + 1] = undone[half + i]
-    else:
-        data = raw
+            raw[i] = previous
+    # Samples start at even bytes (every channel's row is width x 2 or 4 bytes), so a sample's even
+    # bytes are read from the first half of zlib's output and its odd ones from the second, in
+    # place: a pair of bytes 2 apart in the scanline is 1 apart there (2 apart as stored).
+    half = count // 2 if zipped else 1
+    pair = 1 if zipped else 2
     bits = np.empty(1, np.uint32)
     as_float = bits.view(np.float32)
     line_bytes = count // rows
@@ -186,15 +182,18 @@ def _unpack(raw, zipped, rows, top, width, starts, halves, targets, half_to_floa
             continue
         for c in range(starts.size):
             at = row * line_bytes + starts[c]
+            even = at // 2 if zipped else at
+            odd = even + half
             k = targets[c]
             if halves[c]:
                 for x in range(width):
-                    image[y, x, k] = half_to_float[np.int64(data[at + 2 * x]) | (np.int64(data[at + 2 * x + 1]) << 8)]
+                    image[y, x, k] = half_to_float[np.int64(raw[even + pair * x]) | (np.int64(raw[odd + pair * x]) << 8)]
             else:
                 for x in range(width):
-                    b = at + 4 * x
-                    bits[0] = (np.uint32(data[b]) | (np.uint32(data[b + 1]) << np.uint32(8))
-                               | (np.uint32(data[b + 2]) << np.uint32(16)) | (np.uint32(data[b + 3]) << np.uint32(24)))
+                    b = 2 * pair * x
+                    bits[0] = (np.uint32(raw[even + b]) | (np.uint32(raw[odd + b]) << np.uint32(8))
+                               | (np.uint32(raw[even + b + pair]) << np.uint32(16))
+                               | (np.uint32(raw[odd + b + pair]) << np.uint32(24)))
                     image[y, x, k] = as_float[0]
 
 
@@ -235,10 +234,12 @@ def layout_array(layout: SmallLayout, table_start: int, first: int) -> np.ndarra
 
 @numba.njit(cache=True, nogil=True)
 def _decode_frame(data, start, size, layout, width, starts, halves, targets, half_to_float, image,
-                  lengths):  # pragma: no cover - compiled
+                  lengths, raw):  # pragma: no cover - compiled
     """:func:`decode_small` of the file ``data[start:start + size]`` compiled: rows ``layout[7] ..
     layout[7] + len(image)`` of the picked channels into ``image`` ((rows, width, C) float32);
-    ``layout`` from :func:`layout_array`; ``lengths`` (2,) :data:`LENGTH_TYPE` scratch for zlib.
+    ``layout`` from :func:`layout_array`; ``lengths`` (2,) :data:`LENGTH_TYPE` scratch for zlib and
+    ``raw`` (``layout[2] * layout[5]``,) uint8 (lines x line bytes) for a chunk's bytes (one for a run
+    of frames: an array made for each chunk cost about as much as undoing its predictor).
     Returns False when the chunk table does not fit the file (:func:`chunks_fit`) or anything is
     not as :func:`decode_small` requires; the frame is then read alone, which says why."""
     table_start, chunks, lines, y_min, height, line_bytes, compression, first = (
@@ -258,18 +259,18 @@ def _decode_frame(data, start, size, layout, width, starts, halves, targets, hal
         if y != y_min + top or length < 0 or offset + 8 + length > size:
             return False
         at = start + offset + 8
+        chunk = raw[:raw_size]
         if length == raw_size:  # stored as it is: no compression, or none that made it smaller
-            _unpack(data[at:at + length], False, rows, top - first, width, starts, halves, targets, half_to_float,
-                    image)
+            chunk[:] = data[at:at + length]
+            _unpack(chunk, False, rows, top - first, width, starts, halves, targets, half_to_float, image)
             continue
         if compression == _NONE:
             return False
-        raw = np.empty(raw_size, np.uint8)
         lengths[0] = raw_size
         lengths[1] = length
         # Z_OK only for a stream that ends within its bytes, inflating to at most raw_size bytes.
-        if _uncompress2(raw.ctypes.data, lengths[0:].ctypes.data, data[at:].ctypes.data, lengths[1:].ctypes.data) != 0 \
-                or lengths[0] != raw_size:
+        if _uncompress2(chunk.ctypes.data, lengths[0:].ctypes.data, data[at:].ctypes.data,
+                        lengths[1:].ctypes.data) != 0 or lengths[0] != raw_size:
             return False
-        _unpack(raw, True, rows, top - first, width, starts, halves, targets, half_to_float, image)
+        _unpack(chunk, True, rows, top - first, width, starts, halves, targets, half_to_float, image)
     return True

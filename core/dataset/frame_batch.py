@@ -78,9 +78,10 @@ def _load_frames(data, starts, sizes, layout, width, channel_starts, halves, tar
     ``owner[slot + b]``; ``status[b]`` and ``bad[b]`` as :meth:`BatchDecoder.load` returns them.
     (Numba caches this with its callees from other modules compiled in: after editing
     :func:`.exr_small._decode_frame` or :func:`.frames._radiance`, clear ``__pycache__``.)"""
+    raw = np.empty(layout[2] * layout[5], np.uint8)  # a chunk's bytes (lines x line bytes)
     for b in range(sizes.size):
         if sizes[b] < 0 or not _decode_frame(data, starts[b], sizes[b], layout, width, channel_starts, halves,
-                                             targets, half_to_float, image, lengths):
+                                             targets, half_to_float, image, lengths, raw):
             status[b] = READ_ALONE
             continue
         out = radiance[slot + b]
