@@ -261,6 +261,8 @@ def _decode_frame(data, start, size, layout, width, starts, halves, targets, hal
         at = start + offset + 8
         chunk = raw[:raw_size]
         if length == raw_size:  # stored as it is: no compression, or none that made it smaller
+            # Copied: _unpack undoes the predictor in place, and numba refuses its writes to a
+            # read-only ``data`` when typing it, whichever branch runs.
             chunk[:] = data[at:at + length]
             _unpack(chunk, False, rows, top - first, width, starts, halves, targets, half_to_float, image)
             continue

@@ -222,7 +222,8 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     radii = profile_radii(dataset)
     report = _Phases(progress, cancelled)
     scale = np.ones(3) if calibration is None else np.asarray(calibration.scale, np.float64)
-    if stack is None and errors is None and len(dataset.manifest.replicates) <= 1 and estimator == "nodes":
+    from_spread = stack is None and errors is None and len(dataset.manifest.replicates) <= 1
+    if from_spread and estimator == "nodes":
         # The rings, their spread and the fits in one pass over the responses, row by row.
         table = table_for(n, g, radii, photons=photons, progress=report.part(0.0, 0.1))
         inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
@@ -230,7 +231,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
                                            progress=report.part(0.1, 1.0), cancelled=report.cancelled)
         return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
     inflation = np.ones(len(radii))  # errors given are taken as they are
-    if stack is None and errors is None and len(dataset.manifest.replicates) <= 1:
+    if from_spread:
         # The rings and their spread in one pass over the responses (one read of them, not two).
         stack, errors = ring_stack_and_errors(dataset, radii, progress=report.part(0.0, 0.6))
         noise_source = "ring spread"

@@ -173,11 +173,9 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
                         sums = _add_ring(sums, weight[r], model_scale * nodes[k, j, 1, r],
                                          model_scale * nodes[k, j, 2, r], data[r] - model_scale * nodes[k, j, 0, r])
                     a_uu, a_uv, a_vv, b_u, b_v, _ = sums
-                    determinant = a_uu * a_vv - a_uv * a_uv
+                    determinant, step_u, step_v = _normal_step(a_uu, a_uv, a_vv, b_u, b_v)
                     if not determinant > 0.0:
                         break
-                    step_u = (a_vv * b_u - a_uv * b_v) / determinant
-                    step_v = (a_uu * b_v - a_uv * b_u) / determinant
                     u = node_u0 + k * node_du + step_u
                     v = node_v0 + j * node_dv + step_v
                     next_k = int(round((u - node_u0) / node_du))
@@ -186,11 +184,9 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
                         a_uu, a_uv, a_vv, b_u, b_v, chi2 = _step_at(nodes, k, j, (u - node_u0) / node_du,
                                                                      (v - node_v0) / node_dv, step_u, step_v, data,
                                                                      weight, model_scale)
-                        determinant = a_uu * a_vv - a_uv * a_uv
+                        determinant, step_u, step_v = _normal_step(a_uu, a_uv, a_vv, b_u, b_v)
                         if not determinant > 0.0:
                             break
-                        step_u = (a_vv * b_u - a_uv * b_v) / determinant
-                        step_v = (a_uu * b_v - a_uv * b_u) / determinant
                         u += step_u
                         v += step_v
                         u_out[y, x, c] = u
@@ -215,6 +211,15 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
             start_v = result[1]
         starts[c, 0] = start_u
         starts[c, 1] = start_v
+
+
+@numba.njit(cache=True, inline="always")
+def _normal_step(a_uu, a_uv, a_vv, b_u, b_v):
+    """``(det A, step_u, step_v)``: the Gauss-Newton step ``A^-1 b`` of the 2 x 2 normal equations
+    ``A = [[a_uu, a_uv], [a_uv, a_vv]]``, ``b = (b_u, b_v)``; the step is meaningless unless
+    ``det A > 0``."""
+    determinant = a_uu * a_vv - a_uv * a_uv
+    return (determinant, (a_vv * b_u - a_uv * b_v) / determinant, (a_uu * b_v - a_uv * b_u) / determinant)
 
 
 @numba.njit(cache=True, inline="always")
