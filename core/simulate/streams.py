@@ -46,7 +46,6 @@ def walk_and_estimator_states(seed: int, streams: np.ndarray) -> np.ndarray:
     return np.concatenate([seed_states(seed, streams), seed_states(seed, streams + ESTIMATOR_STREAM)])
 
 
-
 def thread_streams(states, i, count, state, estimator_state):
     """Thread ``i``'s walk state (row ``i`` of ``states``, as :func:`walk_and_estimator_states`
     stacks them for ``count`` threads) and its estimator's (row ``count + i``), copied into
@@ -63,6 +62,7 @@ def thread_share(photons, threads, thread):
     share = photons // threads
     extra = photons % threads
     return thread * share + min(thread, extra), share + (1 if thread < extra else 0)
+
 
 fresh_state = CPU.fresh_state
 """``fresh_state(seeder, state)``: reseed ``state`` (2 uint64, in place) from the next output of
