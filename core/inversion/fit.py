@@ -33,8 +33,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
+# scipy.optimize (least_squares, brentq) is imported by the functions that fit: with scipy.stats it
+# took 1.1-1.3 s of CPU to import, over a third of every ringlight command's start (the command
+# line imports this module for `ringlight layers`), whether it fits anything or not.
 from .forward import SMALLEST_E, Forward
 
 MUA_BOUNDS = (1e-5, 10.0)
@@ -168,6 +170,8 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
         return _objective(forward, used, np.log(measured[:used]), deviation[:used] / measured[:used])
 
     def fitted(residuals, jacobian, starts):
+        from scipy.optimize import least_squares
+
         return [least_squares(residuals, start, jac=jacobian, bounds=(low, high), method="trf", **loose)
                 for start in starts]
 
@@ -219,6 +223,8 @@ def fit_channel(forward: Forward, measured: np.ndarray, error: np.ndarray, inter
 def _starts(residuals, jacobian, layers: int, low: float, high: float) -> list[np.ndarray]:
     """Where the full fits start: a few steps of least squares from every combination of
     :data:`START_GRID` (:data:`COARSE_GRID` beyond two layers), the :data:`FITTED_STARTS` best."""
+    from scipy.optimize import least_squares
+
     values = START_GRID if layers <= 2 else COARSE_GRID
     short = [least_squares(residuals, np.log(np.array(combination)), jac=jacobian, bounds=(low, high),
                            method="trf", max_nfev=SHORT_STEPS)
@@ -292,6 +298,8 @@ def _profile_end(profile: _Profile, start: float, bound: float, chi2: float, ste
             outer = trial
             break
         inner, step = trial, 2.0 * step
+    from scipy.optimize import brentq
+
     rise = lambda value: math.sqrt(max(profile.chi2(value) - chi2, 0.0)) - math.sqrt(JOINT_CHI2)
     end = brentq(rise, inner, outer, xtol=PROFILE_TOLERANCE)
     return min(end + PROFILE_TOLERANCE, profile.high) if bound > start else max(end - PROFILE_TOLERANCE, profile.low)
@@ -345,6 +353,8 @@ class _Profile:
             values[self.others] = free
             values[self.k] = value
             return values
+
+        from scipy.optimize import least_squares
 
         result = least_squares(lambda free: self.residuals(full(free)), self._start(value),
                                jac=lambda free: self.jacobian(full(free))[:, self.others], bounds=(self.low, self.high),

@@ -31,9 +31,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_distribution
 
+# scipy.optimize is imported where the joint fit runs, as in .fit (its import cost every command).
 from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit, ring_sigma
 from .forward import SMALLEST_E, Forward
 
@@ -48,8 +47,10 @@ MAX_EVALUATIONS = 200
 hardly absorbs) has a chi-square almost flat towards the lower bound, and the optimiser crawls
 along it: 900 evaluations (9 s) on layers3's top red, for a chi-square 0.5 lower. The fit then
 stops where it is, which fits as well as the bound would."""
-ELLIPSE_CHI2 = float(chi2_distribution.ppf(0.954, 2))
-"""Chi-square (2 degrees of freedom) of a two-sigma (95.4 %) region in xy: 6.18."""
+ELLIPSE_CHI2 = -2.0 * math.log1p(-0.954)
+"""Chi-square (2 degrees of freedom) of a two-sigma (95.4 %) region in xy: 6.16. With 2 degrees of
+freedom the chi-square is exponential of mean 2, so its quantile p is -2 ln(1 - p) (the same double
+as ``scipy.stats.chi2.ppf(0.954, 2)``)."""
 ELLIPSE_POINTS = 32
 
 
@@ -138,6 +139,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         def fitted(correlation):
             """``(deviance, chi2, theta, Fisher matrix)`` with the floor correlated ``correlation``
             between channels; None when the optimiser fails or ends worse than it started."""
+            from scipy.optimize import least_squares
+
             theta = start
             for _ in range(2):  # weights at the channels' fits, then at the joint fit's first result
                 residuals, jacobian, _ = weighted(theta, correlation)

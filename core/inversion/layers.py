@@ -26,7 +26,6 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
 from ..device import choose_device
 from .fit import JOINT_CHI2, ChannelFit, fit_channels
@@ -267,6 +266,8 @@ def invert(measured: MeasuredProfile, settings: InversionSettings, colorspace: s
     else:
         chi2, dof = float(sum(f.chi2 for f in fits)), int(sum(f.dof for f in fits))
         model, sigma = np.stack([f.model for f in fits], axis=1), np.stack([f.sigma for f in fits], axis=1)
+    from scipy.stats import chi2 as chi2_distribution  # imported here, as scipy.optimize in .fit
+
     warning = None
     if dof and chi2_distribution.sf(chi2, dof) < MISFIT_P:
         warning = (f"the model does not fit: chi-square {chi2:.0f} for {dof} degrees of freedom "
