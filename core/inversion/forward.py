@@ -139,8 +139,9 @@ class Forward:
     def profile(self, mua: np.ndarray, derivatives: bool = False):
         """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also
         dE/dmua (R, L)."""
-        kernel, slopes = _kernel(self.pixel, self.value, self.lengths, np.asarray(mua, np.float64), self._pixels,
-                                 derivatives)
+        # Contiguous: a column of a (C, L) table would compile the kernel once more.
+        kernel, slopes = _kernel(self.pixel, self.value, self.lengths, np.ascontiguousarray(mua, np.float64),
+                                 self._pixels, derivatives)
         scale = 1.0 / self.database.photons
         profile = self.rings @ kernel * scale
         if not derivatives:
