@@ -124,16 +124,20 @@ class Forward:
         return int(np.argmin(lit)) if not lit.all() else len(lit)
 
     @functools.cached_property
-    def _ring_records(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per ring, the records whose pixel lies in it (ascending) and that pixel's weight in it:
-        :meth:`covariance` then visits each record once per ring it lies in, not every record once
-        per ring (a fit asks for the covariance at every step). Ascending, the sums per photon add
-        the same terms in the same order as over every record (the others add zero)."""
+    def _ring_records(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Per ring, the records whose pixel lies in it (ascending, int32 where that holds them) and
+        that pixel's weight in it (None where every weight is 1, as in a whole ring: 4 bytes a
+        record, not 16): :meth:`covariance` then visits each record once per ring it lies in, not
+        every record once per ring (a fit asks for the covariance at every step). Ascending, the
+        sums per photon add the same terms in the same order as over every record (the others add
+        zero)."""
+        index = np.int32 if len(self.pixel) < np.iinfo(np.int32).max else np.int64
         members = []
         for ring in self.rings:
             member = ring[self.pixel]
-            records = np.flatnonzero(member)
-            members.append((records, member[records]))
+            records = np.flatnonzero(member).astype(index)
+            weight = member[records]
+            members.append((records, None if np.all(weight == 1.0) else weight))
         return members
 
     def profile(self, mua: np.ndarray, derivatives: bool = False):
@@ -168,7 +172,8 @@ class Forward:
         for row in range(rings):
             records, member = self._ring_records[row]
             photon = self.photon[records]
-            per_photon = np.stack([np.bincount(photon, weights[c, records] * member, photons)
+            per_photon = np.stack([np.bincount(photon, weights[c, records] if member is None
+                                               else weights[c, records] * member, photons)
                                    for c in range(len(mua))])
             centred = per_photon - per_photon.mean(axis=1, keepdims=True)
             covariance[row] = centred @ centred.T / (photons * photons)
