@@ -12,6 +12,7 @@ import json
 import math
 from importlib import resources
 
+import numba
 import numpy as np
 import pytest
 from reference import assert_same_for_any_thread_count
@@ -189,6 +190,22 @@ def test_datasets_say_which_measure_they_hold(tmp_path):
     del document["ground_truth"]
     manifest_path.write_text(json.dumps(document))
     assert simulated_measure(read_manifest(tmp_path / "ds")) is None
+
+
+def test_a_column_table_is_the_sum_above_each_voxel_in_one_layout_for_any_channel_count():
+    """Brute force: mu_t summed over the voxels above. In C order for one channel or three, however
+    wide the volume: numba compiles the walk, and each kernel that calls it, once per layout, and
+    the fancy index gave three channels numba's 'A' layout ('F' one pixel wide)."""
+    rng = np.random.default_rng(4)
+    for shape in ((6, 4, 5), (6, 1, 1)):
+        volume = rng.integers(0, 3, shape).astype(np.uint8)
+        for mu_t in (np.array([0.5, 2.0, 0.25]), np.array([[0.5, 2.0, 0.25], [0.1, 1.0, 3.0], [0.3, 0.7, 0.0]])):
+            columns = column_optical_depths(volume, mu_t)
+            assert numba.typeof(columns).layout == "C", (shape, mu_t.shape, columns.strides)
+            per_channel = np.atleast_2d(mu_t)
+            brute = np.array([[[[sum(per_channel[c, volume[k, y, x]] for k in range(z)) for x in range(shape[2])]
+                                for y in range(shape[1])] for z in range(shape[0])] for c in range(len(per_channel))])
+            np.testing.assert_allclose(columns, brute, rtol=1e-12, atol=0.0)
 
 
 def test_the_column_table_of_a_straight_down_camera_gives_the_traversals_result():

@@ -123,11 +123,29 @@ class Forward:
         lit = self.profile(np.zeros(self.structure.layers)) > 0
         return int(np.argmin(lit)) if not lit.all() else len(lit)
 
+    @functools.cached_property
+    def _ring_records(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Per ring, the records whose pixel lies in it (ascending, int32 where that holds them) and
+        that pixel's weight in it (None where every weight is 1, as in a whole ring: 4 bytes a
+        record, not 16): :meth:`covariance` then visits each record once per ring it lies in, not
+        every record once per ring (a fit asks for the covariance at every step). Ascending, the
+        sums per photon add the same terms in the same order as over every record (the others add
+        zero)."""
+        index = np.int32 if len(self.pixel) < np.iinfo(np.int32).max else np.int64
+        members = []
+        for ring in self.rings:
+            member = ring[self.pixel]
+            records = np.flatnonzero(member).astype(index)
+            weight = member[records]
+            members.append((records, None if np.all(weight == 1.0) else weight))
+        return members
+
     def profile(self, mua: np.ndarray, derivatives: bool = False):
         """E(r) (R,) for absorption ``mua`` (L,) per layer; with ``derivatives``, also
         dE/dmua (R, L)."""
-        kernel, slopes = _kernel(self.pixel, self.value, self.lengths, np.asarray(mua, np.float64), self._pixels,
-                                 derivatives)
+        # Contiguous: a column of a (C, L) table would compile the kernel once more.
+        kernel, slopes = _kernel(self.pixel, self.value, self.lengths, np.ascontiguousarray(mua, np.float64),
+                                 self._pixels, derivatives)
         scale = 1.0 / self.database.photons
         profile = self.rings @ kernel * scale
         if not derivatives:
@@ -145,13 +163,17 @@ class Forward:
         photon's contribution to a ring per channel (independent photons), their covariance over
         the photons, over the photon count. The channels share the photons, so they covary."""
         mua = np.asarray(mua, np.float64)
-        weights = self.value[:, None] * np.exp(-(self.lengths @ mua.T))  # (records, C)
+        # (C, L) @ (L, records): the same products and sums as (records, L) @ (L, C), which
+        # OpenBLAS takes ten times longer over hundreds of thousands of records.
+        weights = self.value * np.exp(-(mua @ self.lengths.T))  # (C, records)
         photons = self.database.photons
         rings = len(self.radii) if rings is None else rings
         covariance = np.empty((rings, len(mua), len(mua)))
         for row in range(rings):
-            member = self.rings[row, self.pixel]
-            per_photon = np.stack([np.bincount(self.photon, weights[:, c] * member, photons)
+            records, member = self._ring_records[row]
+            photon = self.photon[records]
+            per_photon = np.stack([np.bincount(photon, weights[c, records] if member is None
+                                               else weights[c, records] * member, photons)
                                    for c in range(len(mua))])
             centred = per_photon - per_photon.mean(axis=1, keepdims=True)
             covariance[row] = centred @ centred.T / (photons * photons)

@@ -133,7 +133,11 @@ def column_optical_depths(volume: np.ndarray, mu_t: np.ndarray, camera=(0.0, 0.0
         return np.zeros((0, 0, 0, 0))
     per_voxel = np.atleast_2d(mu_t)[:, volume]
     above = np.cumsum(per_voxel, axis=1)
-    return np.concatenate([np.zeros((per_voxel.shape[0], 1) + volume.shape[1:]), above[:, :-1]], axis=1)
+    # C order whatever the channel count: the fancy index leaves channels innermost (numba's 'A'
+    # layout, or 'F' for a one-pixel-wide volume), and every layout is one more compiled version of
+    # the walk and of each kernel that calls it.
+    return np.ascontiguousarray(np.concatenate([np.zeros((per_voxel.shape[0], 1) + volume.shape[1:]),
+                                                above[:, :-1]], axis=1))
 
 
 def column_depths(volume, tables, columns, material, z, y, x, out, channels):

@@ -102,10 +102,13 @@ def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
     squares = np.zeros(channels)
     buffers = walk_buffers(channels)
     totals = buffers[TOTALS]
+    # int64, not a literal 0: numba compiles a callee once per literal argument, and the walk is
+    # the costliest compile of the simulator; every caller passes these as plain int64.
+    origin = np.int64(0)
     for _ in range(photons):
         totals[:] = 0.0
         trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, tables, majorant,
-                     optics, columns, camera, window, 0, 0, truth, 1.0, records, 0, 0, buffers)
+                     optics, columns, camera, window, origin, origin, truth, 1.0, records, origin, origin, buffers)
         sums += totals
         squares += totals * totals
     return sums, squares
@@ -115,7 +118,8 @@ def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
 def reflectance_run(volume, tables, majorant, n, depth, photons, seed, stream):
     """:func:`total_run` of the exitance for a beam straight down, with weights relative to the
     light that got in (the entry's Fresnel loss is the caller's)."""
-    return total_run(volume, tables, majorant, _normal_incidence(n, depth), False, photons, seed, stream)
+    # A plain bool, not a literal False, for the reason of total_run's origin.
+    return total_run(volume, tables, majorant, _normal_incidence(n, depth), np.bool_(False), photons, seed, stream)
 
 
 @numba.njit(cache=True)
@@ -144,11 +148,12 @@ def trace_events(volume, tables, majorant, optics, camera, y, x, photons, seed, 
     columns = np.zeros((0, 0, 0, 0))
     buffers = walk_buffers(channels)
     count = 0
+    origin = np.int64(0)  # not a literal 0: see total_run
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
         entry_x = x + uniform(state) - 0.5
         count = trace_photon(state, estimator_state, entry_y, entry_x, volume, tables, majorant, optics, columns,
-                             camera, window, 0, 0, truth, 1.0, records, count, i, buffers)
+                             camera, window, origin, origin, truth, 1.0, records, count, i, buffers)
     if count > capacity:
         raise ValueError("trace_events: more events than capacity")
     return records[:count]
@@ -172,6 +177,7 @@ def simulate_points(volume, tables, majorant, optics, columns, camera, lit, phot
     for block in numba.prange(blocks):
         records = np.zeros((0, RECORD_FIELDS + channels))
         buffers = walk_buffers(channels)
+        nothing_recorded = np.int64(0)  # not a literal 0: see total_run
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             state = seed_state(seed, streams[i])
             estimator_state = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
@@ -180,7 +186,7 @@ def simulate_points(volume, tables, majorant, optics, columns, camera, lit, phot
             for _ in range(photons):
                 trace_photon(state, estimator_state, ly + uniform(state) - 0.5, lx + uniform(state) - 0.5, volume,
                              tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block], bin_step,
-                             records, 0, 0, buffers)
+                             records, nothing_recorded, nothing_recorded, buffers)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -204,6 +210,7 @@ def simulate_differences(volume, reference, mixed, tables, majorant, optics, ref
     for block in numba.prange(blocks):
         records = np.zeros((0, RECORD_FIELDS + channels))
         buffers = walk_buffers(channels)
+        nothing_recorded = np.int64(0)  # not a literal 0: see total_run
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             seeder = seed_state(seed, streams[i])
             estimator_seeder = seed_state(seed, streams[i] + ESTIMATOR_STREAM)
@@ -224,14 +231,14 @@ def simulate_differences(volume, reference, mixed, tables, majorant, optics, ref
                 entry_x = lx + uniform(state) - 0.5
                 _, reached = walk(state, estimator_state, entering_walker(entry_y, entry_x, optics, channels), False,
                                   volume, tables, majorant, optics, columns, camera, windows[i], ly, lx, truth[block],
-                                  bin_step, records, 0, 0, entry_y, entry_x, share, NO_MAP if direct[i] else mixed,
-                                  saved, saved_state, saved_estimator_state, buffers)
+                                  bin_step, records, nothing_recorded, nothing_recorded, entry_y, entry_x, share,
+                                  NO_MAP if direct[i] else mixed, saved, saved_state, saved_estimator_state, buffers)
                 if reached:
                     touches[i] += 1
                     walk(saved_state, saved_estimator_state, saved, True, reference, tables, majorant,
                          reference_optics, reference_columns, camera, windows[i], ly, lx, truth[block], bin_step,
-                         records, 0, 0, entry_y, entry_x, -share, NO_MAP, saved, saved_state, saved_estimator_state,
-                         buffers)
+                         records, nothing_recorded, nothing_recorded, entry_y, entry_x, -share, NO_MAP, saved,
+                         saved_state, saved_estimator_state, buffers)
 
 
 def point_kernels(device: Device | None = None):

@@ -282,7 +282,9 @@ def _reach_fractions(scene: Scene, lit_key: bytes) -> np.ndarray:
     """(n,) :func:`.allocation.reach_fractions` of the lit points (``lit_key``: their (n, 2)
     int64 ``[y, x]`` as bytes) by a pilot on the scene's own seed, cached per scene: every run of
     a scene (every batch of a progressive one) shares one allocation."""
-    lit = np.frombuffer(lit_key, np.int64).reshape(-1, 2)
+    # A writable copy: the points' steps pass writable arrays, and a read-only one would compile
+    # simulate_differences once more.
+    lit = np.frombuffer(lit_key, np.int64).reshape(-1, 2).copy()
     height, width = scene.height, scene.width
     base = reference_volume(scene.volume)
     group = channel_groups(scene)[0]
