@@ -34,10 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .forward import SMALLEST_E, Forward
+
 # scipy.optimize (least_squares, brentq) is imported by the functions that fit: with scipy.stats it
 # took 1.1-1.3 s of CPU to import, over a third of every ringlight command's start (the command
 # line imports this module for `ringlight layers`), whether it fits anything or not.
-from .forward import SMALLEST_E, Forward
 
 MUA_BOUNDS = (1e-5, 10.0)
 """Absorption per grid step that a fit may take (10: opaque within a tenth of a step)."""

@@ -32,9 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# scipy.optimize is imported where the joint fit runs, as in .fit (its import cost every command).
 from .fit import LOOSE, MUA_BOUNDS, RELATIVE_FLOOR, ChannelFit, ring_sigma
 from .forward import SMALLEST_E, Forward
+
+# scipy.optimize is imported where the joint fit runs, as in .fit (its import cost every command).
 
 FLOOR_CORRELATIONS = (0.0, 0.5, 0.9)
 """Correlations between channels of the relative floor that the fit chooses from, by likelihood.

@@ -102,13 +102,14 @@ def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
     squares = np.zeros(channels)
     buffers = walk_buffers(channels)
     totals = buffers[TOTALS]
-    # int64, not a literal 0: numba compiles a callee once per literal argument, and the walk is
-    # the costliest compile of the simulator; every caller passes these as plain int64.
-    origin = np.int64(0)
+    # The centre and the record counters as int64, not literal 0s: numba compiles a callee once
+    # per literal argument, and the walk is the costliest compile of the simulator; every caller
+    # passes these as plain int64.
+    zero = np.int64(0)
     for _ in range(photons):
         totals[:] = 0.0
         trace_photon(state, estimator_state, uniform(state) - 0.5, uniform(state) - 0.5, volume, tables, majorant,
-                     optics, columns, camera, window, origin, origin, truth, 1.0, records, origin, origin, buffers)
+                     optics, columns, camera, window, zero, zero, truth, 1.0, records, zero, zero, buffers)
         sums += totals
         squares += totals * totals
     return sums, squares
@@ -118,7 +119,7 @@ def total_run(volume, tables, majorant, optics, camera, photons, seed, stream):
 def reflectance_run(volume, tables, majorant, n, depth, photons, seed, stream):
     """:func:`total_run` of the exitance for a beam straight down, with weights relative to the
     light that got in (the entry's Fresnel loss is the caller's)."""
-    # A plain bool, not a literal False, for the reason of total_run's origin.
+    # A plain bool, not a literal False, for the reason total_run passes int64 zeros.
     return total_run(volume, tables, majorant, _normal_incidence(n, depth), np.bool_(False), photons, seed, stream)
 
 
@@ -148,7 +149,7 @@ def trace_events(volume, tables, majorant, optics, camera, y, x, photons, seed, 
     columns = np.zeros((0, 0, 0, 0))
     buffers = walk_buffers(channels)
     count = 0
-    origin = np.int64(0)  # not a literal 0: see total_run
+    origin = np.int64(0)  # not a literal 0: see total_run's zero
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
         entry_x = x + uniform(state) - 0.5
