@@ -63,7 +63,7 @@ def _direct_profile(mus_layers, mua_layers, tops, g, n, depth, photons, seed):
     for index, top in enumerate(tops):
         volume[top:] = index
     tables, majorant = walk_tables(np.array(mus_layers), np.array(mua_layers).T, np.full(len(tops), g))
-    events = trace_events(volume, tables, majorant, scene_optics(n, depth), True, 0, 0, photons, seed, 3, 30_000_000)
+    events = trace_events(volume, tables, majorant, scene_optics(n, depth), True, 0.0, 0.0, photons, seed, 3, 30_000_000)
     py = np.floor(events[:, 3] + 0.5).astype(int)
     px = np.floor(events[:, 4] + 0.5).astype(int)
     inside = (np.abs(py) <= REACH) & (np.abs(px) <= REACH)
