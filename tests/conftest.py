@@ -37,18 +37,34 @@ def private_cache(tmp_path_factory, monkeypatch):
 
 @pytest.fixture(scope="session")
 def sample_originals(tmp_path_factory):
-    """``sample_originals(name)``: bundled sample ``name`` written as a dataset once per test process
-    (layers3 and skin1 hold 5000 frames, 60 MB: several seconds each), for :func:`place_sample`."""
+    """``sample_originals(name)``: bundled sample ``name`` written as a dataset once per test run
+    (layers3 and skin1 hold 5000 frames, 60 MB: layers3 takes 12 CPU-s), for :func:`place_sample`
+    to copy.
+
+    pytest-xdist's workers share them (each wrote its own before: layers3 up to four times): a
+    sample is written in the worker's own folder, then renamed into the run's shared one, which is
+    atomic. A worker that finds it there uses it; one that loses a race to rename uses the winner's."""
     from ringlight.core.simulate.samples import sample_dataset
 
-    folder, written = tmp_path_factory.mktemp("sample-originals"), {}
+    own = tmp_path_factory.getbasetemp()
+    # Each xdist worker's base folder lies in the run's own (pytest-N); without xdist, the
+    # process's base folder is the run's.
+    shared = (own.parent if os.environ.get("PYTEST_XDIST_WORKER") else own) / "sample-originals"
+    shared.mkdir(exist_ok=True)
 
     def original(name: str):
-        if name not in written:
+        published = shared / name
+        if not published.exists():
+            folder = tmp_path_factory.mktemp(f"sample-{name}")
             with pytest.MonkeyPatch.context() as patch:
                 patch.setenv("RINGLIGHT_CACHE_DIR", str(folder))
-                written[name] = sample_dataset(name)
-        return written[name]
+                written = sample_dataset(name)
+            try:
+                os.rename(written, published)
+            except OSError:
+                if not published.is_dir():  # not another worker's copy: a real failure
+                    raise
+        return published
 
     return original
 

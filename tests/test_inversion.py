@@ -63,7 +63,7 @@ def _direct_profile(mus_layers, mua_layers, tops, g, n, depth, photons, seed):
     for index, top in enumerate(tops):
         volume[top:] = index
     tables, majorant = walk_tables(np.array(mus_layers), np.array(mua_layers).T, np.full(len(tops), g))
-    events = trace_events(volume, tables, majorant, scene_optics(n, depth), True, 0, 0, photons, seed, 3, 30_000_000)
+    events = trace_events(volume, tables, majorant, scene_optics(n, depth), True, 0.0, 0.0, photons, seed, 3, 30_000_000)
     py = np.floor(events[:, 3] + 0.5).astype(int)
     px = np.floor(events[:, 4] + 0.5).astype(int)
     inside = (np.abs(py) <= REACH) & (np.abs(px) <= REACH)
@@ -371,8 +371,10 @@ def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache
         truth_xy = chromaticity(thick_slab_reflectance(np.full(3, mus), np.array(truth), 0.0, 1.4), "sRGB")
         assert region_contains(layer.region, truth_xy)
         assert layer.determined and np.hypot(*(layer.xy - truth_xy)) < 0.03
+    # Final white runs of 20 000 photons for the misfit, as in test_a_wrong_scattering_...: their
+    # larger noise only lowers a wrong model's chi-square (measured: 575 for 24 dof, 933 at 200 000).
     common = invert(measured, InversionSettings(layers=2, mus=1.0, n=1.4, g=0.0, depth=24.0, photons=10_000,
-                                                final_photons=FINAL_PHOTONS))
+                                                final_photons=20_000))
     assert common.chi2 > 10 * common.dof and "does not fit" in common.warning
 
 

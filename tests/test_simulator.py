@@ -137,6 +137,19 @@ def test_simulation_is_deterministic_whatever_the_thread_count():
     assert not np.array_equal(other_seed.windows, first.windows)
 
 
+def test_a_run_of_some_points_fills_their_windows_as_a_run_of_every_point():
+    # The analogue estimator walks each point on its own stream (seed, row-major grid index), so a
+    # run restricted to some points (one named twice) gives their windows bit for bit as the
+    # run of every point does, in the red bead or out of it, and leaves every other window 0.
+    scene = load_scene("red-bead", size=(6, 6))
+    every = simulate_transport(scene, photons=30, seed=4, estimator="analogue").windows
+    some = simulate_transport(scene, photons=30, seed=4, estimator="analogue", points=[[4, 1], [2, 3], [4, 1]]).windows
+    lit = np.zeros((6, 6), bool)
+    lit[[4, 2], [1, 3]] = True
+    assert np.array_equal(some[lit], every[lit]) and not np.array_equal(every[4, 1], every[2, 3])
+    assert not some[~lit].any()
+
+
 def test_written_dataset_holds_the_simulated_transport(tmp_path):
     scene = homogeneous_scene(size=12, photons=300, max_radius=2.5, n=1.4)
     transport = simulate_transport(scene)

@@ -148,7 +148,7 @@ def trace_events(volume, tables, majorant, optics, camera, y, x, photons, seed, 
     truth = np.zeros((0, 1, 1, channels))
     columns = np.zeros((0, 0, 0, 0))
     buffers = walk_buffers(channels)
-    count = 0
+    count = np.int64(0)  # not a literal 0 either: trace_photon compiled once more for it
     origin = np.int64(0)  # not a literal 0: see total_run's zero
     for i in range(photons):
         entry_y = y + uniform(state) - 0.5
