@@ -213,15 +213,29 @@ def test_capture_command_makes_a_dataset_whose_transients_match_the_scene(tmp_pa
         assert np.nanmean(error) / np.nanmean(np.abs(truth)) < [0.03, 0.03, 0.07][index]
 
 
-def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys):
-    base = ["capture", "--camera", "simulated", "--projector", "simulated", "--option", "size=10x10",
-            "--option", "photons=200", "--max-radius", "3", "--out", str(tmp_path / "scan")]
+SMALL_CAPTURE = ["capture", "--camera", "simulated", "--projector", "simulated", "--option", "size=10x10",
+                 "--option", "photons=200", "--max-radius", "3"]
+"""The command line of a small simulated scan, less its ``--out``."""
+
+
+@pytest.fixture(scope="module")
+def uninterrupted_capture(tmp_path_factory):
+    """The folder of :data:`SMALL_CAPTURE` run through once, without a stop: the dataset that
+    every stopped and resumed scan of it must equal (made once for the module; not to be written)."""
+    folder = tmp_path_factory.mktemp("uninterrupted") / "whole"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("RINGLIGHT_CACHE_DIR", str(folder.parent / "cache"))
+        assert main([*SMALL_CAPTURE, "--out", str(folder)]) == 0
+    return folder
+
+
+def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys, uninterrupted_capture):
+    base = [*SMALL_CAPTURE, "--out", str(tmp_path / "scan")]
     assert main([*base, "--camera-option", "fail_after=60", "--projector-option", "fail_after=60"]) == 2
     assert "scan paused after" in capsys.readouterr().err
     assert main([*base, "--resume"]) == 0
-    assert main([*base[:-1], str(tmp_path / "whole")]) == 0
-    assert frame_files(tmp_path / "scan") == frame_files(tmp_path / "whole")
-    assert main([*base[:-1], str(tmp_path / "whole")]) == 2  # never overwrites a dataset
+    assert frame_files(tmp_path / "scan") == frame_files(uninterrupted_capture)
+    assert main([*SMALL_CAPTURE, "--out", str(uninterrupted_capture)]) == 2  # never overwrites a dataset
     assert "already holds a finished dataset" in capsys.readouterr().err
 
 
@@ -275,13 +289,13 @@ def test_screen_projector_draws_patterns_in_physical_pixels(qtbot):
         ScreenProjector(screen="9").open()
 
 
-def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path):
+def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path, uninterrupted_capture):
+    """The process killed must be a process of its own; the resume, as a user's next command, reads
+    everything from the folder, so it runs here."""
     import subprocess
 
-    base = [sys.executable, "-m", "ringlight.app.main", "capture", "--camera", "simulated", "--projector",
-            "simulated", "--option", "size=10x10", "--option", "photons=200", "--max-radius", "3"]
-    process = subprocess.Popen([*base, "--out", str(tmp_path / "killed")], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL)
+    process = subprocess.Popen([sys.executable, "-m", "ringlight.app.main", *SMALL_CAPTURE, "--out",
+                                str(tmp_path / "killed")], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     frames = tmp_path / "killed/frames"
     for _ in range(12_000):  # a bounded wait (polls, not the clock) for five frames on disk
         if frames.exists() and len(list(frames.glob("*.exr"))) >= 5:
@@ -290,9 +304,8 @@ def test_a_capture_process_killed_mid_scan_resumes_to_the_same_dataset(tmp_path)
     process.kill()  # SIGKILL: no clean-up runs
     process.wait()
     assert not (tmp_path / "killed/dataset.json").exists()
-    assert subprocess.run([*base, "--out", str(tmp_path / "killed"), "--resume"], capture_output=True).returncode == 0
-    assert subprocess.run([*base, "--out", str(tmp_path / "whole")], capture_output=True).returncode == 0
-    assert frame_files(tmp_path / "killed") == frame_files(tmp_path / "whole")
+    assert main([*SMALL_CAPTURE, "--out", str(tmp_path / "killed"), "--resume"]) == 0
+    assert frame_files(tmp_path / "killed") == frame_files(uninterrupted_capture)
     assert not list((tmp_path / "killed").rglob("*partial*"))
 
 

@@ -183,6 +183,12 @@ def multiplexed_manifest(folder: Path, side: int = 1000, step: int = 5) -> Path:
     return folder
 
 
+@pytest.fixture(scope="module")
+def multiplexed(tmp_path_factory) -> Path:
+    """:func:`multiplexed_manifest`'s folder, written once for the module's tests (not to be changed)."""
+    return multiplexed_manifest(tmp_path_factory.mktemp("multiplexed") / "m")
+
+
 def traced_peak_of(function):
     """(result, peak bytes of Python allocations while ``function()`` ran)."""
     import tracemalloc
@@ -195,7 +201,7 @@ def traced_peak_of(function):
         tracemalloc.stop()
 
 
-def test_a_long_manifest_is_read_in_memory_a_few_times_its_size(tmp_path):
+def test_a_long_manifest_is_read_in_memory_a_few_times_its_size(tmp_path, multiplexed):
     """Each frame's JSON objects become a row of the frame table as they are decoded: 100 000
     one-point frames (6.5 MiB of JSON) peaked at 97 MiB of Python allocations (the whole decoded
     document, then a frame object and array view each), now at 25; a million multiplexed points
@@ -208,23 +214,23 @@ def test_a_long_manifest_is_read_in_memory_a_few_times_its_size(tmp_path):
     assert peak < 40 * 2**20, peak / 2**20
     assert len(manifest.frames) == 100_000 and manifest.frames[12_345].lit.tolist() == [[30, 345]]
     assert (manifest.lit_counts() == 1).all()
-    folder = multiplexed_manifest(tmp_path / "multiplexed")
-    manifest, peak = traced_peak_of(lambda: read_manifest(folder))
+    manifest, peak = traced_peak_of(lambda: read_manifest(multiplexed))
     assert peak < 100 * 2**20, peak / 2**20
     assert len(manifest.frames) == 25 and manifest.frames.counts.tolist() == [40_000] * 25
     assert manifest.frames[7].lit[:2].tolist() == [[1, 2], [1, 7]]  # frame 7: phase (1, 2) of the lattice
     assert (manifest.lit_counts() == 1).all()
 
 
-def test_the_checks_of_a_long_manifest_still_name_the_first_frame_at_fault(tmp_path):
+def test_the_checks_of_a_long_manifest_still_name_the_first_frame_at_fault(tmp_path, multiplexed):
     """The points are checked in runs of frames: a fault in a later run is found and named."""
     import json
 
     from ringlight.core import DatasetError
     from ringlight.core.dataset.manifest import read_manifest
 
-    folder = multiplexed_manifest(tmp_path / "m")
-    document = json.loads((folder / "dataset.json").read_text())
+    folder = tmp_path / "m"
+    folder.mkdir()
+    document = json.loads((multiplexed / "dataset.json").read_text())
     document["frames"][20]["lit"][30_000] = [1, 0]  # frame 20 lights [4, 0], 3 away; a duplicate point next
     document["frames"][23]["lit"][39_999] = document["frames"][23]["lit"][0]
     (folder / "dataset.json").write_text(json.dumps(document))
