@@ -43,10 +43,11 @@ FENCE = re.compile(r"^(?P<indent> {0,3})(?P<fence>`{3,})(?P<language>\{[\w-]+\}|
 ``{name}`` is a MyST directive (a note, a toctree, a table)."""
 MAX_SKIPPED = 8
 HANG_S = 900
-"""A block still running after this long is taken for hung. It is no measure of speed: optics.md's
-first block (a sample written, then a white run and the fits with numba's cache empty: 97 s at
-load 3 on two cores) ran over 300 s once in CI at load 5-8, with four test workers and the
-documentation's build sharing the two cores."""
+"""A shell block still running after this long is taken for hung (a Python block, in this
+process, has the suite's faulthandler_timeout, which prints where it is). It is no measure of
+speed: optics.md's first block (a sample written, then a white run and the fits with numba's cache
+empty: 97 s at load 3 on two cores) ran over 300 s once in CI at load 5-8, with four test workers
+and the documentation's build sharing the two cores."""
 
 
 @dataclass
