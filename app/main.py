@@ -16,22 +16,23 @@ from pathlib import Path
 from . import cli
 
 
-def build_command_parser() -> tuple[argparse.ArgumentParser, list[str]]:
-    """The parser of ``ringlight COMMAND ...`` and the command names."""
+def build_command_parser(command: str) -> argparse.ArgumentParser:
+    """The parser of ``ringlight COMMAND ...`` that runs ``command``: the other commands' parsers
+    hold no arguments (:func:`.cli.add_commands`)."""
     parser = argparse.ArgumentParser(
         prog="ringlight",
         description="Variable ring light imaging: transient images of subsurface light transport.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    cli.add_commands(subparsers)
-    return parser, list(subparsers.choices)
+    cli.add_commands(subparsers, command)
+    return parser
 
 
 def build_window_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ringlight",
         description="Open the ringlight explorer on DATASET (default: the bundled demo dataset).",
-        epilog="Commands (ringlight COMMAND --help): " + ", ".join(build_command_parser()[1]),
+        epilog="Commands (ringlight COMMAND --help): " + ", ".join(cli.COMMANDS),
     )
     parser.add_argument("dataset", nargs="?", help="dataset folder or its dataset.json")
     parser.add_argument("--screenshot", metavar="FILE.png", help="render the window offscreen to FILE.png and exit")
@@ -43,13 +44,12 @@ def build_window_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    command_parser, commands = build_command_parser()
-    if argv and argv[0] in commands:
-        args = command_parser.parse_args(argv)
+    if argv and argv[0] in cli.COMMANDS:
+        args = build_command_parser(argv[0]).parse_args(argv)
         return cli.run_handler(args.handler, args)
     parser = build_window_parser()
     args = parser.parse_args(argv)
-    problem = _dataset_problem(args.dataset, commands) or (None if args.screenshot else display_problem())
+    problem = _dataset_problem(args.dataset, list(cli.COMMANDS)) or (None if args.screenshot else display_problem())
     if problem:
         print(f"ringlight: error: {problem}", file=sys.stderr)
         return cli.EXIT_USER_ERROR

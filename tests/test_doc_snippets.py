@@ -1,14 +1,16 @@
 """Every command and Python block of README.md and docs/ runs as written (issue 39).
 
-A document's fenced blocks marked ``shell`` run in bash and those marked ``python`` in this
-interpreter (a numbered list item's indented block too), in the order they appear, in one fresh
-folder per document (so a page's first block can write a sample there with ``ringlight demo
---sample NAME --out NAME`` and the next ones use it), with the ``ringlight`` command of this
-environment and a private user cache. A block must exit 0, unless the comment line before it says
-otherwise:
+A document's fenced blocks (a numbered list item's indented block too) run in the order they
+appear, in one fresh folder per document (so a page's first block can write a sample there with
+``ringlight demo --sample NAME --out NAME`` and the next ones use it), with the ``ringlight``
+command of this environment and a private user cache: those marked ``shell`` in bash, those
+marked ``python`` as ``python -c`` would run them but in this process (a fresh ``__main__``
+namespace, a plain interpreter's warnings; a process of their own paid about 3 s of CPU again for
+the imports made here). A block must exit 0 (a Python block: raise nothing), unless the comment
+line before it says otherwise:
 
-- ``<!-- snippet: exit N -->``: the block must exit N and print one line on stderr (a refusal the
-  page shows);
+- ``<!-- snippet: exit N -->``: the shell block must exit N and print one line on stderr (a refusal
+  the page shows);
 - ``<!-- snippet: skip (REASON) -->``: not run (installs, the test suite, the documentation's
   build); the reason is required and the skipped blocks are few.
 
@@ -16,10 +18,15 @@ Blocks in other languages (``text``, ``json``, ``toml``) are shown, not run; a c
 unmarked indented block would escape this test, so none may be.
 """
 
+import contextlib
+import io
 import os
 import re
 import subprocess
 import sys
+import tempfile
+import traceback
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,10 +43,11 @@ FENCE = re.compile(r"^(?P<indent> {0,3})(?P<fence>`{3,})(?P<language>\{[\w-]+\}|
 ``{name}`` is a MyST directive (a note, a toctree, a table)."""
 MAX_SKIPPED = 8
 HANG_S = 900
-"""A block still running after this long is taken for hung. It is no measure of speed: optics.md's
-first block (a sample written, then a white run and the fits with numba's cache empty: 97 s at
-load 3 on two cores) ran over 300 s once in CI at load 5-8, with four test workers and the
-documentation's build sharing the two cores."""
+"""A shell block still running after this long is taken for hung (a Python block, in this
+process, has the suite's faulthandler_timeout, which prints where it is). It is no measure of
+speed: optics.md's first block (a sample written, then a white run and the fits with numba's cache
+empty: 97 s at load 3 on two cores) ran over 300 s once in CI at load 5-8, with four test workers
+and the documentation's build sharing the two cores."""
 
 
 @dataclass
@@ -85,6 +93,7 @@ def test_every_block_is_run_or_shown_and_few_are_skipped():
     assert not unknown, f"blocks neither run nor shown (tag them shell, python, text, json or toml): {unknown}"
     skipped = [f"{block}: {block.skip}" for block in ALL_BLOCKS if block.skip]
     assert len(skipped) <= MAX_SKIPPED, skipped
+    assert all(block.language == "shell" for block in ALL_BLOCKS if block.status), "exit markers are for shell blocks"
     assert sum(block.language in RUN and not block.skip for block in ALL_BLOCKS) >= 20
 
 
@@ -114,27 +123,41 @@ RUNNABLE = [document for document in DOCUMENTS
             if any(block.language in RUN and not block.skip for block in blocks(document))]
 
 
+def run_python(block: Block) -> None:
+    """Run a Python block as ``python -c`` would (the caller has set the folder and environment);
+    its exception fails the test with the block's place and code."""
+    output = io.StringIO()
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(output), contextlib.redirect_stderr(output):
+            warnings.resetwarnings()  # a plain interpreter's: shown, not raised as the suite's are
+            warnings.simplefilter("default")
+            exec(compile(block.code, str(block), "exec"), {"__name__": "__main__"})
+    except BaseException:  # SystemExit too: python -c would have exited
+        pytest.fail(f"{block} failed:\n{block.code}\n{output.getvalue()[-3000:]}{traceback.format_exc()[-3000:]}")
+
+
 @pytest.mark.parametrize("document", RUNNABLE, ids=lambda path: str(path.relative_to(ROOT)))
-def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache):
+def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch):
     work = tmp_path / "work"
     work.mkdir()
     (tmp_path / "tmp").mkdir()
-    environment = {
-        **os.environ,
-        "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-        "RINGLIGHT_CACHE_DIR": str(private_cache),
-        "QT_QPA_PLATFORM": "offscreen",
-        "TMPDIR": str(tmp_path / "tmp"),
-    }
-    environment.pop("RINGLIGHT_LOG", None)
+    # The shell blocks' environment; the Python blocks see it in this process.
+    monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    monkeypatch.setenv("QT_QPA_PLATFORM", "offscreen")
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    monkeypatch.delenv("RINGLIGHT_LOG", raising=False)
+    monkeypatch.chdir(work)
+    environment = dict(os.environ)  # RINGLIGHT_CACHE_DIR: private_cache's
     for block in blocks(document):
         if block.language not in RUN or block.skip:
             continue
-        command = (["bash", "-euo", "pipefail", "-c", block.code] if block.language == "shell"
-                   else [sys.executable, "-c", block.code])
+        if block.language == "python":
+            run_python(block)
+            continue
         try:
-            result = subprocess.run(command, cwd=work, env=environment, capture_output=True, text=True,
-                                    timeout=HANG_S)
+            result = subprocess.run(["bash", "-euo", "pipefail", "-c", block.code], cwd=work, env=environment,
+                                    capture_output=True, text=True, timeout=HANG_S)
         except subprocess.TimeoutExpired as expired:
             stderr = (expired.stderr or b"").decode(errors="replace")  # bytes, whatever text= says
             pytest.fail(f"{block} still ran after {HANG_S} s (hung?):\n{block.code}\n{stderr[-3000:]}")

@@ -1,13 +1,16 @@
 """Every script in examples/ runs as it is, and what it prints or saves is right.
 
-Each example runs in a subprocess with the suite's interpreter; its output is checked against
-the library called directly here (reading back files, opening datasets) or brute force.
+Each example runs as ``python examples/NAME.py ARGS`` runs it, as ``__main__`` with its own
+arguments, folder and user cache, but in this process (as the documentation's gallery runs them):
+a process of its own paid about 3 s of CPU again for the imports the suite has already made. Its
+output is checked against the library called directly here (reading back files, opening
+datasets) or brute force.
 """
 
-import os
 import re
-import subprocess
+import runpy
 import sys
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -28,14 +31,22 @@ def demo_cache(tmp_path_factory):
     return tmp_path_factory.mktemp("examples-cache")
 
 
-def run_example(name: str, *args, cache: Path, cwd: Path) -> str:
-    # Default output folders come from tempfile: keep them inside the test's own folder.
-    environment = {**os.environ, "RINGLIGHT_CACHE_DIR": str(cache), "TMPDIR": str(cwd.parent)}
-    result = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd, env=environment,
-                            capture_output=True, text=True, timeout=240)
-    assert result.returncode == 0, result.stderr
-    assert not list(cwd.iterdir()), "examples never write into the current folder by surprise"
-    return result.stdout
+@pytest.fixture
+def run_example(monkeypatch, capsys):
+    """``run_example(NAME, *ARGS, cache=, cwd=)``: what ``python examples/NAME ARGS`` prints, run
+    in ``cwd`` with the user cache ``cache``; an example that fails raises here."""
+    def run(name: str, *args, cache: Path, cwd: Path) -> str:
+        monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(cache))
+        # Default output folders come from tempfile: keep them inside the test's own folder.
+        monkeypatch.setattr(tempfile, "tempdir", str(cwd.parent))
+        monkeypatch.setattr(sys, "argv", [str(EXAMPLES / name), *map(str, args)])
+        monkeypatch.chdir(cwd)
+        capsys.readouterr()
+        runpy.run_path(str(EXAMPLES / name), run_name="__main__")
+        assert not list(cwd.iterdir()), "examples never write into the current folder by surprise"
+        return capsys.readouterr().out
+
+    return run
 
 
 def test_every_example_is_tested_and_short():
@@ -47,7 +58,7 @@ def test_every_example_is_tested_and_short():
             assert len(path.read_text().splitlines()) < 40, path.name
 
 
-def test_open_demo_example_saves_the_transient_png(demo_cache, tmp_path, monkeypatch):
+def test_open_demo_example_saves_the_transient_png(demo_cache, tmp_path, monkeypatch, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("open_demo_save_transient.py", tmp_path / "out", cache=demo_cache, cwd=tmp_path / "cwd")
     pixels = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / "transient_r2.png")), cv2.COLOR_BGR2RGB)
@@ -63,7 +74,7 @@ def test_open_demo_example_saves_the_transient_png(demo_cache, tmp_path, monkeyp
     assert np.abs(pixels.astype(int) - expected.astype(int)).max() <= 1
 
 
-def test_export_stack_example_writes_the_stack_it_prints(demo_cache, tmp_path):
+def test_export_stack_example_writes_the_stack_it_prints(demo_cache, tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("export_stack.py", cache=demo_cache, cwd=tmp_path / "cwd")
     folder = Path(re.search(r"wrote (\S+)", out).group(1))
@@ -72,7 +83,7 @@ def test_export_stack_example_writes_the_stack_it_prints(demo_cache, tmp_path):
     assert out.splitlines()[2] == "shape 7 48 48 3" and images.shape == (7, 48, 48, 3)
 
 
-def test_simulate_example_writes_a_dataset_that_opens(tmp_path):
+def test_simulate_example_writes_a_dataset_that_opens(tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("simulate_scene.py", tmp_path / "sim", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     dataset = open_dataset(tmp_path / "sim")
@@ -84,7 +95,7 @@ def test_simulate_example_writes_a_dataset_that_opens(tmp_path):
         np.testing.assert_allclose(np.array(row[5:8], float), layer.rgb, atol=6e-5)
 
 
-def test_layer_colour_example_prints_each_layer_beside_its_truth(tmp_path):
+def test_layer_colour_example_prints_each_layer_beside_its_truth(tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("layer_colours.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     first, *lines = out.splitlines()
@@ -102,7 +113,7 @@ def test_layer_colour_example_prints_each_layer_beside_its_truth(tmp_path):
         assert 0 < xy[0] < 0.8 and 0 < xy[1] < 0.9 and error < 0.3  # errors as measured: 0.087, 0.148, 0.119
 
 
-def test_simulated_scan_example_captures_a_dataset_that_opens(tmp_path):
+def test_simulated_scan_example_captures_a_dataset_that_opens(tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("simulated_scan.py", tmp_path / "scan", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     dataset = open_dataset(tmp_path / "scan")
@@ -111,7 +122,7 @@ def test_simulated_scan_example_captures_a_dataset_that_opens(tmp_path):
     assert f"49 frames for a 12 x 12 grid, {dataset.missing_count} points missing" in out
 
 
-def test_plugin_skeleton_follows_the_protocols(tmp_path):
+def test_plugin_skeleton_follows_the_protocols(tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("plugin_skeleton.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     assert out.splitlines() == ["camera follows the protocol: True", "projector follows the protocol: True"]

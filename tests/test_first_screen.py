@@ -53,8 +53,9 @@ def test_the_demo_opens_on_the_bead_at_a_radius_and_levels_where_it_shows(qtbot,
     assert "structure" in message and "scrub" in message and "Layers" in message
 
 
-def test_a_layered_sample_opens_on_the_layers_tab(qtbot, new_user_window):
+def test_a_layered_sample_opens_on_the_layers_tab(qtbot, new_user_window, place_sample):
     window = new_user_window
+    place_sample("layers3")  # its 5000 frames as the first open writes them, written once for the run
     open_sample(qtbot, window, "layers3")
     assert window.analysis_tabs.currentWidget() is window.layer_panel
     assert window.radius_index() == 0 and window.display_settings().normalisation == "per-image"

@@ -24,10 +24,8 @@ from ringlight.core.rings.radii import MAX_RING_REACH
 from .progress import progress_bar
 
 
-def add_command(subparsers) -> None:
-    capture = subparsers.add_parser(
-        "capture", help="capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)"
-    )
+def add_arguments(capture) -> None:
+    """Add the arguments of ``ringlight capture`` to its parser, with its handler."""
     capture.add_argument("--list", action="store_true", help="list the cameras and projectors of every plugin and exit")
     capture.add_argument("--camera", help="camera name (see --list)")
     capture.add_argument("--projector", help="projector name (see --list)")

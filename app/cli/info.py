@@ -13,8 +13,8 @@ MAX_PROBLEMS_SHOWN = 20
 EXIT_FILE_PROBLEMS = 2
 
 
-def add_command(subparsers) -> None:
-    info = subparsers.add_parser("info", help="describe an impulse dataset")
+def add_arguments(info) -> None:
+    """Add the arguments of ``ringlight info`` to its parser, with its handler."""
     info.add_argument("dataset", help="dataset folder or its dataset.json")
     info.add_argument("--allow-outside", action="store_true",
                       help="accept files that resolve (through symbolic links) outside the dataset folder")

@@ -35,10 +35,8 @@ from ringlight.core.rings.stack_request import StackRequest
 from .progress import progress_bar
 
 
-def add_command(subparsers) -> None:
-    layers = subparsers.add_parser(
-        "layers", help="recover layer colours from the chromaticities of transient images (paper Sec. 4.2)"
-    )
+def add_arguments(layers) -> None:
+    """Add the arguments of ``ringlight layers`` to its parser, with its handler."""
     layers.add_argument("dataset", help="dataset folder or its dataset.json")
     pick = layers.add_mutually_exclusive_group()
     pick.add_argument("--radii", metavar="R1,R2,...", help="increasing radii of the stack, one per layer")

@@ -24,9 +24,8 @@ from ringlight.core.optics.table import DEFAULT_PHOTONS
 from .progress import progress_bar
 
 
-def add_command(subparsers) -> None:
-    optics = subparsers.add_parser(
-        "optics", help="absorption and reduced scattering maps (mu_a, mu_s') and R_d at spatial frequencies")
+def add_arguments(optics) -> None:
+    """Add the arguments of ``ringlight optics`` to its parser, with its handler."""
     optics.add_argument("dataset", help="dataset folder or its dataset.json")
     optics.add_argument("--out", metavar="MAPS.exr",
                         help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se")

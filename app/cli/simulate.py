@@ -26,10 +26,8 @@ MIN_NOISE = 1e-3
 takes about a million times the photons of 100 %; a target of 1e-320 could never be reached."""
 
 
-def add_command(subparsers) -> None:
-    simulate = subparsers.add_parser(
-        "simulate", help="render a scene (preset or JSON) into an impulse dataset by Monte Carlo"
-    )
+def add_arguments(simulate) -> None:
+    """Add the arguments of ``ringlight simulate`` to its parser, with its handler."""
     simulate.add_argument("scene", nargs="?", help="preset name (see --list) or scene JSON file")
     simulate.add_argument("--out", help="output dataset folder")
     simulate.add_argument("--photons", type=int, default=None,

@@ -22,10 +22,8 @@ from ringlight.core.rings.stack_io import check_stack_target
 from .progress import progress_bar
 
 
-def add_command(subparsers) -> None:
-    stack = subparsers.add_parser(
-        "stack", help="compute a ring light or transient stack and export it as EXR"
-    )
+def add_arguments(stack) -> None:
+    """Add the arguments of ``ringlight stack`` to its parser, with its handler."""
     stack.add_argument("dataset", help="dataset folder or its dataset.json")
     stack.add_argument("--kind", choices=("ring", "transient"), default="transient")
     stack.add_argument(
