@@ -20,25 +20,23 @@ from .progress import configure_logging
 EXIT_USER_ERROR = 2
 
 COMMANDS = {
-    "info": ("describe an impulse dataset", None),
-    "stack": ("compute a ring light or transient stack and export it as EXR", None),
-    "simulate": ("render a scene (preset or JSON) into an impulse dataset by Monte Carlo", None),
-    "layers": ("recover layer colours from the chromaticities of transient images (paper Sec. 4.2)", None),
-    "optics": ("absorption and reduced scattering maps (mu_a, mu_s') and R_d at spatial frequencies", None),
-    "capture": ("capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)", None),
-    "demo": ("write (first run only) and describe a bundled sample dataset (the demo: red-bead)",
-             "Write a bundled sample dataset into the user cache (the first time only) and describe it; "
-             "its folder can then be opened with 'ringlight FOLDER'."),
+    "info": "describe an impulse dataset",
+    "stack": "compute a ring light or transient stack and export it as EXR",
+    "simulate": "render a scene (preset or JSON) into an impulse dataset by Monte Carlo",
+    "layers": "recover layer colours from the chromaticities of transient images (paper Sec. 4.2)",
+    "optics": "absorption and reduced scattering maps (mu_a, mu_s') and R_d at spatial frequencies",
+    "capture": "capture an impulse dataset with a camera and projector (Gray code, HDR, parallel scan)",
+    "demo": "write (first run only) and describe a bundled sample dataset (the demo: red-bead)",
 }
-"""Sub-command name -> (the line ``--help`` lists, the description its own ``--help`` opens
-with: None for the same line), in the order of ``--help``."""
+"""Sub-command name -> the line ``--help`` lists, in the order of ``--help``; a command's own
+``--help`` opens with it too, unless its module sets a longer description."""
 
 
 def add_commands(subparsers, command: str) -> None:
     """Register every sub-command on an argparse subparsers object; only ``command`` gets its
     arguments and handler, and only its module is imported."""
-    for name, (summary, description) in COMMANDS.items():
-        parser = subparsers.add_parser(name, help=summary, description=description or summary)
+    for name, summary in COMMANDS.items():
+        parser = subparsers.add_parser(name, help=summary, description=summary)
         if name == command:
             importlib.import_module(f"{__name__}.{name}").add_arguments(parser)
 

@@ -11,6 +11,8 @@ from .progress import progress_bar
 
 def add_arguments(demo) -> None:
     """Add the arguments of ``ringlight demo`` to its parser, with its handler."""
+    demo.description = ("Write a bundled sample dataset into the user cache (the first time only) and describe it; "
+                        "its folder can then be opened with 'ringlight FOLDER'.")
     demo.add_argument("--sample", choices=sample_names(), default=DEMO_SAMPLE, help="which sample (default: %(default)s)")
     demo.add_argument("--out", metavar="DIR",
                       help="write the sample into DIR (a new folder) instead of the user cache, e.g. to try the "
