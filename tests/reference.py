@@ -31,17 +31,30 @@ def write_rgb(path: Path, image: np.ndarray, half: bool = False) -> None:
 def random_impulses(rng, height, width, support, missing=0.0):
     """Random impulse images {(y, x): (H, W, 3) float32}, zero beyond ``support`` of q.
 
-    A fraction ``missing`` of points gets no entry (a missing point)."""
-    yy, xx = np.mgrid[:height, :width]
+    A fraction ``missing`` of points gets no entry (a missing point). ``rng`` is a numpy Generator
+    whose bit generator can ``advance`` (default_rng's PCG64)."""
+    # Each image is falloff x uniform(0.2, 1) drawn over the whole grid, row after row; only the rows
+    # within the support are drawn here, and the generator advanced past the others (one 64-bit
+    # draw a double), which gives the same images and leaves the generator where the whole draw
+    # would (a 96 x 80 grid: 5.8 CPU-s before, 0.9 now).
+    dy, dx = np.mgrid[1 - height:height, 1 - width:width]
+    distances = np.hypot(dy, dx)  # of every offset a grid can hold, at [dy + H - 1, dx + W - 1]
+    falloffs = np.exp(-distances / 3.0)[..., None]
+    reach, row_draws = math.floor(support), width * 3
     impulses = {}
     for y in range(height):
+        top, bottom = max(y - reach, 0), min(y + reach + 1, height)
+        rows = slice(height - 1 - y + top, height - 1 - y + bottom)
         for x in range(width):
             if rng.random() < missing:
                 continue
-            distance = np.hypot(yy - y, xx - x)
-            falloff = np.exp(-distance / 3.0)[..., None]
-            image = (falloff * rng.uniform(0.2, 1.0, (height, width, 3))).astype(np.float32)
-            image[distance > support] = 0.0
+            columns = slice(width - 1 - x, 2 * width - 1 - x)
+            image = np.zeros((height, width, 3), np.float32)
+            band = image[top:bottom]
+            rng.bit_generator.advance(top * row_draws)
+            band[...] = falloffs[rows, columns] * rng.uniform(0.2, 1.0, band.shape)
+            rng.bit_generator.advance((height - bottom) * row_draws)
+            band[distances[rows, columns] > support] = 0.0
             impulses[(y, x)] = image
     return impulses
 

@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from cuda_cases import run_case
+from cuda_cases import run_cases
 from numpy.testing import assert_allclose
 from reference import random_impulses, write_dataset
 from test_adding_doubling import chandrasekhar_h_at_one
@@ -26,11 +26,27 @@ SAME_WALKS = {"rtol": 1e-9, "atol": 1e-15}
 """Tolerance of a GPU's sums of the photons that the CPU walks on the same streams (module notes)."""
 
 
-def cuda_case(case, tmp_path, argument=""):
-    arrays = run_case(case, tmp_path / f"{case}.npz", argument)
-    if arrays is None:
+@pytest.fixture(scope="module")
+def gpu_runs(tmp_path_factory):
+    """``(runs, folder)``: every case's arrays by name, run once for the module (in the simulator, all
+    in one process), and the folder that holds the stacks case's dataset ``ds`` and the simulate
+    command's ``sim``."""
+    folder = tmp_path_factory.mktemp("cuda")
+    impulses = random_impulses(np.random.default_rng(4), 6, 7, support=40, missing=0.2)
+    write_dataset(folder / "ds", 6, 7, impulses)
+    cases = {case: "" for case in ("radial", "white", "cells", "simulate_points", "simulate_differences",
+                                   "mcml_slab", "device")}
+    runs = run_cases(cases | {"stacks": str(folder / "ds"), "simulate_command": str(folder / "sim")}, folder)
+    return runs, folder
+
+
+def cuda_case(case, gpu_runs):
+    runs, _ = gpu_runs
+    if runs is None:
         pytest.skip("numba's CUDA simulator is not available")
-    return arrays
+    if isinstance(runs[case], str):
+        pytest.fail(f"the {case} case failed:\n{runs[case]}", pytrace=False)
+    return runs[case]
 
 
 def test_gpu_runs_seed_their_threads_as_the_cpu_seeds_each_stream():
@@ -42,11 +58,11 @@ def test_gpu_runs_seed_their_threads_as_the_cpu_seeds_each_stream():
     assert len(np.unique(states, axis=0)) == 2 * len(streams)
 
 
-def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
+def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(gpu_runs):
     # Thread t walks stream (seed, t) with the same compiled steps: the CPU's block kernel on
     # streams 0..3 makes the same cell sums (up to the order of the additions). 12 photons are
     # rounded up as the CPU rounds them (whole blocks: 16), 4 on each stream.
-    gpu = cuda_case("radial", tmp_path)
+    gpu = cuda_case("radial", gpu_runs)
     assert int(gpu["photons"]) == radial.traced_photons(12) == 16
     weight, rho_sum, path_sum = (np.zeros((radial.RHO_CELLS, radial.PATH_CELLS)) for _ in range(3))
     for stream in range(4):
@@ -58,8 +74,8 @@ def test_radial_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
         assert_allclose(gpu["path"], np.where(weight > 0, path_sum / weight, 0.0), **SAME_WALKS)
 
 
-def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(tmp_path):
-    gpu = cuda_case("white", tmp_path)
+def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(gpu_runs):
+    gpu = cuda_case("white", gpu_runs)
     # (1) Thread t walks stream (seed 2, t) and its estimator stream, photons 64 t .. 64 t + 63:
     # the CPU's block kernel on those streams makes the same records in the same order.
     optics = white_mc.SlabOptics((1.0,), 0.0, 1.0, 8.0, 5)
@@ -87,7 +103,7 @@ def test_white_kernel_makes_the_cpus_records_and_chandrasekhars_reflectance(tmp_
     assert abs(per_photon.mean() - 0.5 * chandrasekhar_h_at_one(0.5) ** 2 / 8) < 3 * error
 
 
-def test_cells_kernel_tallies_the_records_the_cpu_walks_on_the_same_streams(tmp_path):
+def test_cells_kernel_tallies_the_records_the_cpu_walks_on_the_same_streams(gpu_runs):
     # The GPU tallies each estimate into its cell as it walks (a hash table, atomic adds); the
     # reference tallies with numpy the records of the same photons (the records kernel's, which
     # are the CPU's on these streams), launch by launch (seed 5 + (launch << 32)), each record's
@@ -96,7 +112,7 @@ def test_cells_kernel_tallies_the_records_the_cpu_walks_on_the_same_streams(tmp_
     from ringlight.core.inversion.forward import Structure
     from ringlight.core.inversion.white_cells import BATCHES, cell_moments, pixel_classes, tally_records
 
-    gpu = cuda_case("cells", tmp_path)
+    gpu = cuda_case("cells", gpu_runs)
     optics, structure = white_mc.SlabOptics(**CELLS_OPTICS), Structure((0, 1))
     classes = pixel_classes(optics.reach)
     keys, sums, batches = [], [], []
@@ -126,14 +142,11 @@ def test_cells_kernel_tallies_the_records_the_cpu_walks_on_the_same_streams(tmp_
     assert_allclose(gpu["batch_weight"], cpu.batch_weight, rtol=1e-5, atol=1e-9)
 
 
-def test_stack_kernel_equals_the_cpu_stacks(tmp_path):
+def test_stack_kernel_equals_the_cpu_stacks(gpu_runs):
     # A 6 x 7 dataset with missing points: the gather kernel's ring and transient images against
     # core.rings' (same sums in another order: float32 rounding), NaN in the same places.
-    rng = np.random.default_rng(4)
-    impulses = random_impulses(rng, 6, 7, support=40, missing=0.2)
-    write_dataset(tmp_path / "ds", 6, 7, impulses)
-    gpu = cuda_case("stacks", tmp_path, str(tmp_path / "ds"))
-    ring, transient = ring_and_transient_stacks(open_dataset(tmp_path / "ds", radius=4.5), np.arange(4.0), 1.0)
+    gpu, folder = cuda_case("stacks", gpu_runs), gpu_runs[1]
+    ring, transient = ring_and_transient_stacks(open_dataset(folder / "ds", radius=4.5), np.arange(4.0), 1.0)
     for name, cpu in (("ring", ring.images), ("transient", transient.images)):
         assert np.array_equal(np.isnan(gpu[name]), np.isnan(cpu))
         assert np.isnan(cpu).any() and not np.isnan(cpu).all()
@@ -141,7 +154,7 @@ def test_stack_kernel_equals_the_cpu_stacks(tmp_path):
     assert np.array_equal(gpu["counts"], ring.counts)
 
 
-def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_path):
+def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(gpu_runs):
     # Thread i walks lit point i on stream (seed 9, streams[i]) and its estimator stream, through
     # the same compiled walk: the CPU kernel's windows and path-length images, up to the order of
     # the atomic sums, in a heterogeneous volume (voxel traversal of the estimate), two channels,
@@ -150,7 +163,7 @@ def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_
     from ringlight.core.simulate.camera import optics
     from ringlight.core.simulate.photon import simulate_points
 
-    gpu = cuda_case("simulate_points", tmp_path)
+    gpu = cuda_case("simulate_points", gpu_runs)
     volume, tables, majorant, lit, streams = simulator_volume()
     for measure in ("camera", "exitance"):
         windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((2, 8, 5, 5, 2))
@@ -161,12 +174,12 @@ def test_simulator_points_kernel_walks_the_cpus_photons_on_the_same_streams(tmp_
         assert_allclose(gpu[f"{measure}_truth"], truth.sum(axis=0), **SAME_WALKS)
 
 
-def test_simulator_differences_kernel_equals_the_cpus_correlated_differences(tmp_path):
+def test_simulator_differences_kernel_equals_the_cpus_correlated_differences(gpu_runs):
     # The scene's walk, its save at the first marked voxel and the reference walk from there on the
     # saved streams: the CPU's differences and touch counts, a direct point scored whole.
     from cuda_cases import run_differences
 
-    gpu = cuda_case("simulate_differences", tmp_path)
+    gpu = cuda_case("simulate_differences", gpu_runs)
     windows, truth = np.zeros((3, 5, 5, 2)), np.zeros((2, 8, 5, 5, 2))
     touches = run_differences(windows, truth)
     assert touches[1] == 0 and touches.sum() > 0 and np.count_nonzero(windows) > 10
@@ -175,7 +188,7 @@ def test_simulator_differences_kernel_equals_the_cpus_correlated_differences(tmp
     assert_allclose(gpu["truth"], truth.sum(axis=0), **SAME_WALKS)
 
 
-def test_simulator_kernel_gives_mcmls_slab_reflectance(tmp_path):
+def test_simulator_kernel_gives_mcmls_slab_reflectance(gpu_runs):
     # MCML manual Table 6.1 (the CPU simulator's test_mcml_slab_diffuse_reflectance_matches_van_de_hulst):
     # n = 1, mu_a = 10, mu_s = 90 per unit, g = 0.75, 0.02 deep: R_d = 0.09739 (van de Hulst 1980).
     # 1024 photons on 16 streams, the exitance within one pixel of the lit one (the slab is 2 mean
@@ -185,7 +198,7 @@ def test_simulator_kernel_gives_mcmls_slab_reflectance(tmp_path):
     from ringlight.core.simulate.photon import simulate_points
     from ringlight.core.simulate.tables import single_channel_tables
 
-    gpu = cuda_case("mcml_slab", tmp_path)
+    gpu = cuda_case("mcml_slab", gpu_runs)
     tables, majorant = single_channel_tables([100.0], [0.9], [0.75])
     windows = np.zeros((16, 3, 3, 1))
     simulate_points(np.zeros((1, 1, 1), np.uint8), tables, majorant, optics(1.0, 0.02), np.zeros((0, 0, 0, 0)),
@@ -196,20 +209,20 @@ def test_simulator_kernel_gives_mcmls_slab_reflectance(tmp_path):
     assert 0 < error < 0.02 and abs(per_stream.mean() - 0.09739) < 3 * error, (per_stream.mean(), error)
 
 
-def test_simulate_command_on_cuda_names_the_device_in_its_output_and_notes(tmp_path):
+def test_simulate_command_on_cuda_names_the_device_in_its_output_and_notes(gpu_runs):
     # The whole command through the GPU path (the reference kernel on the device's streams): a
     # dataset whose notes and output line name the device.
-    arrays = cuda_case("simulate_command", tmp_path, str(tmp_path / "sim"))
+    arrays = cuda_case("simulate_command", gpu_runs)
     name = cuda_device().name if cuda_device() is not None else "CUDA simulator"
     assert int(arrays["status"]) == 0
     assert str(arrays["printed"]).rstrip().endswith(f"M photons/s) on {name}")
     assert f"\nphotons traced on {name}" in str(arrays["notes"])
-    responses = open_dataset(tmp_path / "sim").point(1, 1)
+    responses = open_dataset(gpu_runs[1] / "sim").point(1, 1)
     assert np.isfinite(responses).all() and responses.sum() > 0
 
 
-def test_cuda_device_is_the_gpu_or_the_simulator_and_auto_never_the_simulator(tmp_path):
-    arrays = cuda_case("device", tmp_path)
+def test_cuda_device_is_the_gpu_or_the_simulator_and_auto_never_the_simulator(gpu_runs):
+    arrays = cuda_case("device", gpu_runs)
     usable = cuda_device()
     assert str(arrays["name"]) == (usable.name if usable is not None else "CUDA simulator")
     assert str(arrays["auto"]) == ("cuda" if usable is not None else "cpu")
