@@ -182,17 +182,53 @@ def test_a_stack_beyond_a_samples_max_radius_names_the_sample_and_the_radii_that
     assert main(["stack", str(folder), "--radii", f"0:{best}:1", "--out", str(tmp_path / "o")]) == 0
 
 
-def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys, place_sample):
+def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_path, capsys, place_sample, monkeypatch):
     """``ringlight demo --out DIR``: the same dataset as the user cache's copy, bit for bit in
-    its responses; a second run is refused with one line unless --overwrite. (star: a sample other
-    than the default, and a fifth of layers3's writing time.)"""
+    its responses; a second run is refused with one line unless --overwrite. With the user cache's
+    copy there, ``--out`` copies it: the same files, byte for byte, as the write from nothing
+    before it (the docs' pages rely on it). (star: a sample other than the default, and a fifth of
+    layers3's writing time.)"""
+    from ringlight.app.cli import demo
+    from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
     from ringlight.core.simulate.samples import sample_dataset
 
-    assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 0
+    def is_cache(path):  # the describing 'info' opened it: its cache is keyed to the files' times
+        return CACHE_FOLDER_NAME in path.parts
+
+    assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 0  # no cached copy: written
     assert f"dataset      {tmp_path / 'star'}" in capsys.readouterr().out
+    written = {path.relative_to(tmp_path / "star"): path.read_bytes()
+               for path in (tmp_path / "star").rglob("*") if path.is_file() and not is_cache(path)}
     place_sample("star")  # the user cache's copy, as sample_dataset writes it (once for the whole run)
     ours, cached = open_dataset(tmp_path / "star"), open_dataset(sample_dataset("star"))
     assert np.array_equal(ours.responses, cached.responses)
+
+    def not_written(*args, **kwargs):
+        raise AssertionError("written anew although the user cache holds the sample")
+
+    monkeypatch.setattr(demo, "write_transport", not_written)
+    assert main(["demo", "--sample", "star", "--out", str(tmp_path / "copied")]) == 0
+    assert f"dataset      {tmp_path / 'copied'}" in capsys.readouterr().out
+    copied = {path.relative_to(tmp_path / "copied"): path.read_bytes()
+              for path in (tmp_path / "copied").rglob("*") if path.is_file() and not is_cache(path)}
+    assert copied.keys() == written.keys() and len(written) > 600  # star: 680-odd frames, the manifest and the truth
+    assert all(copied[name] == written[name] for name in written)
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 2
     assert "already holds a dataset" in capsys.readouterr().err
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star"), "--overwrite"]) == 0
+
+
+def test_a_dataset_copy_refuses_a_manifest_naming_a_file_outside_its_folder(tmp_path):
+    """copy_dataset copies the files a manifest names: '../' in one would reach outside both
+    folders, so it is one line naming the dataset and nothing is written."""
+    from ringlight.core.dataset.copy import copy_dataset
+    from ringlight.core.errors import DatasetError
+
+    write_dataset(tmp_path / "ds", 5, 4, random_impulses(np.random.default_rng(3), 5, 4, support=1.5), max_radius=1.5)
+    manifest = json.loads((tmp_path / "ds/dataset.json").read_text())
+    manifest["frames"][0]["file"] = "../outside.exr"
+    (tmp_path / "ds/dataset.json").write_text(json.dumps(manifest))
+    (tmp_path / "outside.exr").write_bytes(b"not the dataset's")
+    with pytest.raises(DatasetError, match=r"ds: the manifest names '\.\./outside\.exr', outside"):
+        copy_dataset(tmp_path / "ds", tmp_path / "copy")
+    assert not (tmp_path / "copy").exists()

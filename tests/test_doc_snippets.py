@@ -6,7 +6,8 @@ appear, in one fresh folder per document (so a page's first block can write a sa
 command of this environment and a private user cache: those marked ``shell`` in bash, those
 marked ``python`` as ``python -c`` would run them but in this process (a fresh ``__main__``
 namespace, a plain interpreter's warnings; a process of their own paid about 3 s of CPU again for
-the imports made here). A block must exit 0 (a Python block: raise nothing), unless the comment
+the imports made here). Every page but README.md finds the bundled samples it writes out already in
+its user cache, as after an earlier ``ringlight demo`` (:data:`COLD`). A block must exit 0 (a Python block: raise nothing), unless the comment
 line before it says otherwise:
 
 - ``<!-- snippet: exit N -->``: the shell block must exit N and print one line on stderr (a refusal
@@ -119,6 +120,28 @@ def test_no_command_hides_in_an_indented_block(document):
     assert not hidden, hidden
 
 
+DEMO_OUT = re.compile(r"^ringlight demo --sample (?P<name>[\w-]+) --out ", re.MULTILINE)
+COLD = ROOT / "README.md"
+"""The page whose samples are written as a new user's first run writes them: every other page
+finds the samples its ``ringlight demo --sample NAME --out DIR`` commands name already in its
+user cache (copies of the ones the suite writes once), as after an earlier ``ringlight demo``,
+so the command copies them (1 CPU-s) instead of writing 5000 frames anew (10 CPU-s)."""
+
+
+def samples_written_out(document: Path) -> list[str]:
+    """The samples a document's shell blocks write with ``ringlight demo --sample NAME --out``."""
+    return [found["name"] for block in blocks(document) if block.language == "shell" and not block.skip
+            for found in DEMO_OUT.finditer(block.code)]
+
+
+def test_the_pages_demo_commands_are_found_and_one_page_writes_them_cold():
+    """What the seeding below depends on: the pattern finds the pages' sample writes (optics.md:
+    skin1, layers.md: layers3), and README's quick start still writes its two from nothing."""
+    assert samples_written_out(ROOT / "docs" / "guide" / "optics.md") == ["skin1"]
+    assert samples_written_out(ROOT / "docs" / "guide" / "layers.md") == ["layers3"]
+    assert samples_written_out(COLD) == ["red-bead", "layers3"]
+
+
 RUNNABLE = [document for document in DOCUMENTS
             if any(block.language in RUN and not block.skip for block in blocks(document))]
 
@@ -137,7 +160,7 @@ def run_python(block: Block) -> None:
 
 
 @pytest.mark.parametrize("document", RUNNABLE, ids=lambda path: str(path.relative_to(ROOT)))
-def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch):
+def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch, place_sample):
     work = tmp_path / "work"
     work.mkdir()
     (tmp_path / "tmp").mkdir()
@@ -149,6 +172,9 @@ def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_c
     monkeypatch.delenv("RINGLIGHT_LOG", raising=False)
     monkeypatch.chdir(work)
     environment = dict(os.environ)  # RINGLIGHT_CACHE_DIR: private_cache's
+    if document != COLD:
+        for name in samples_written_out(document):
+            place_sample(name)  # into private_cache, where the page's demo command copies it from
     for block in blocks(document):
         if block.language not in RUN or block.skip:
             continue
