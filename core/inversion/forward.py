@@ -171,13 +171,32 @@ class Forward:
         covariance = np.empty((rings, len(mua), len(mua)))
         for row in range(rings):
             records, member = self._ring_records[row]
-            photon = self.photon[records]
-            per_photon = np.stack([np.bincount(photon, weights[c, records] if member is None
-                                               else weights[c, records] * member, photons)
-                                   for c in range(len(mua))])
+            per_photon = _per_photon_sums(records, _NO_MEMBER if member is None else member, self.photon, weights,
+                                          photons)
             centred = per_photon - per_photon.mean(axis=1, keepdims=True)
             covariance[row] = centred @ centred.T / (photons * photons)
         return covariance
+
+
+_NO_MEMBER = np.zeros(0)
+"""What :func:`_per_photon_sums` takes for a ring whose members all weigh 1."""
+
+
+@numba.njit(cache=True, nogil=True)
+def _per_photon_sums(records, member, photon, weights, photons):
+    """(C, photons) each photon's sum of ``weights`` (C, records) over a ring's ``records``
+    (ascending), each times its ``member`` weight in the ring (empty: 1). The same sums, added in
+    the same order, as ``np.bincount(photon[records], weights[c, records] * member, photons)``
+    per channel, in one pass without the gathered copies (a fifth of a covariance's CPU, and a fit
+    asks for one at every step)."""
+    sums = np.zeros((weights.shape[0], photons))
+    weighted = member.shape[0] > 0
+    for i in range(records.shape[0]):
+        record = records[i]
+        p = photon[record]
+        for c in range(weights.shape[0]):
+            sums[c, p] += weights[c, record] * member[i] if weighted else weights[c, record]
+    return sums
 
 
 @numba.njit(cache=True, nogil=True)

@@ -123,6 +123,18 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
     start = np.log(np.clip(np.array([f.mua for f in fits]), *MUA_BOUNDS)).ravel()
     target = np.log(np.where(measured > 0, measured, np.nan))
     pool = ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1)))
+    white_covariances = {}
+
+    def white_covariance(mua, rings):
+        """``forward.covariance(mua, rings)``, once per absorption and ring count: the fits under
+        each floor correlation start at the same absorptions, and the chosen fit's result is asked
+        for again at the end (every ring: the same call when every ring is fitted). That is 2-3 of
+        a joint fit's 10 covariances, which took 86 % of its CPU (test_joint_fit's white run)."""
+        key = (mua.tobytes(), rings)
+        if key not in white_covariances:
+            white_covariances[key] = forward.covariance(mua, rings)
+        return white_covariances[key]
+
     try:
         def profiles(theta):
             """Per channel ``(profile (R,), slopes (R, L))`` at ``theta`` (C L,)."""
@@ -132,8 +144,8 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         def weighted(theta, correlation):
             """``(residuals, jacobian, log_det)`` under the weights at ``theta``; ``log_det`` sums
             ``log det S_r`` over the rings and channels fitted."""
-            covariance = _ring_covariances(forward, np.exp(theta.reshape(channels, layers)), measured, error, used,
-                                           correlation, floor, data_covariance)
+            covariance = _ring_covariances(white_covariance, np.exp(theta.reshape(channels, layers)), measured,
+                                           error, used, correlation, floor, data_covariance)
             whiten, log_det = _whitening(covariance, used)
             return *_objective(profiles, whiten, target, used, channels, layers), log_det
 
@@ -166,21 +178,23 @@ def fit_jointly(forward: Forward, measured: np.ndarray, error: np.ndarray, fits:
         model = np.stack([forward.profile(mua[c]) for c in range(channels)], axis=1)
     finally:
         pool.shutdown()
-    sigma = ring_sigma(error, np.diagonal(forward.covariance(mua), axis1=1, axis2=2), measured, floor)
+    sigma = ring_sigma(error, np.diagonal(white_covariance(mua, len(forward.radii)), axis1=1, axis2=2), measured,
+                       floor)
     return JointFit(mua, np.linalg.pinv(fisher), chi2, deviance, correlation, int(used.sum()), model, sigma)
 
 
-def _ring_covariances(forward: Forward, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
+def _ring_covariances(white_covariance, mua: np.ndarray, measured: np.ndarray, error: np.ndarray,
                       used: np.ndarray, correlation: float, floor: float = RELATIVE_FLOOR,
                       data_covariance: np.ndarray | None = None) -> np.ndarray:
     """(R, C, C) ``S_r`` (module docstring) at absorption ``mua`` (C, L) and ``floor`` correlated
     ``correlation`` between channels (``data_covariance`` (R, C, C) for the measured errors'
     ``diag(error^2)`` when given), for the channels that use each ring (the other entries are finite
-    and unused); rings no channel uses are left at the identity."""
+    and unused); rings no channel uses are left at the identity. ``white_covariance(mua, rings)``
+    is the forward model's (:meth:`.forward.Forward.covariance`)."""
     rings, channels = measured.shape
     covariance = np.tile(np.eye(channels), (rings, 1, 1))
     last = int(used.max())
-    white = forward.covariance(mua, last)
+    white = white_covariance(mua, last)
     fitted = np.arange(last)[:, None] < used[None, :]
     scale = np.where(fitted, np.abs(measured[:last]), 1.0)  # a ring a channel does not use may hold 0
     relative_white = white / (scale[:, :, None] * scale[:, None, :])

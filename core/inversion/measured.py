@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset, open_dataset
@@ -63,7 +64,6 @@ def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickne
     Raises :class:`.settings.InversionError` naming the dataset when the region is not of the
     grid's shape or holds fewer than 2 lit points (no spread, so no standard error), or when there
     are no radii or a ring reaches beyond max_radius."""
-    width = dataset.grid_shape[1]
     if np.shape(region) != tuple(dataset.grid_shape):
         raise InversionError(f"{dataset.path}: the region is {np.shape(region)}, not the grid's "
                              f"{tuple(dataset.grid_shape)}")
@@ -85,18 +85,19 @@ def measured_profile(dataset: ImpulseDataset, region: np.ndarray, radii, thickne
                                  f"max_radius {dataset.max_radius:g}")
         rings.append((ring, ks))
     reach = int(np.ceil(max(ring.outer_radius for ring, _ in rings)))
+    # Every ring's members, one after another: ring ``row``'s are ``first[row]:first[row + 1]``.
+    first = np.cumsum([0] + [len(ks) for _, ks in rings])
+    member_offsets = np.concatenate([np.asarray(ring.offsets, np.int64).reshape(-1, 2) for ring, _ in rings])
+    member_weights = np.concatenate([np.asarray(ring.weights, np.float64) for ring, _ in rings])
+    member_k = np.concatenate([np.asarray(ks, np.int64) for _, ks in rings])
     total = np.zeros((len(radii), len(qy), 3))
     weights = np.zeros((len(radii), len(qy)))
+    observed = np.ascontiguousarray(dataset.observed)
     for row0, row1 in dataset.bands():
         if row1 <= qy.min() - reach or row0 > qy.max() + reach:
             continue
-        block = dataset.rows(row0, row1)
-        for row, (ring, ks) in enumerate(rings):
-            for (dy, dx), weight, k in zip(ring.offsets, ring.weights, ks):
-                inside = _members_inside(dataset, qy, qx, dy, dx, row0, row1, width)
-                py, px = qy[inside] + dy, qx[inside] + dx
-                total[row, inside] += weight * block[py - row0, px, k]
-                weights[row, inside] += weight
+        _add_members(dataset.rows(row0, row1), row0, qy, qx, first, member_offsets, member_weights, member_k,
+                     observed, total, weights)
     with np.errstate(invalid="ignore", divide="ignore"):
         profiles = (total / weights[..., None]).transpose(1, 0, 2)
     counts = np.isfinite(profiles).sum(axis=0)
@@ -124,6 +125,30 @@ def replicate_profile(dataset: ImpulseDataset, region: np.ndarray, measured: Mea
     covariance = np.einsum("krc,krd->rcd", centred, centred) / (count - 1) / count
     error = np.sqrt(np.diagonal(covariance, axis1=1, axis2=2))
     return replace(measured, standard_error=error, covariance=covariance, replicates=count, floor=0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_members(block, row0, qy, qx, first, member_offsets, member_weights, member_k, observed, total, weights):
+    """Add to ``total`` (R, m, 3) each lit point's ring members' weighted responses found in
+    ``block`` (rows ``row0`` on of :meth:`~ringlight.core.dataset.impulse_dataset.ImpulseDataset.rows`:
+    (rows, W, offsets, 3)), and their weights to ``weights`` (R, m): members inside the block and
+    the grid and observed (``observed`` (H, W) bool). Ring ``row``'s members are
+    ``first[row]:first[row + 1]`` of ``member_offsets`` ((M, 2) dy, dx), ``member_weights`` (M,)
+    and ``member_k`` (M,), the offset index the response is stored under. The same sums, added in
+    the same order (ring by ring, member by member), as numpy over the lit points at each member,
+    without a Python step per member (11 367 on layers3: 2.3 CPU-s a profile). A monochrome
+    block (one channel) adds its channel to all three, as numpy broadcasts it."""
+    rows, width, last = block.shape[0], block.shape[1], block.shape[3] - 1
+    for row in range(first.shape[0] - 1):
+        for member in range(first[row], first[row + 1]):
+            dy, dx = member_offsets[member, 0], member_offsets[member, 1]
+            weight, k = member_weights[member], member_k[member]
+            for i in range(qy.shape[0]):
+                py, px = qy[i] + dy, qx[i] + dx
+                if 0 <= py - row0 < rows and 0 <= px < width and observed[py, px]:
+                    for c in range(3):
+                        total[row, i, c] += weight * block[py - row0, px, k, min(c, last)]
+                    weights[row, i] += weight
 
 
 def _members_inside(dataset: ImpulseDataset, qy, qx, dy: int, dx: int, row0: int, row1: int, width: int):
