@@ -33,7 +33,7 @@ import weakref
 import numba
 import numpy as np
 
-from .pixel_data import pixel_variance, prepare_profile, row_scratch, write_fit
+from .pixel_data import pixel_profile, row_scratch, write_fit
 from .pixel_fit import CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile
 from .table import ProfileTable, catmull_rom
 
@@ -150,8 +150,8 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
         model_scale = scale[c]
         for column in range(width):
             x = x0 + column
-            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, source, column, c, variance)
-            count = prepare_profile(measured[:, source, column, c], variance, data, weight)
+            count = pixel_profile(measured, sigma, errors_given, counts, inflation, floor, source, column, c, variance,
+                                  data, weight)
             rings_out[y, x, c] = count
             if count < MIN_RINGS:
                 status[y, x, c] = NO_DATA

@@ -45,7 +45,7 @@ def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTa
         (3,) the rig's scale per channel.
     floor, inflation
         The relative standard deviation added to every ring, and (R,) each ring's error factor
-        (:func:`.ring_sigma.profile_variance`).
+        (:func:`.pixel_data.pixel_profile`).
     progress
         ``progress(fraction)`` after each band of rows (may raise ``Cancelled``).
     cancelled

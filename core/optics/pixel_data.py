@@ -10,27 +10,14 @@ import math
 import numba
 import numpy as np
 
-from .ring_sigma import profile_variance
 
 
 @numba.njit(cache=True, inline="always")
 def row_scratch(rings):
     """A row's scratch arrays for its fits: ``result`` (10,), ``variance``, ``data``, ``weight``,
     ``values`` (R,) and ``slopes`` (2, R) (once per row: an allocation per fit cost a tenth of its time)."""
-    return np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings), np.empty((2, rings))
-
-
-@numba.njit(cache=True, inline="always")
-def pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance):
-    """Fill ``variance`` (R,) with the rings' variances of pixel (y, x), channel c: made from the
-    standard errors ``sigma`` where ``errors_given`` (:func:`.ring_sigma.profile_variance`), else
-    ``sigma`` squared (NaN where not positive)."""
-    if errors_given:
-        profile_variance(measured[:, y, x, c], sigma[:, y, x, c], counts[:, y, x], inflation, floor, variance)
-    else:
-        for r in range(variance.shape[0]):
-            deviation = np.float64(sigma[r, y, x, c])
-            variance[r] = deviation * deviation if deviation > 0.0 else math.nan
+    return (np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings),
+            np.empty((2, rings)))
 
 
 @numba.njit(cache=True, inline="always")
@@ -44,16 +31,50 @@ def write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out):
     chi2_out[y, x, c] = result[5]
 
 
-@numba.njit(cache=True, inline="always")
-def prepare_profile(measured, variance, data, weight):
-    """Fill ``data`` and ``weight`` (1 / variance) (R,) of one profile's ``measured`` E and
-    ``variance``; a ring not used (not finite, or no positive variance) weighs 0 and its value is
-    0, not NaN, so that the fit's sums need no test. Returns the rings used."""
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def pixel_profile(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance, data, weight):
+    """Fill ``variance``, ``data`` and ``weight`` (1 / variance) (R,) of pixel (y, x), channel c,
+    from ``measured`` E and its standard deviations (R, H, W, C); returns the rings used.
+
+    Where ``errors_given``, ``sigma`` holds the standard errors of E, and a ring's variance is
+    :mod:`.ring_sigma`'s: its error times ``inflation`` (R,) (:func:`.maps.t_inflation`), squared;
+    a ring without one (not finite) or of E = 0 borrows the relative error of the nearest ring with
+    one (the lower first at equal distance) times sqrt(that ring's members / its own) (``counts``
+    (R, H, W)); then the relative ``floor`` is added in quadrature. Else ``sigma`` is the standard
+    deviation itself (NaN where not positive). A ring not used (not finite, or no positive variance)
+    weighs 0 and its value is 0, not NaN, so that the fit's sums need no test.
+
+    One loop over the rings, the rule written out in it: a node fit on a cache-resident chunk of 64
+    pixels took 141 ns with the rule in four loops over the rings, 124 ns in one, and 270 ns with
+    the rule a function called per ring in that loop (numba 0.68, one thread)."""
+    rings = data.shape[0]
     count = 0
-    for r in range(measured.shape[0]):
-        if math.isfinite(measured[r]) and math.isfinite(variance[r]) and variance[r] > 0.0:
-            data[r] = measured[r]
-            weight[r] = 1.0 / variance[r]
+    for r in range(rings):
+        image = measured[r, y, x, c]
+        if errors_given:
+            deviation = np.float64(sigma[r, y, x, c]) * inflation[r]
+            value = deviation * deviation
+            if (not math.isfinite(value) or image == 0.0) and math.isfinite(image):
+                deviation = math.nan
+                for distance in range(1, rings):
+                    for other in (r - distance, r + distance):
+                        if 0 <= other < rings and math.isfinite(sigma[other, y, x, c] * inflation[other]
+                                                                / measured[other, y, x, c]):
+                            relative = abs(sigma[other, y, x, c] * inflation[other] / measured[other, y, x, c])
+                            deviation = abs(image) * relative * math.sqrt(counts[other, y, x] / max(counts[r, y, x], 1))
+                            break
+                    if math.isfinite(deviation):
+                        break
+                value = deviation * deviation
+            scaled = floor * image
+            value += scaled * scaled
+        else:
+            deviation = np.float64(sigma[r, y, x, c])
+            value = deviation * deviation if deviation > 0.0 else math.nan
+        variance[r] = value
+        if math.isfinite(image) and math.isfinite(value) and value > 0.0:
+            data[r] = image
+            weight[r] = 1.0 / value
             count += 1
         else:
             data[r] = 0.0

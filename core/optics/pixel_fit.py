@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from .pixel_data import pixel_variance, prepare_profile, row_scratch, write_fit
+from .pixel_data import pixel_profile, row_scratch, write_fit
 from .table import ProfileTable, interpolate
 
 MIN_RINGS = 3
@@ -60,7 +60,7 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
 
     With the rings' members ``counts`` (R, H, W), ``sigma`` holds the standard errors of
     ``measured`` instead, which each fit turns into its rings' variances
-    (:func:`.ring_sigma.profile_variance`, with ``floor`` and each ring's error times ``inflation``
+    (:func:`.pixel_data.pixel_profile`, with ``floor`` and each ring's error times ``inflation``
     (R,), default 1): the maps' way, without an (R, H, W, C) array of them (it took as long as
     the stack, ``benchmarks/bench_optics.py``).
 
@@ -139,10 +139,11 @@ def _fit_row(log_profile, coarse, u0, du, v0, dv, measured, sigma, scale, errors
         start_u = math.nan
         start_v = math.nan
         for x in range(width):
-            pixel_variance(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance)
+            count = pixel_profile(measured, sigma, errors_given, counts, inflation, floor, y, x, c, variance, data,
+                                  weight)
             # ``values`` and ``slopes`` hold the model at (start_u, start_v): the previous fit's last look-up.
-            _fit_one(log_profile, coarse, u0, du, v0, dv, measured[:, y, x, c], variance, scale[c],
-                     start_u, start_v, result, data, weight, values, slopes)
+            _fit_one(log_profile, coarse, u0, du, v0, dv, data, weight, count, scale[c], start_u, start_v, result,
+                     values, slopes)
             code = int(result[7])
             status[y, x, c] = code
             rings_out[y, x, c] = int(result[6])
@@ -224,14 +225,14 @@ def _store_fit(fit, result):
 
 
 @numba.njit(cache=True, inline="always")
-def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, start_u, start_v, result, data, weight,
-             values, slopes):
-    """Fit one profile into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
-    look-up's u, v); ``data``, ``weight``, ``values`` and ``slopes`` are scratch of the rings' size, ``values``
-    and ``slopes`` holding the model at (``start_u``, ``start_v``) when that is finite, and the
-    model at the last look-up's (u, v) on return."""
+def _fit_one(log_profile, coarse, u0, du, v0, dv, data, weight, count, scale, start_u, start_v, result, values,
+             slopes):
+    """Fit one profile's ``data`` and ``weight`` (R,) (:func:`.pixel_data.pixel_profile`, ``count``
+    rings used) into ``result``: (u, v, Cuu, Cuv, Cvv, chi2, rings used, status, and the last
+    look-up's u, v); ``values`` and ``slopes`` are scratch of the rings' size, holding the model at
+    (``start_u``, ``start_v``) when that is finite, and the model at the last look-up's (u, v) on
+    return."""
     result[:] = math.nan
-    count = prepare_profile(measured, variance, data, weight)
     result[6] = count
     if count < MIN_RINGS:
         result[7] = NO_DATA
@@ -250,7 +251,7 @@ def _fit_one(log_profile, coarse, u0, du, v0, dv, measured, variance, scale, sta
 # (the node fit's reassociation), and the full fit is the reference.
 @numba.njit(cache=True, fastmath=False)
 def fit_one_profile(log_profile, coarse, u0, du, v0, dv, data, weight, scale, result, values, slopes):
-    """The full fit of one profile's ``data`` and ``weight`` (:func:`prepare_profile`) from the
+    """The full fit of one profile's ``data`` and ``weight`` (:func:`.pixel_data.pixel_profile`) from the
     coarse search into ``result`` (as :func:`_fit_one` fills it, but the rings used): the
     estimator of :mod:`.node_fit` calls it where its steps do not settle."""
     result[:] = math.nan
