@@ -188,8 +188,8 @@ def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_pat
     copy there, ``--out`` copies it: the same files, byte for byte, as the write from nothing
     before it (the docs' pages rely on it). (star: a sample other than the default, and a fifth of
     layers3's writing time.)"""
-    from ringlight.app.cli import demo
     from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
+    from ringlight.core.simulate import samples
     from ringlight.core.simulate.samples import sample_dataset
 
     def is_cache(path):  # the describing 'info' opened it: its cache is keyed to the files' times
@@ -206,7 +206,7 @@ def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_pat
     def not_written(*args, **kwargs):
         raise AssertionError("written anew although the user cache holds the sample")
 
-    monkeypatch.setattr(demo, "write_transport", not_written)
+    monkeypatch.setattr(samples, "write_transport", not_written)
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "copied")]) == 0
     assert f"dataset      {tmp_path / 'copied'}" in capsys.readouterr().out
     copied = {path.relative_to(tmp_path / "copied"): path.read_bytes()

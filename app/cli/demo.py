@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from ringlight.core.dataset.copy import copy_dataset
-from ringlight.core.dataset.writer import is_dataset_folder
-from ringlight.core.simulate.samples import DEMO_SAMPLE, load_sample, sample_dataset, sample_folder, sample_names
-from ringlight.core.simulate.transport import write_transport
+from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_dataset, sample_names, write_sample
 
 from .info import run_info
 from .progress import progress_bar
@@ -27,16 +24,8 @@ def add_arguments(demo) -> None:
 def run_demo(args) -> int:
     """Write (once, or into ``--out``) and describe a bundled sample dataset."""
     if args.out is not None:
-        cached = sample_folder(args.sample)
         with progress_bar(f"writing the {args.sample} sample") as progress:
-            # The user cache's copy (from an earlier 'ringlight demo') holds the same files as a
-            # new write (its folder's name carries the bundled file's hash and the writing rule):
-            # copying them takes a second, writing them anew 10 CPU-s for the 5000-frame samples.
-            if is_dataset_folder(cached):
-                path = copy_dataset(cached, args.out, overwrite=args.overwrite, progress=progress)
-            else:
-                path = write_transport(load_sample(args.sample)[0], args.out, overwrite=args.overwrite,
-                                       progress=progress)
+            path = write_sample(args.sample, args.out, overwrite=args.overwrite, progress=progress)
     else:
         with progress_bar(f"writing the {args.sample} sample (first run only)") as progress:
             path = sample_dataset(args.sample, progress=progress)

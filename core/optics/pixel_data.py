@@ -11,7 +11,6 @@ import numba
 import numpy as np
 
 
-
 @numba.njit(cache=True, inline="always")
 def row_scratch(rings):
     """A row's scratch arrays for its fits: ``result`` (10,), ``variance``, ``data``, ``weight``,
@@ -58,10 +57,12 @@ def pixel_profile(measured, sigma, errors_given, counts, inflation, floor, y, x,
                 deviation = math.nan
                 for distance in range(1, rings):
                     for other in (r - distance, r + distance):
-                        if 0 <= other < rings and math.isfinite(sigma[other, y, x, c] * inflation[other]
-                                                                / measured[other, y, x, c]):
-                            relative = abs(sigma[other, y, x, c] * inflation[other] / measured[other, y, x, c])
-                            deviation = abs(image) * relative * math.sqrt(counts[other, y, x] / max(counts[r, y, x], 1))
+                        if not 0 <= other < rings:
+                            continue
+                        relative = sigma[other, y, x, c] * inflation[other] / measured[other, y, x, c]
+                        if math.isfinite(relative):
+                            deviation = abs(image) * abs(relative) * math.sqrt(counts[other, y, x]
+                                                                               / max(counts[r, y, x], 1))
                             break
                     if math.isfinite(deviation):
                         break
