@@ -91,6 +91,10 @@ def test_ring_sigma_borrows_the_nearest_rings_relative_error():
     sigma = ring_sigma(images, errors, counts, 0.01).ravel()
     own = np.array([8.0 * 0.1 * math.sqrt(8.0), 0.4, 2.0 * 0.1 * math.sqrt(8 / 12), 0.3])
     np.testing.assert_allclose(sigma, np.hypot(own, 0.01 * images.ravel()), rtol=1e-6)
+    # Only the last ring has one: every other ring borrows its 30 %, ring 0 from the farthest.
+    errors = np.array([np.nan, np.nan, np.nan, 0.3]).reshape(4, 1, 1, 1)
+    sigma = ring_sigma(images, errors, counts, 0.0).ravel()
+    np.testing.assert_allclose(sigma, images.ravel() * 0.3 * np.sqrt(16 / counts.ravel()), rtol=1e-6)
 
 
 def test_ring_sigma_docstring_example_runs():

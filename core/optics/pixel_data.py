@@ -54,18 +54,21 @@ def pixel_profile(measured, sigma, errors_given, counts, inflation, floor, y, x,
             deviation = np.float64(sigma[r, y, x, c]) * inflation[r]
             value = deviation * deviation
             if (not math.isfinite(value) or image == 0.0) and math.isfinite(image):
-                deviation = math.nan
-                for distance in range(1, rings):
-                    for other in (r - distance, r + distance):
-                        if not 0 <= other < rings:
-                            continue
+                # The nearest ring with a relative error, the lower first, in one loop: over the pair
+                # (r - distance, r + distance) in a loop of its own, a node fit took 120 ns, not 109
+                # (r = 0 borrows in every fit; cache-resident chunk, one thread).
+                other = -1
+                relative = math.nan
+                for turn in range(2, 2 * rings):  # r - 1, r + 1, r - 2, r + 2, ...
+                    other = r - turn // 2 if turn % 2 == 0 else r + turn // 2
+                    if 0 <= other < rings:
                         relative = sigma[other, y, x, c] * inflation[other] / measured[other, y, x, c]
                         if math.isfinite(relative):
-                            deviation = abs(image) * abs(relative) * math.sqrt(counts[other, y, x]
-                                                                               / max(counts[r, y, x], 1))
                             break
-                    if math.isfinite(deviation):
-                        break
+                    other = -1
+                deviation = math.nan
+                if other >= 0:
+                    deviation = abs(image) * abs(relative) * math.sqrt(counts[other, y, x] / max(counts[r, y, x], 1))
                 value = deviation * deviation
             scaled = floor * image
             value += scaled * scaled
