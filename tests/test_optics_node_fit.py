@@ -1,6 +1,6 @@
 """The maps' estimator (Gauss-Newton steps from a fine table's nodes) against the full
-Levenberg-Marquardt fit on the table's splines, its reference, and the fine nodes against the
-splines themselves."""
+Levenberg-Marquardt fit on the table's splines, its reference, and the fine nodes (the model, its
+Jacobian and Hessian) against the splines themselves."""
 
 import math
 
@@ -11,7 +11,7 @@ from ringlight.core.optics import radial
 from ringlight.core.optics.maps import MODEL_FLOOR
 from ringlight.core.optics.node_fit import fine_nodes
 from ringlight.core.optics.pixel_fit import CONVERGED, NO_DATA, fit_profiles
-from ringlight.core.optics.table import build_table
+from ringlight.core.optics.table import build_table, interpolate
 
 TRUTHS = [(0.5, 0.02), (0.15, 0.005), (1.2, 0.1)]  # (mus, mua) per grid step, one per channel
 
@@ -24,6 +24,13 @@ def table():
 def spline(table, u, v):
     """(R,) E of the table's spline look-up at u = log mus, v = log (mua / mus)."""
     return table.profile(math.exp(u), math.exp(u + v))
+
+
+def spline_jacobian(table, u, v):
+    """(2, R) dE/du and dE/dv of the table's spline at (u, v), from its own look-up's derivatives."""
+    values, slopes = np.empty(len(table.radii)), np.empty((2, len(table.radii)))
+    assert interpolate(table.log_profile, table.u0, table.du, table.v0, table.dv, u, v, values, slopes)
+    return np.exp(values) * slopes
 
 
 def test_fine_nodes_equal_the_tables_spline(table):
@@ -46,6 +53,14 @@ def test_fine_nodes_equal_the_tables_spline(table):
             slope_v = (spline(table, u, v + h) - spline(table, u, v - h)) / (2 * h)
             np.testing.assert_allclose(nodes[k, j, 1], slope_u, rtol=1e-4, atol=tolerance)
             np.testing.assert_allclose(nodes[k, j, 2], slope_v, rtol=1e-4, atol=tolerance)
+            # The Hessian: central differences of the spline's Jacobian at the neighbouring fine nodes.
+            up, down = spline_jacobian(table, u + du, v), spline_jacobian(table, u - du, v)
+            right, left = spline_jacobian(table, u, v + dv), spline_jacobian(table, u, v - dv)
+            tolerance = 1e-5 * np.abs(up).max() / du
+            np.testing.assert_allclose(nodes[k, j, 3], (up[0] - down[0]) / (2 * du), rtol=1e-5, atol=tolerance)
+            np.testing.assert_allclose(nodes[k, j, 4], ((right[0] - left[0]) / dv + (up[1] - down[1]) / du) / 4,
+                                       rtol=1e-5, atol=tolerance)
+            np.testing.assert_allclose(nodes[k, j, 5], (right[1] - left[1]) / (2 * dv), rtol=1e-5, atol=tolerance)
         checked += 1
     assert checked > 200
 

@@ -3,7 +3,7 @@ with no spline look-up and no exponential per fit.
 
 The look-up table (:mod:`.table`) is evaluated once, by its own splines, on a grid
 :data:`REFINE` times finer in ``u = log mus`` and ``v = log (mua / mus)`` (:func:`fine_nodes`:
-the model E and its Jacobian dE/d(u, v) at each node, cached with the table). A fit takes the node
+the model E, its Jacobian dE/d(u, v) and its Hessian at each node, cached with the table). A fit takes the node
 nearest its start (the previous fit's minimum in the row: neighbours are alike) and one
 Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring weights::
 
@@ -12,17 +12,26 @@ Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring 
 If ``theta`` lies beyond the node's neighbours, the step is taken again from the node nearest
 it (at most :data:`NODE_STEPS` steps). Once it lands within a node of the node it started from
 (1.5 node spacings at most: 0.029 in u, 0.054 in v), one more Gauss-Newton step is taken at
-``theta`` itself, its Jacobian interpolated bilinearly between the four nodes around it and its
-model the node's plus the step times the mean of the two Jacobians (the trapezoid rule: exact to
-second order); the covariance is ``A^-1`` there and chi2 the quadratic model's after that step. The node's
-tangent alone left errors of about 6 d^2 in u (0.16 of a standard error at 1 % noise per ring,
-steps within half a node); with the second step, on the benchmark's map
-(``benchmarks/bench_optics.py``, 3 % noise per response), 2000 fits lie within 0.003 standard
-errors of the exact minimum of the splines' chi2 (the full fit's within 0.010), their standard
-errors within 0.4 % of the minimum's. A fit whose steps do not
-settle, that nears the table's edge, or that has no start (a row's first fit, or after a pixel
-without data) is the full Levenberg-Marquardt fit of :mod:`.pixel_fit` (from its coarse
-search), whose minimum starts the next.
+``theta`` itself, from the node nearest it (half a node spacing at most): its Jacobian there the
+node's plus the node's Hessian times the offset (each node holds the Hessian of E, central
+differences of its neighbours' Jacobians), its model the node's plus the offset times the mean of
+the two Jacobians (the trapezoid rule: exact to second order); the covariance is ``A^-1`` there
+and chi2 the quadratic model's after that step. The node's tangent alone left errors of about
+6 d^2 in u (0.16 of a standard error at 1 % noise per ring, steps within half a node).
+
+The second step read the Jacobian interpolated bilinearly between the four nodes around
+``theta`` before: one node's six values instead made a fit 121 -> 113 ns on a cache-resident
+chunk (``benchmarks/bench_chunk.py``, one thread), as exact. On the benchmark's map
+(``benchmarks/bench_optics.py``, 3 % noise per response) 2000 fits lie within 0.0025 standard
+errors of the exact minimum of the splines' chi2 (99 % within 0.0011; bilinearly 0.0027 and
+0.0017; the full fit's within 0.010), their standard errors within 0.44 % of the minimum's. The
+Taylor expansion about the start node itself, whose values are known before the first step ends,
+was faster still (99 ns) but 4 times less exact (0.012 of a standard error; standard errors up to
+1.4 % off the full fit's at 5 % noise per ring).
+
+A fit whose steps do not settle, that nears the table's edge, or that has no start (a row's first
+fit, or after a pixel without data) is the full Levenberg-Marquardt fit of :mod:`.pixel_fit` (from
+its coarse search), whose minimum starts the next.
 """
 
 from __future__ import annotations
@@ -38,8 +47,8 @@ from .pixel_fit import CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile
 from .table import ProfileTable, catmull_rom
 
 REFINE = (4, 4)
-"""Fine nodes per table node in u and in v (spacings 0.019 and 0.036 on the default table: 15 MB
-for 8 rings, made in 0.03-0.07 s)."""
+"""Fine nodes per table node in u and in v (spacings 0.019 and 0.036 on the default table: 31 MB
+for 8 rings)."""
 NODE_STEPS = 4
 """Gauss-Newton steps a fit may take from nodes before it is the full fit."""
 SMALLEST_MODEL = 1e-30
@@ -48,10 +57,13 @@ _FINE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def fine_nodes(table: ProfileTable, refine: tuple[int, int] = REFINE) -> tuple[np.ndarray, float, float, float, float]:
-    """The model at the fine nodes: ``(nodes, u0, du, v0, dv)``, ``nodes`` (K', J', 3, R) float32
-    holding E, dE/du and dE/dv at ``u = u0 + k du``, ``v = v0 + j dv``, spanning the table's
-    spline range (its nodes 1 .. K - 2), ``refine`` (u, v) fine nodes per table node. Made once per
-    table and kept while the table lives (15 MB for the default table of 8 rings)."""
+    """The model at the fine nodes: ``(nodes, u0, du, v0, dv)``, ``nodes`` (K', J', 6, R) float32
+    holding E, dE/du, dE/dv, d2E/du2, d2E/du dv and d2E/dv2 at ``u = u0 + k du``, ``v = v0 + j dv``,
+    spanning the table's spline range (its nodes 1 .. K - 2), ``refine`` (u, v) fine nodes per
+    table node. The second derivatives are central differences of the neighbours' first (one-sided
+    at the range's edges, where fits are the full fit's; the mixed one the mean of both orders): the
+    spline's own are discontinuous at the table's nodes. Made once per table and kept while the
+    table lives (31 MB for the default table of 8 rings)."""
     key = tuple(refine)
     cached = _FINE.get(table)
     if cached is not None and key in cached:
@@ -60,9 +72,12 @@ def fine_nodes(table: ProfileTable, refine: tuple[int, int] = REFINE) -> tuple[n
     log_profile = table.log_profile
     count_u = fine_u * (log_profile.shape[0] - 3) + 1
     count_v = fine_v * (log_profile.shape[1] - 3) + 1
-    nodes = np.empty((count_u, count_v, 3, len(table.radii)), np.float32)
-    _fill_nodes(log_profile, fine_u, fine_v, table.du, table.dv, nodes)
-    result = (nodes, table.u0 + table.du, table.du / fine_u, table.v0 + table.dv, table.dv / fine_v)
+    model = np.empty((count_u, count_v, 3, len(table.radii)))
+    _fill_nodes(log_profile, fine_u, fine_v, table.du, table.dv, model)
+    step_u, step_v = table.du / fine_u, table.dv / fine_v
+    nodes = np.empty((count_u, count_v, 6, len(table.radii)), np.float32)
+    _fill_hessians(model, step_u, step_v, nodes)
+    result = (nodes, table.u0 + table.du, step_u, table.v0 + table.dv, step_v)
     _FINE.setdefault(table, {})[key] = result
     return result
 
@@ -125,6 +140,26 @@ def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse
                      chi2_out, rings_out, status, steps)
 
 
+@numba.njit(parallel=True, cache=True)
+def _fill_hessians(model, step_u, step_v, nodes):
+    """``nodes`` (K', J', 6, R): the fine nodes' ``model`` (E, dE/du, dE/dv) and the Hessian of E
+    by central differences of the neighbours' derivatives (one-sided at the grid's edges, as
+    ``np.gradient``; the mixed derivative the mean of its two differences)."""
+    count_u, count_v = model.shape[0], model.shape[1]
+    for i in numba.prange(count_u):
+        below, above = max(i - 1, 0), min(i + 1, count_u - 1)
+        for j in range(count_v):
+            left, right = max(j - 1, 0), min(j + 1, count_v - 1)
+            for r in range(model.shape[3]):
+                nodes[i, j, 0, r] = model[i, j, 0, r]
+                nodes[i, j, 1, r] = model[i, j, 1, r]
+                nodes[i, j, 2, r] = model[i, j, 2, r]
+                nodes[i, j, 3, r] = (model[above, j, 1, r] - model[below, j, 1, r]) / ((above - below) * step_u)
+                nodes[i, j, 4, r] = 0.5 * ((model[i, right, 1, r] - model[i, left, 1, r]) / ((right - left) * step_v)
+                                           + (model[above, j, 2, r] - model[below, j, 2, r]) / ((above - below) * step_u))
+                nodes[i, j, 5, r] = (model[i, right, 2, r] - model[i, left, 2, r]) / ((right - left) * step_v)
+
+
 # Reassociation lets the compiler vectorise the sums over rings and reciprocals replace divisions:
 # 0.42 -> 0.24 us a fit, within 5e-13 of a standard error of the strict order's (no nnan / ninf:
 # the fits test for NaN). The full fit it falls back on keeps the strict order by its own flags.
@@ -181,8 +216,9 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
                     next_k = int(round((u - node_u0) / node_du))
                     next_j = int(round((v - node_v0) / node_dv))
                     if abs(next_k - k) <= 1 and abs(next_j - j) <= 1:
-                        a_uu, a_uv, a_vv, b_u, b_v, chi2 = _step_at(nodes, k, j, (u - node_u0) / node_du,
-                                                                     (v - node_v0) / node_dv, step_u, step_v, data,
+                        a_uu, a_uv, a_vv, b_u, b_v, chi2 = _step_at(nodes, next_k, next_j,
+                                                                     u - (node_u0 + next_k * node_du),
+                                                                     v - (node_v0 + next_j * node_dv), data,
                                                                      weight, model_scale)
                         determinant, step_u, step_v = _normal_step(a_uu, a_uv, a_vv, b_u, b_v)
                         if not determinant > 0.0:
@@ -223,28 +259,19 @@ def _normal_step(a_uu, a_uv, a_vv, b_u, b_v):
 
 
 @numba.njit(cache=True, inline="always")
-def _step_at(nodes, k, j, fine_u, fine_v, step_u, step_v, data, weight, scale):
-    """``(A_uu, A_uv, A_vv, b_u, b_v, chi2)`` at theta, ``step`` from node (``k``, ``j``), at
-    fractional fine-node position (``fine_u``, ``fine_v``): the Jacobian there interpolated
-    bilinearly between theta's four nodes, the model there the node's plus the step times the mean
-    of the two Jacobians (the trapezoid rule along the step: exact to second order, where the node's
-    tangent alone left errors of 6 d^2 in u, 0.16 of a standard error at 1 % noise)."""
-    low_k = int(math.floor(fine_u))
-    low_j = int(math.floor(fine_v))
-    tu = fine_u - low_k
-    tv = fine_v - low_j
-    w00 = (1.0 - tu) * (1.0 - tv)
-    w01 = (1.0 - tu) * tv
-    w10 = tu * (1.0 - tv)
-    w11 = tu * tv
+def _step_at(nodes, k, j, step_u, step_v, data, weight, scale):
+    """``(A_uu, A_uv, A_vv, b_u, b_v, chi2)`` at theta, offset ``step`` (u, v) from node (``k``,
+    ``j``): the Jacobian there the node's plus its Hessian times the offset, the model there the
+    node's plus the offset times the mean of the two Jacobians (the trapezoid rule: exact to second
+    order, where the node's tangent alone left errors of 6 d^2 in u, 0.16 of a standard error at
+    1 % noise)."""
     sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for r in range(weight.shape[0]):
-        j_u = (w00 * nodes[low_k, low_j, 1, r] + w01 * nodes[low_k, low_j + 1, 1, r]
-               + w10 * nodes[low_k + 1, low_j, 1, r] + w11 * nodes[low_k + 1, low_j + 1, 1, r])
-        j_v = (w00 * nodes[low_k, low_j, 2, r] + w01 * nodes[low_k, low_j + 1, 2, r]
-               + w10 * nodes[low_k + 1, low_j, 2, r] + w11 * nodes[low_k + 1, low_j + 1, 2, r])
-        model = scale * (nodes[k, j, 0, r] + 0.5 * ((nodes[k, j, 1, r] + j_u) * step_u
-                                                    + (nodes[k, j, 2, r] + j_v) * step_v))
+        node_u = nodes[k, j, 1, r]
+        node_v = nodes[k, j, 2, r]
+        j_u = node_u + nodes[k, j, 3, r] * step_u + nodes[k, j, 4, r] * step_v
+        j_v = node_v + nodes[k, j, 4, r] * step_u + nodes[k, j, 5, r] * step_v
+        model = scale * (nodes[k, j, 0, r] + 0.5 * ((node_u + j_u) * step_u + (node_v + j_v) * step_v))
         sums = _add_ring(sums, weight[r], scale * j_u, scale * j_v, data[r] - model)
     return sums
 
