@@ -20,13 +20,13 @@ and chi2 the quadratic model's after that step. The node's tangent alone left er
 6 d^2 in u (0.16 of a standard error at 1 % noise per ring, steps within half a node).
 
 The second step read the Jacobian interpolated bilinearly between the four nodes around
-``theta`` before: one node's six values instead made a fit 121 -> 113 ns on a cache-resident
+``theta`` before: one node's six values instead made a fit 109 -> 102 ns on a cache-resident
 chunk (``benchmarks/bench_chunk.py``, one thread), as exact. On the benchmark's map
 (``benchmarks/bench_optics.py``, 3 % noise per response) 2000 fits lie within 0.0025 standard
 errors of the exact minimum of the splines' chi2 (99 % within 0.0011; bilinearly 0.0027 and
 0.0017; the full fit's within 0.010), their standard errors within 0.44 % of the minimum's. The
 Taylor expansion about the start node itself, whose values are known before the first step ends,
-was faster still (99 ns) but 4 times less exact (0.012 of a standard error; standard errors up to
+was faster still (93 ns) but 4 times less exact (0.012 of a standard error; standard errors up to
 1.4 % off the full fit's at 5 % noise per ring).
 
 A fit whose steps do not settle, that nears the table's edge, or that has no start (a row's first
