@@ -51,10 +51,12 @@ def z_scores(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def test_both_estimators_give_the_same_ring_profiles_and_path_length_images(preset, size):
     # layers3: the reference is the scene (kernel only); red-bead: a bead that fills most of a
     # 12 x 12 grid, so most walks carry differences. 36 + 48 numbers per case, each within 4
-    # standard errors (a 1-in-16000 event per number at the true mean).
+    # standard errors (a 1-in-16000 event per number at the true mean). The errors are measured
+    # from the seeds, so the photon count leaves that rate as it is: 125 a seed still fails
+    # red-bead's differences scaled by 0.98 (|z| 4.5).
     scene = parse_scene({**_document(preset), "max_radius": 3}, name=preset, size=(size, size))
-    reference = seeds_summary(scene, "reference", 250, range(1, 7))
-    analogue = seeds_summary(scene, "analogue", 250, range(1, 7))
+    reference = seeds_summary(scene, "reference", 125, range(1, 7))
+    analogue = seeds_summary(scene, "analogue", 125, range(1, 7))
     for a, b in zip(reference, analogue):
         z = z_scores(a, b)
         assert np.all(np.abs(z) < 4), z
