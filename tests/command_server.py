@@ -2,20 +2,22 @@
 docs' shell blocks (tests/test_doc_snippets.py).
 
 A page's commands each ran in a new interpreter that imported numpy, numba, SciPy (through
-colour-science), OpenCV and OpenEXR anew: about 1.4 of the 2-7 CPU-s a command costs, on 30-odd
-commands. Here one server process per test worker imports them and the console script's own
-module once, and forks a child per command. A ``ringlight`` script placed first on the page's
+colour-science), OpenCV, OpenEXR and ringlight's core anew: about 1.5-2 of the 2-7 CPU-s a command
+costs, on 30-odd commands. Here one server process per test worker imports them once (what the
+console script imports before it calls ``main``), and forks a child per command. A ``ringlight`` script placed first on the page's
 PATH hands the server its arguments, folder, environment and standard streams (as file
 descriptors over a Unix socket) and exits with the child's status. The child runs what the
 console script runs (``sys.exit(ringlight.app.main.main())``) and ends as an interpreter does
 (atexit handlers, flushed streams), so a block sees the same streams, files and exit status.
 
 What it does not see: the console script's own start (its first imports of those libraries and
-of ``ringlight.app.main``), which README.md's commands still run (tests/test_doc_snippets.py's
-``COLD``), as do test_cli.py's and test_command_start.py's. ringlight's other modules are not
-imported before a command, so a command still imports what it needs itself.
+of ``ringlight.app.main`` with what that imports), which README.md's commands still run
+(tests/test_doc_snippets.py's ``COLD``), as do test_cli.py's and test_command_start.py's. A
+command's own modules (``ringlight.app.cli.optics`` and what it imports) are not imported before
+it, so a command still imports what it needs itself.
 
-Run as ``python command_server.py SOCKET``; it serves until killed.
+Run as ``python command_server.py SOCKET``; it serves until SIGTERM, then waits for the commands
+still running and ends.
 """
 
 from __future__ import annotations
@@ -32,7 +34,9 @@ from pathlib import Path
 
 PRELOADED = ("numpy", "numba", "scipy.interpolate", "cv2", "OpenEXR")
 """Third-party packages every data command imports (colour-science too, through ringlight's own
-quiet import); none starts a thread, so the server can fork."""
+quiet import). The server can fork after them: numba starts its threads only at a parallel
+kernel's first call, which the server never makes, and OpenBLAS (numpy's and SciPy's) stops
+its worker threads around a fork (pthread_atfork)."""
 
 CLIENT = """\
 #!{python} -I
