@@ -7,8 +7,9 @@ command of this environment and a private user cache: those marked ``shell`` in 
 marked ``python`` as ``python -c`` would run them but in this process (a fresh ``__main__``
 namespace, a plain interpreter's warnings; a process of their own paid about 3 s of CPU again for
 the imports made here). Every page but README.md runs its ``ringlight`` commands through
-tests/command_server.py (a process forked from one that imported numpy, numba, SciPy, OpenCV and
-OpenEXR once, with the block's folder, environment and streams); README's quick start runs the
+tests/command_server.py (a process forked from one that imported numpy, numba, SciPy, OpenCV,
+OpenEXR and ringlight's core once, with the block's folder, environment and streams); README's
+quick start runs the
 console script itself, as a new user does. Every page but README.md finds the bundled samples it writes out already in
 its user cache, as after an earlier ``ringlight demo`` (:data:`COLD`). A block must exit 0 (a Python block: raise nothing), unless the comment
 line before it says otherwise:
