@@ -6,7 +6,11 @@ appear, in one fresh folder per document (so a page's first block can write a sa
 command of this environment and a private user cache: those marked ``shell`` in bash, those
 marked ``python`` as ``python -c`` would run them but in this process (a fresh ``__main__``
 namespace, a plain interpreter's warnings; a process of their own paid about 3 s of CPU again for
-the imports made here). Every page but README.md finds the bundled samples it writes out already in
+the imports made here). Every page but README.md runs its ``ringlight`` commands through
+tests/command_server.py (a process forked from one that imported numpy, numba, SciPy, OpenCV,
+OpenEXR and ringlight's core once, with the block's folder, environment and streams); README's
+quick start runs the
+console script itself, as a new user does. Every page but README.md finds the bundled samples it writes out already in
 its user cache, as after an earlier ``ringlight demo`` (:data:`COLD`). A block must exit 0 (a Python block: raise nothing), unless the comment
 line before it says otherwise:
 
@@ -23,6 +27,7 @@ import contextlib
 import io
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -31,7 +36,10 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
+from command_server import CommandServer
+from reference import random_impulses, write_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted(
@@ -159,13 +167,49 @@ def run_python(block: Block) -> None:
         pytest.fail(f"{block} failed:\n{block.code}\n{output.getvalue()[-3000:]}{traceback.format_exc()[-3000:]}")
 
 
+@pytest.fixture(scope="session")
+def command_server():
+    """One :class:`command_server.CommandServer` for the session's pages (in a short folder: a Unix
+    socket's path holds at most 107 bytes)."""
+    server = CommandServer(Path(tempfile.mkdtemp(prefix="rl-")))
+    yield server
+    server.close()
+    shutil.rmtree(server.folder, ignore_errors=True)
+
+
+def shell(code: str, work: Path, environment: dict) -> subprocess.CompletedProcess:
+    """Run a shell block as the page's reader would (bash, strict), within :data:`HANG_S`."""
+    return subprocess.run(["bash", "-euo", "pipefail", "-c", code], cwd=work, env=environment,
+                          capture_output=True, text=True, timeout=HANG_S)
+
+
+def test_a_served_command_prints_and_exits_as_the_console_script(tmp_path, command_server):
+    """What a page's block sees of tests/command_server.py's ``ringlight`` is what it sees of the
+    console script: its folder and environment (relative paths, the memory budget ``info`` prints),
+    both streams byte for byte and the exit status, of a dataset's summary and of a refusal."""
+    write_dataset(tmp_path / "ds", 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
+    (tmp_path / "not-a-dataset").mkdir()
+    code = "RINGLIGHT_MEMORY_BUDGET=300M ringlight info ds\nringlight info not-a-dataset || echo refused $?\n"
+    runs = {}
+    for name, first in (("console script", []), ("served", [str(command_server.bin)])):
+        path = os.pathsep.join([*first, str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+        environment = dict(os.environ, PATH=path)
+        runs[name] = shell(code, tmp_path, environment)
+    served, real = runs["served"], runs["console script"]
+    assert "refused 2" in real.stdout and "not-a-dataset" in real.stderr
+    assert "memory budget 300.0 MiB" in real.stdout
+    assert (served.returncode, served.stdout, served.stderr) == (real.returncode, real.stdout, real.stderr)
+
+
 @pytest.mark.parametrize("document", RUNNABLE, ids=lambda path: str(path.relative_to(ROOT)))
-def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch, place_sample):
+def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch, place_sample,
+                                                   command_server):
     work = tmp_path / "work"
     work.mkdir()
     (tmp_path / "tmp").mkdir()
     # The shell blocks' environment; the Python blocks see it in this process.
-    monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    commands = [] if document == COLD else [str(command_server.bin)]  # found before the console script
+    monkeypatch.setenv("PATH", os.pathsep.join([*commands, str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
     monkeypatch.setenv("QT_QPA_PLATFORM", "offscreen")
     monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
@@ -182,8 +226,7 @@ def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_c
             run_python(block)
             continue
         try:
-            result = subprocess.run(["bash", "-euo", "pipefail", "-c", block.code], cwd=work, env=environment,
-                                    capture_output=True, text=True, timeout=HANG_S)
+            result = shell(block.code, work, environment)
         except subprocess.TimeoutExpired as expired:
             stderr = (expired.stderr or b"").decode(errors="replace")  # bytes, whatever text= says
             pytest.fail(f"{block} still ran after {HANG_S} s (hung?):\n{block.code}\n{stderr[-3000:]}")
