@@ -381,11 +381,12 @@ def test_a_searched_scattering_finds_a_base_that_scatters_otherwise(shared_cache
     mua = [[0.005, 0.2, 0.25], [0.1, 0.03, 0.005]]
     mean, error = direct_profile([0.5, 2.0], mua, [0, 2], 0.0, 1.4, 24.0, 20_000, seed=7)
     measured = MeasuredProfile(RADII, mean, error, 1)
-    # Final white runs of 100 000 photons, not FINAL_PHOTONS: the top layer's xy error is 0.018-0.023
-    # over white-run seeds 0-3 at 200 000 photons (its x spread 0.0024) and 0.011-0.023 over seeds 0-5
-    # at 50 000 (spread 0.0045, twice as wide, as 1/sqrt(photons) says): about 0.02 of it is this
-    # profile's own noise, the same at any count. At 100 000 the spread is about 0.0034, so the 0.03
-    # bound holds with three standard errors to spare; the base's error is 0.002-0.005 at any count.
+    # Final white runs of 100 000 photons, not FINAL_PHOTONS. The top layer's xy error over white-run
+    # seeds: 0.018-0.023 at 200 000 photons (seeds 0-3), 0.013-0.023 at 100 000 (0-2), 0.011-0.023
+    # at 50 000 (0-5); about 0.02 of it is this profile's own noise, the same at any count. Its x
+    # spreads, scaled to 100 000 photons by 1/sqrt(photons) and pooled, give a standard error of 0.0038
+    # there: the 0.03 bound holds with about three of them to spare (0.013 at seed 0, the one run
+    # here). The base's error is 0.002-0.005 at every count.
     searched = invert(measured, InversionSettings(layers=2, n=1.4, g=0.0, depth=24.0, photons=10_000,
                                                   final_photons=100_000))
     assert "boundaries [2] (searched), mus 0.5, 2 (chosen from" in searched.notes
