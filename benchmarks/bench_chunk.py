@@ -96,7 +96,8 @@ def main() -> None:
     halves = {"rings and errors": lambda repeats: spread_chunk_repeatedly(repeats, *spread),
               "node fits": lambda repeats: fit_chunk_repeatedly(repeats, start, *fits)}
     print(f"a {CHUNK}-pixel chunk, 3 channels, max_radius 8 ({steps[1]} fits from one node, {steps[2]} from two, "
-          f"{steps[0]} full fits); {args.trials} trials of {args.repeats} chunks, numba threads {numba.get_num_threads()}")
+          f"{steps[0]} full fits); {args.trials} trials of {args.repeats} chunks, "
+          f"numba threads {numba.get_num_threads()}")
     for name, call in halves.items():
         each = fastest(args.trials, args.repeats, call)
         print(f"{name:17s} min {each.min():6.1f} ns a pixel channel, median {np.median(each):6.1f}")

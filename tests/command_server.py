@@ -4,9 +4,9 @@ docs' shell blocks (tests/test_doc_snippets.py).
 A page's commands each ran in a new interpreter that imported numpy, numba, SciPy (through
 colour-science), OpenCV, OpenEXR and ringlight's core anew: about 1.5-2 of the 2-7 CPU-s a command
 costs, on 30-odd commands. Here one server process per test worker imports them once (what the
-console script imports before it calls ``main``), and forks a child per command. A ``ringlight`` script placed first on the page's
-PATH hands the server its arguments, folder, environment and standard streams (as file
-descriptors over a Unix socket) and exits with the child's status. The child runs what the
+console script imports before it calls ``main``), and forks a child per command. A ``ringlight``
+script placed first on the page's PATH hands the server its arguments, folder, environment and
+standard streams (as file descriptors over a Unix socket) and exits with the child's status. The child runs what the
 console script runs (``sys.exit(ringlight.app.main.main())``) and ends as an interpreter does
 (atexit handlers, flushed streams), so a block sees the same streams, files and exit status.
 

@@ -9,9 +9,9 @@ namespace, a plain interpreter's warnings; a process of their own paid about 3 s
 the imports made here). Every page but README.md runs its ``ringlight`` commands through
 tests/command_server.py (a process forked from one that imported numpy, numba, SciPy, OpenCV,
 OpenEXR and ringlight's core once, with the block's folder, environment and streams); README's
-quick start runs the
-console script itself, as a new user does. Every page but README.md finds the bundled samples it writes out already in
-its user cache, as after an earlier ``ringlight demo`` (:data:`COLD`). A block must exit 0 (a Python block: raise nothing), unless the comment
+quick start runs the console script itself, as a new user does. Every page but README.md finds the
+bundled samples it writes out already in its user cache, as after an earlier ``ringlight demo``
+(:data:`COLD`). A block must exit 0 (a Python block: raise nothing), unless the comment
 line before it says otherwise:
 
 - ``<!-- snippet: exit N -->``: the shell block must exit N and print one line on stderr (a refusal
@@ -209,7 +209,8 @@ def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_c
     (tmp_path / "tmp").mkdir()
     # The shell blocks' environment; the Python blocks see it in this process.
     commands = [] if document == COLD else [str(command_server.bin)]  # found before the console script
-    monkeypatch.setenv("PATH", os.pathsep.join([*commands, str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
+    path = [*commands, str(Path(sys.executable).parent), os.environ.get("PATH", "")]
+    monkeypatch.setenv("PATH", os.pathsep.join(path))
     monkeypatch.setenv("QT_QPA_PLATFORM", "offscreen")
     monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))

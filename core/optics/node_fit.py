@@ -3,9 +3,9 @@ with no spline look-up and no exponential per fit.
 
 The look-up table (:mod:`.table`) is evaluated once, by its own splines, on a grid
 :data:`REFINE` times finer in ``u = log mus`` and ``v = log (mua / mus)`` (:func:`fine_nodes`:
-the model E, its Jacobian dE/d(u, v) and its Hessian at each node, cached with the table). A fit takes the node
-nearest its start (the previous fit's minimum in the row: neighbours are alike) and one
-Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring weights::
+the model E, its Jacobian dE/d(u, v) and its Hessian at each node, cached with the table). A fit
+takes the node nearest its start (the previous fit's minimum in the row: neighbours are alike) and
+one Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring weights::
 
     theta = node + A^-1 b,   A = J^T W J,   b = J^T W (E - model)   (at the node)
 
@@ -150,14 +150,16 @@ def _fill_hessians(model, step_u, step_v, nodes):
         below, above = max(i - 1, 0), min(i + 1, count_u - 1)
         for j in range(count_v):
             left, right = max(j - 1, 0), min(j + 1, count_v - 1)
+            across_u = (above - below) * step_u
+            across_v = (right - left) * step_v
             for r in range(model.shape[3]):
                 nodes[i, j, 0, r] = model[i, j, 0, r]
                 nodes[i, j, 1, r] = model[i, j, 1, r]
                 nodes[i, j, 2, r] = model[i, j, 2, r]
-                nodes[i, j, 3, r] = (model[above, j, 1, r] - model[below, j, 1, r]) / ((above - below) * step_u)
-                nodes[i, j, 4, r] = 0.5 * ((model[i, right, 1, r] - model[i, left, 1, r]) / ((right - left) * step_v)
-                                           + (model[above, j, 2, r] - model[below, j, 2, r]) / ((above - below) * step_u))
-                nodes[i, j, 5, r] = (model[i, right, 2, r] - model[i, left, 2, r]) / ((right - left) * step_v)
+                nodes[i, j, 3, r] = (model[above, j, 1, r] - model[below, j, 1, r]) / across_u
+                nodes[i, j, 4, r] = 0.5 * ((model[i, right, 1, r] - model[i, left, 1, r]) / across_v
+                                           + (model[above, j, 2, r] - model[below, j, 2, r]) / across_u)
+                nodes[i, j, 5, r] = (model[i, right, 2, r] - model[i, left, 2, r]) / across_v
 
 
 # Reassociation lets the compiler vectorise the sums over rings and reciprocals replace divisions:
