@@ -192,13 +192,15 @@ def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_pat
     from ringlight.core.simulate import samples
     from ringlight.core.simulate.samples import sample_dataset
 
-    def is_cache(path):  # the describing 'info' opened it: its cache is keyed to the files' times
-        return CACHE_FOLDER_NAME in path.parts
+    def dataset_bytes(folder):
+        """Each file's bytes by its path in ``folder``, but the cache the describing 'info' made
+        (keyed to the files' times)."""
+        return {path.relative_to(folder): path.read_bytes()
+                for path in folder.rglob("*") if path.is_file() and CACHE_FOLDER_NAME not in path.parts}
 
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 0  # no cached copy: written
     assert f"dataset      {tmp_path / 'star'}" in capsys.readouterr().out
-    written = {path.relative_to(tmp_path / "star"): path.read_bytes()
-               for path in (tmp_path / "star").rglob("*") if path.is_file() and not is_cache(path)}
+    written = dataset_bytes(tmp_path / "star")
     place_sample("star")  # the user cache's copy, as sample_dataset writes it (once for the whole run)
     ours, cached = open_dataset(tmp_path / "star"), open_dataset(sample_dataset("star"))
     assert np.array_equal(ours.responses, cached.responses)
@@ -209,8 +211,7 @@ def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_pat
     monkeypatch.setattr(samples, "write_transport", not_written)
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "copied")]) == 0
     assert f"dataset      {tmp_path / 'copied'}" in capsys.readouterr().out
-    copied = {path.relative_to(tmp_path / "copied"): path.read_bytes()
-              for path in (tmp_path / "copied").rglob("*") if path.is_file() and not is_cache(path)}
+    copied = dataset_bytes(tmp_path / "copied")
     assert copied.keys() == written.keys() and len(written) > 600  # star: 680-odd frames, the manifest and the truth
     assert all(copied[name] == written[name] for name in written)
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 2

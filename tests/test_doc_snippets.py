@@ -177,6 +177,12 @@ def command_server():
     shutil.rmtree(server.folder, ignore_errors=True)
 
 
+def command_path(first: list[str]) -> str:
+    """PATH for a page's shell blocks: the folders ``first``, then this environment's ``ringlight``
+    (the console script), then the inherited PATH."""
+    return os.pathsep.join([*first, str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+
+
 def shell(code: str, work: Path, environment: dict) -> subprocess.CompletedProcess:
     """Run a shell block as the page's reader would (bash, strict), within :data:`HANG_S`."""
     return subprocess.run(["bash", "-euo", "pipefail", "-c", code], cwd=work, env=environment,
@@ -192,9 +198,7 @@ def test_a_served_command_prints_and_exits_as_the_console_script(tmp_path, comma
     code = "RINGLIGHT_MEMORY_BUDGET=300M ringlight info ds\nringlight info not-a-dataset || echo refused $?\n"
     runs = {}
     for name, first in (("console script", []), ("served", [str(command_server.bin)])):
-        path = os.pathsep.join([*first, str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-        environment = dict(os.environ, PATH=path)
-        runs[name] = shell(code, tmp_path, environment)
+        runs[name] = shell(code, tmp_path, dict(os.environ, PATH=command_path(first)))
     served, real = runs["served"], runs["console script"]
     assert "refused 2" in real.stdout and "not-a-dataset" in real.stderr
     assert "memory budget 300.0 MiB" in real.stdout
@@ -208,9 +212,8 @@ def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_c
     work.mkdir()
     (tmp_path / "tmp").mkdir()
     # The shell blocks' environment; the Python blocks see it in this process.
-    commands = [] if document == COLD else [str(command_server.bin)]  # found before the console script
-    path = [*commands, str(Path(sys.executable).parent), os.environ.get("PATH", "")]
-    monkeypatch.setenv("PATH", os.pathsep.join(path))
+    # Every page but README finds the server's ringlight before the console script.
+    monkeypatch.setenv("PATH", command_path([] if document == COLD else [str(command_server.bin)]))
     monkeypatch.setenv("QT_QPA_PLATFORM", "offscreen")
     monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))

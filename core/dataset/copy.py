@@ -25,7 +25,8 @@ def copy_dataset(source, out, *, overwrite: bool = False,
     gets the fraction of files copied.
 
     Raises :class:`~ringlight.core.errors.DatasetError` naming ``source`` when it holds no
-    ringlight dataset or its manifest names a file outside it, and OSError naming the file when one it names cannot be read.
+    ringlight dataset or its manifest names a file outside it, and OSError naming the file when
+    one it names cannot be read.
     """
     source = Path(source)
     owned = dataset_files(source)
