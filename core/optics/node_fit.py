@@ -173,8 +173,9 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
     profiles in row ``source`` of ``measured``, ``sigma`` and ``counts`` (the grid's row, or the
     pixels just stacked, :mod:`.one_pass`; their column 0 is the grid's ``x0``). ``starts`` (C, 2)
     holds each channel's start (u, v), NaN for none, and on return the start of the pixel after
-    these. A function of its own outside the parallel loop, as :func:`.pixel_fit._fit_row` is, for
-    the same numba trap."""
+    these. Every output of every pixel and channel is written (NaN values where there is no data),
+    so the outputs need no fill beforehand. A function of its own outside the parallel loop, as
+    :func:`.pixel_fit._fit_row` is, for the same numba trap."""
     width = measured.shape[2]
     channels = measured.shape[3]
     rings = measured.shape[0]
@@ -192,6 +193,9 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
             rings_out[y, x, c] = count
             if count < MIN_RINGS:
                 status[y, x, c] = NO_DATA
+                steps[y, x, c] = 0
+                result[:6] = math.nan
+                write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
                 start_u = math.nan
                 continue
             settled = False
@@ -243,6 +247,7 @@ def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse,
                 continue
             fit_one_profile(log_profile, coarse, u0, du, v0, dv, data, weight, model_scale, result, values, slopes)
             status[y, x, c] = int(result[7])
+            steps[y, x, c] = 0
             write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
             # The next fit starts from this minimum; from the coarse search where there is none.
             start_u = result[0] if int(result[7]) == CONVERGED else math.nan

@@ -62,9 +62,10 @@ def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTa
     nodes = fine_nodes(table)
     coarse = coarse_nodes(table.log_profile)
     height, width = dataset.grid_shape
-    out = fit_outputs(height, width, 3)
+    out = fit_outputs(height, width, 3, filled=False)  # the kernel writes every output
     complete = np.empty((height, width), bool)
     first, stop = rings.tables[0], rings.tables[1]
+    whole = (stop - first).astype(np.int32)  # a default ring is one run of the offset axis
     scale = np.asarray(scale, np.float64)
     inflation = np.asarray(inflation, np.float64)
     for row0, row1 in dataset.bands():
@@ -74,9 +75,7 @@ def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTa
         _stack_fit_rows(np.ascontiguousarray(dataset.rows(row0, row1)), row0, *rings.kernel_arguments, counts, *nodes,
                         table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, scale, float(floor),
                         inflation, out["u"], out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"],
-                        out["status"], out["node_steps"])
-        # A default ring is one run of the offset axis: whole where all its run's members count.
-        complete[row0:row1] = (counts == (stop - first)[:, None, None]).all(axis=0)
+                        out["status"], out["node_steps"], whole, complete)
         if progress is not None:
             progress(row1 / height)
     return out, complete
@@ -85,16 +84,21 @@ def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTa
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _stack_fit_rows(responses, row0, lit, dy, dx, first, stop, groups, ring_groups, counts, nodes, node_u0, node_du,
                     node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, scale, floor, inflation, u_out, v_out, cuu,
-                    cuv, cvv, chi2_out, rings_out, status, steps):
+                    cuv, cvv, chi2_out, rings_out, status, steps, whole, complete):
     """The band of grid rows from ``row0`` (``responses`` (rows, W, K, 3) C-contiguous, ``counts``
     (R, rows, W) its rings' members), row by row: its rings and their spread, then its fits into
-    the (H, W, 3) outputs."""
+    the (H, W, 3) outputs; and ``complete`` (H, W): every ring has all its ``whole`` (R,) members."""
     rows, width, offsets = responses.shape[0], responses.shape[1], responses.shape[2]
     flat = responses.reshape(rows, width, offsets * 3)
     for y in numba.prange(rows):
         _stack_fit_row(flat[y], row0 + y, lit, dy, dx, first, stop, groups, ring_groups, counts[:, y:y + 1], nodes,
                        node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, scale, floor,
                        inflation, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status, steps)
+        for x in range(width):
+            whole_rings = True
+            for r in range(whole.size):
+                whole_rings = whole_rings and counts[r, y, x] == whole[r]
+            complete[row0 + y, x] = whole_rings
 
 
 @numba.njit(cache=True, nogil=True)
