@@ -27,6 +27,8 @@ from . import table as tables
 from .radial import RadialRun, TableError
 
 FORMAT_VERSION = 1
+"""Raise it when :func:`.table.build_table` makes other numbers from the same run and grid: kept
+tables of the old code are then built again."""
 _ARRAYS = ("radii", "grid", "log_profile")
 """The arrays of a kept table; ``grid`` is (4,) float64 ``u0, du, v0, dv``."""
 
