@@ -6,6 +6,12 @@ A colourspace given by primaries or a matrix becomes a colour-science ``RGB_Colo
 registered in ``colour.RGB_COLOURSPACES`` under a name derived from its numbers (see
 :func:`parse_colourspace`), so every tool that takes a colourspace name (display, chromaticity,
 layer recovery, exports) uses it unchanged.
+
+colour-science takes about a second to import (2 s on a busy machine), and most commands only
+check the manifest's colourspace name or weigh the channels by luminance. Those answers come from
+:mod:`.colourspace_table`, colour-science's own names and numbers written out, while the installed
+colour-science is the version it was made from; any other name (another spelling, a custom
+colourspace, an unknown name) and every conversion asks colour-science itself.
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ import math
 import warnings
 
 import numpy as np
+
+from .colourspace_table import COLOUR_VERSION, COLOURSPACES
 
 CUSTOM_PREFIX = "ringlight custom "
 """Start of the registered names of colourspaces given by primaries or a matrix."""
@@ -38,8 +46,27 @@ def colour_module():
     return colour
 
 
+@functools.cache
+def _table_applies() -> bool:
+    """Whether the installed colour-science is the version :mod:`.colourspace_table` was made
+    from (read from its metadata, about 5 ms, without importing it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("colour-science") == COLOUR_VERSION
+    except PackageNotFoundError:
+        return False
+
+
+def _tabled(name: str) -> tuple | None:
+    """The table's entry of ``name`` spelled as colour-science names it; None: ask colour-science."""
+    return COLOURSPACES.get(name) if _table_applies() else None
+
+
 def is_known_colourspace(name: str) -> bool:
     """True when ``name`` is an RGB colourspace colour-science knows (case-insensitive)."""
+    if _tabled(name) is not None:
+        return True
     return name in colour_module().RGB_COLOURSPACES and not name.startswith(CUSTOM_PREFIX)
 
 
@@ -95,11 +122,11 @@ def parse_colourspace(value: object) -> str:
     ...                               [0.0193, 0.1192, 0.9505]]})[:26]
     'ringlight custom matrix [['
     """
-    colour = colour_module()
     if isinstance(value, str):
         if not is_known_colourspace(value):
             raise ValueError(f"{value!r} is not a colour-science RGB colourspace")
         return value
+    colour = colour_module()
     if isinstance(value, dict) and set(value) == {"primaries", "whitepoint"}:
         primaries = _numbers(value["primaries"], (3, 2), "'colorspace.primaries'")
         whitepoint = _numbers(value["whitepoint"], (2,), "'colorspace.whitepoint'")
@@ -138,8 +165,25 @@ def colourspace_json(name: str) -> str | dict:
 
 def colourspace_chromaticities(name: str) -> np.ndarray:
     """(4, 2) float64 CIE 1931 xy of the colourspace's R, G, B primaries and white point."""
+    if (entry := _tabled(name)) is not None:
+        primaries, whitepoint, _ = entry
+        return np.array(primaries + whitepoint, np.float64).reshape(4, 2)
     space = colour_module().RGB_COLOURSPACES[name]
     return np.vstack([np.asarray(space.primaries, np.float64), np.asarray(space.whitepoint, np.float64)])
+
+
+def colourspace_luminance(name: str) -> np.ndarray:
+    """(3,) float64 relative luminance weights: Y = weights @ RGB for linear RGB in the colourspace
+    (the Y row of colour-science's RGB -> XYZ matrix, no chromatic adaptation).
+
+    Examples
+    --------
+    >>> colourspace_luminance("sRGB").round(4).tolist()
+    [0.2126, 0.7152, 0.0722]
+    """
+    if (entry := _tabled(name)) is not None:
+        return np.array(entry[2], np.float64)
+    return np.asarray(colour_module().RGB_COLOURSPACES[name].matrix_RGB_to_XYZ[1], np.float64)
 
 
 def chromaticities_differ(file_xy, name: str, tolerance: float = 1e-3) -> bool:

@@ -33,8 +33,8 @@ import time
 from pathlib import Path
 
 PRELOADED = ("numpy", "numba", "scipy.interpolate", "cv2", "OpenEXR")
-"""Third-party packages every data command imports (colour-science too, through ringlight's own
-quiet import). The server can fork after them: numba starts its threads only at a parallel
+"""Third-party packages every data command imports; colour-science too, which only the commands
+that convert colours import (``layers``), through ringlight's own quiet import. The server can fork after them: numba starts its threads only at a parallel
 kernel's first call, which the server never makes, and OpenBLAS (numpy's and SciPy's) stops
 its worker threads around a fork (pthread_atfork)."""
 

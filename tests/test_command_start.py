@@ -1,8 +1,8 @@
 """A ``ringlight`` command starts without loading what only a fit needs: scipy.optimize and
 scipy.stats took 1.1-1.3 s of CPU to import, over a third of every command's start (the docs
-pages run 36 commands, each in its own process). A command that opens a dataset still loads
-scipy later, through colour-science (``colourspaces.parse_colourspace``). Nor does a command load
-the other commands' modules (cv2 for capture, the optics package, the inversion, the simulator)."""
+pages run 36 commands, each in its own process). A command that opens a dataset loads
+colour-science only when it converts colours (tests/test_colour_import.py). Nor does a command
+load the other commands' modules (cv2 for capture, the optics package, the inversion, the simulator)."""
 
 import json
 import subprocess

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..colourspaces import colour_module
+from ..colourspaces import colour_module, colourspace_chromaticities, colourspace_luminance
 from ..errors import RinglightError
 from ..rings.stacks import Stack
 
@@ -153,14 +153,13 @@ def chromaticity(rgb: np.ndarray, colorspace: str) -> np.ndarray:
 def luminance(rgb: np.ndarray, colorspace: str) -> np.ndarray:
     """Relative luminance Y of linear ``rgb`` (..., 3) in ``colorspace``: the Y row of
     colour-science's RGB -> XYZ matrix (no chromatic adaptation, as in :func:`chromaticity`)."""
-    weights = colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1]
-    return np.asarray(rgb, np.float64) @ weights
+    return np.asarray(rgb, np.float64) @ colourspace_luminance(colorspace)
 
 
 def white_point(colorspace: str) -> np.ndarray:
     """(2,) xy of the colourspace's white point (a name in ``colour.RGB_COLOURSPACES``, custom
     colourspaces of :func:`~ringlight.core.colourspaces.parse_colourspace` included)."""
-    return np.asarray(colour_module().RGB_COLOURSPACES[colorspace].whitepoint, np.float64)
+    return colourspace_chromaticities(colorspace)[3]
 
 
 def trajectory(stack: Stack, region: np.ndarray) -> Trajectory:

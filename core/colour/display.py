@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
-from ..colourspaces import colour_module
+from ..colourspaces import colour_module, colourspace_luminance
 
 NORMALISATIONS = ("per-image", "range", "global", "log", "manual")
 CHANNELS = ("rgb", "R", "G", "B", "Y")
@@ -324,7 +324,7 @@ def _to_srgb_matrix(colorspace: str) -> np.ndarray:
 @functools.cache
 def _luminance_weights(colorspace: str) -> np.ndarray:
     """(3,) float32: relative luminance Y of linear ``colorspace`` RGB (row Y of RGB->XYZ)."""
-    return colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1].astype(np.float32)
+    return colourspace_luminance(colorspace).astype(np.float32)
 
 
 HISTOGRAM_BINS = 128

@@ -264,19 +264,24 @@ def table_for(n: float, g: float, radii, thickness: float = 1.0, antialias: bool
               photons: int = DEFAULT_PHOTONS, seed: int = 0, use_cache: bool = True, progress=None,
               ring_weights: np.ndarray | None = None) -> ProfileTable:
     """The table of a half-space of index ``n`` and anisotropy ``g`` for these rings: its white run
-    from the user cache or traced (:func:`.radial.radial_run`), the table kept in memory for the
-    next call with the same arguments. ``progress(fraction)`` while tracing (may raise Cancelled);
-    ``ring_weights`` as :func:`build_table` takes them."""
+    from the user cache or traced (:func:`.radial.radial_run`), the table from the user cache
+    beside it or built (:mod:`.table_cache`), and kept in memory for the next call with the same
+    arguments. ``use_cache=False`` traces and builds without reading or writing either.
+    ``progress(fraction)`` while tracing (may raise Cancelled); ``ring_weights`` as
+    :func:`build_table` takes them."""
     from .radial import radial_run
+    from .table_cache import kept_table  # which builds tables with this module's build_table
 
     radii = np.asarray(radii, np.float64)
     cut = None if ring_weights is None else hashlib.sha256(np.ascontiguousarray(ring_weights, np.float64)).hexdigest()
     key = (float(n), float(g), tuple(radii.tolist()), float(thickness), bool(antialias), int(photons), int(seed), cut)
     if use_cache and key in _TABLES:
         return _TABLES[key]
-    table = build_table(radial_run(n, g, photons, seed, use_cache, progress), radii, thickness, antialias, ring_weights)
-    if use_cache:
-        while len(_TABLES) >= _KEPT_TABLES:
-            _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[key] = table
+    run = radial_run(n, g, photons, seed, use_cache, progress)
+    if not use_cache:
+        return build_table(run, radii, thickness, antialias, ring_weights)
+    table = kept_table(run, radii, thickness, antialias, ring_weights, photons, seed, cut)
+    while len(_TABLES) >= _KEPT_TABLES:
+        _TABLES.pop(next(iter(_TABLES)))
+    _TABLES[key] = table
     return table

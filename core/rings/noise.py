@@ -38,7 +38,7 @@ import cv2
 import numba
 import numpy as np
 
-from ..colourspaces import colour_module
+from ..colourspaces import colourspace_luminance as luminance_weights
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..errors import StackError
 from .replicate_noise import replicate_spread
@@ -74,17 +74,6 @@ class StackNoise:
     ring_luminance: np.ndarray
     transient_luminance: np.ndarray
     luminance_weights: np.ndarray
-
-
-def luminance_weights(colorspace: str) -> np.ndarray:
-    """(3,) float64: relative luminance Y = weights @ RGB for linear RGB in ``colorspace``.
-
-    Examples
-    --------
-    >>> luminance_weights("sRGB").round(4).tolist()
-    [0.2126, 0.7152, 0.0722]
-    """
-    return np.asarray(colour_module().RGB_COLOURSPACES[colorspace].matrix_RGB_to_XYZ[1], np.float64)
 
 
 def stack_noise(dataset: ImpulseDataset, radii, step: float = 1.0, thickness: float = 1.0,
