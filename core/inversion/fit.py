@@ -129,8 +129,8 @@ def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, inte
     if not intervals:
         # A quick fit's time is least squares' own Python (three quarters of a layers3 search's
         # fits, the model a fifth), which holds the GIL: in threads its channels only contend for it
-        # (layers3's search of 1000 photons: 32 CPU-s and 30 s, one after another 23 and 24 s, on
-        # 2 cores; the same fits, bit for bit).
+        # (layers3's search of 1000 photons on 2 cores: 32 CPU-s and 30 s of wall time; one after
+        # another 23 CPU-s and 24 s, the same fits bit for bit).
         return [fit_channel(forward, measured[:, c], error[:, c], False, floor, guides[c]) for c in range(channels)]
     with ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1))) as pool:
         return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals, floor, guides[c]),
