@@ -122,10 +122,16 @@ def used_rings(measured: np.ndarray, sigma: np.ndarray) -> int:
 def fit_channels(forward: Forward, measured: np.ndarray, error: np.ndarray, intervals: bool = True,
                  floor: float = RELATIVE_FLOOR, guides: list[ChannelFit] | None = None) -> list[ChannelFit]:
     """:func:`fit_channel` for each channel of ``measured`` and ``error`` (R, C) (with its
-    ``guides`` fit when given), the channels in threads (the forward model's kernel releases the
-    GIL, and it is most of a fit's time)."""
+    ``guides`` fit when given): with ``intervals``, the channels in threads (the forward model's
+    kernel releases the GIL); a quick fit's channels one after another."""
     channels = measured.shape[1]
     guides = guides or [None] * channels
+    if not intervals:
+        # A quick fit's time is least squares' own Python (three quarters of a layers3 search's
+        # fits, the model a fifth), which holds the GIL: in threads its channels only contend for it
+        # (layers3's search of 1000 photons on 2 cores: 32 CPU-s and 30 s of wall time; one after
+        # another 23 CPU-s and 24 s, the same fits bit for bit).
+        return [fit_channel(forward, measured[:, c], error[:, c], False, floor, guides[c]) for c in range(channels)]
     with ThreadPoolExecutor(max_workers=max(1, min(channels, os.cpu_count() or 1))) as pool:
         return list(pool.map(lambda c: fit_channel(forward, measured[:, c], error[:, c], intervals, floor, guides[c]),
                              range(channels)))
