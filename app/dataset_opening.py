@@ -12,6 +12,7 @@ import numpy as np
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QFileDialog
 from ringlight.core.colour.first_view import FirstView
+from ringlight.core.rings.stacks import kernels_compiled
 from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_folder
 from ringlight.core.simulate.transport import simulated_before_camera_measure
 
@@ -23,6 +24,8 @@ FIRST_VIEW_MESSAGE_MS = 60_000
 DATASET_NAME_PX = 200
 """Width the dataset's name may take in the status bar; a longer one is elided in its middle."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
+FIRST_START = "This first start compiles ringlight's numerical kernels: about a minute, once."
+"""Said under an empty view's "Opening ..." while numba's cache is empty (a fresh install)."""
 
 
 class DatasetOpening:
@@ -55,7 +58,7 @@ class DatasetOpening:
         self.fit_jobs.cancel()
         if self.loaded is None:  # an empty view says what is coming (the status bar says how far)
             self.image_panel.clear_image()
-            self.image_panel.set_title(f"{description} ...")
+            self.image_panel.set_title(f"{description} ..." + ("" if kernels_compiled() else "\n" + FIRST_START))
         device = self.compute_device()
         self.load_jobs.start(description, lambda progress: load_for_viewing(
             path, request, progress, sample=sample, preview=self.steady_previewed.emit, device=device))

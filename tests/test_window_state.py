@@ -112,12 +112,19 @@ def test_opening_another_dataset_resets_pick_hover_and_diagram(qtbot, window, tm
     assert x0 <= 0.0 and x1 >= 0.8 and y0 <= 0.0 and y1 >= 0.9  # the whole CIE diagram
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 def test_an_empty_window_says_what_it_is_opening_and_marks_no_radius_until_there_are_profiles(qtbot, window,
-                                                                                           tmp_path):
+                                                                                           tmp_path, monkeypatch,
+                                                                                           compiled):
+    from ringlight.app import dataset_opening
+
+    # A fresh install's first start (numba's cache empty) also says why the open takes a minute.
+    monkeypatch.setattr(dataset_opening, "kernels_compiled", lambda: compiled)
     assert not any(line.isVisible() for line in window.profile_plot.radius_lines)
     with qtbot.waitSignal(window.dataset_loaded, timeout=TIMEOUT_MS):
         window.open_dataset(make_dataset(tmp_path / "d", 9, 3, seed=6))
-        assert window.image_panel.title.toPlainText() == "Opening d ..."
+        expected = "Opening d ..." + ("" if compiled else "\n" + dataset_opening.FIRST_START)
+        assert window.image_panel.title.toPlainText() == expected
     assert all(line.isVisible() for line in window.profile_plot.radius_lines)
     assert window.profile_plot.radius_lines[0].value() == window.stacks.pair.radii[window.radius_index()]
 

@@ -308,6 +308,18 @@ def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts
                 _store_mean(images, j, y, x, counts[j, y, x], totals[j, y, x], s0, s1, s2)
 
 
+def kernels_compiled() -> bool:
+    """Whether numba's cache holds the stack's kernel already. False on a fresh install's first
+    start: opening a dataset then compiles ringlight's kernels first (about a minute on two cores,
+    once; later starts load them from the cache in about a second). Looks for the index file numba
+    names after the function (``stacks._ring_sums-<line>.py<version>.nbi``) in its cache folder;
+    True where numba caches nothing (no folder to look in)."""
+    folder = _ring_sums.stats.cache_path
+    if not folder:
+        return True
+    return any(Path(folder).glob(f"stacks.{_ring_sums.py_func.__name__}-*.nbi"))
+
+
 def warm_up_kernels() -> None:
     """Load the compiled kernels once on tiny arrays.
 
