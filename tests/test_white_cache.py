@@ -92,3 +92,21 @@ def test_a_database_dropped_by_another_process_while_loading_is_run_again(tmp_pa
     again = white_database(optics, 2000)
     np.testing.assert_array_equal(again.value, first.value)  # the same seed: the same records
     assert path.exists()  # and cached again
+
+
+def test_a_stored_database_is_read_back_and_an_unwritable_place_is_skipped(tmp_path):
+    from ringlight.core.checked_arrays import load_checked
+
+    folder = tmp_path / "white"
+    folder.mkdir()
+    old = database_file(folder, 1, 300, age=5)
+    path = folder / f"{2:024x}.npz"
+    white_cache.store(path, "key", {"values": np.arange(4.0)}, limit=250)
+    assert load_checked(path, "key", ("values",))["values"].tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert not old.exists()  # over the limit: the one used longest ago went
+    # A folder that cannot hold the file (a regular file in its place): skipped, nothing raised or evicted.
+    kept = database_file(folder, 3, 300, age=5)
+    blocked = tmp_path / "blocked"
+    blocked.write_bytes(b"")
+    white_cache.store(blocked / f"{4:024x}.npz", "key", {"values": np.arange(4.0)}, limit=0)
+    assert kept.exists() and blocked.read_bytes() == b""

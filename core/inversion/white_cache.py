@@ -15,8 +15,10 @@ import re
 import stat
 from pathlib import Path
 
+from ..checked_arrays import save_checked
 from ..dataset.cache import user_cache_root
 from ..dataset.memory import size_setting
+from ..errors import RinglightError
 
 CACHE_BYTES = 4 * 2**30
 """Default limit of the databases' total size (``$RINGLIGHT_WHITE_CACHE`` overrides: ``2G``)."""
@@ -40,6 +42,17 @@ def mark_used(path: Path) -> None:
         os.utime(path)
     except OSError:
         pass
+
+
+def store(path: Path, key: str, arrays: dict, limit: int) -> None:
+    """Write ``arrays`` to ``path`` checked with ``key`` (:func:`ringlight.core.checked_arrays.save_checked`,
+    atomically), then drop the databases used longest ago down to ``limit`` bytes (:func:`evict`).
+    An unwritable cache is skipped: it only costs the next run its time."""
+    try:
+        save_checked(path, key, arrays)
+    except (OSError, RinglightError):
+        return
+    evict(path.parent, path, limit)
 
 
 def evict(folder: Path, keep: Path, limit: int) -> list[Path]:

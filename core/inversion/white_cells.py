@@ -31,9 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..checked_arrays import DamagedFile, NotAFile, load_checked
 from ..device import Device
-from ..errors import RinglightError
 from . import white_cache
 from .forward import Structure
 from .white_mc import DatabaseError, SlabOptics, WhiteDatabase, run_white
@@ -191,13 +190,10 @@ def cell_database(optics: SlabOptics, structure: Structure, photons: int, seed: 
         return cells
     cells = run_cells(optics, structure, photons, seed, progress, device)
     if use_cache:
-        try:
-            save_checked(path, path.stem, {"photons": np.int64(cells.photons), "cell_class": cells.cell_class,
-                                           "weight": cells.weight, "mean": cells.mean, "spread": cells.spread,
-                                           "batch_weight": cells.batch_weight, "seconds": np.float64(cells.seconds)})
-        except (OSError, RinglightError):
-            return cells  # an unwritable cache only costs the next run its time
-        white_cache.evict(path.parent, path, limit)
+        white_cache.store(path, path.stem, {"photons": np.int64(cells.photons), "cell_class": cells.cell_class,
+                                            "weight": cells.weight, "mean": cells.mean, "spread": cells.spread,
+                                            "batch_weight": cells.batch_weight, "seconds": np.float64(cells.seconds)},
+                          limit)
     return cells
 
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..checked_arrays import DamagedFile, NotAFile, load_checked
 from ..device import Device
 from ..errors import RinglightError
 from ..simulate.steps import CPU, Steps
@@ -334,13 +334,10 @@ def white_database(optics: SlabOptics, photons: int, seed: int = 0, use_cache: b
         return database
     database = run_white(optics, photons, seed, progress, device)
     if use_cache:
-        try:
-            save_checked(path, path.stem, {"photons": np.int64(database.photons), "pixel": database.pixel,
-                                           "value": database.value, "lengths": database.lengths,
-                                           "photon": database.photon, "seconds": np.float64(database.seconds)})
-        except (OSError, RinglightError):
-            return database  # an unwritable cache only costs the next run its time
-        white_cache.evict(path.parent, path, limit)
+        white_cache.store(path, path.stem, {"photons": np.int64(database.photons), "pixel": database.pixel,
+                                            "value": database.value, "lengths": database.lengths,
+                                            "photon": database.photon, "seconds": np.float64(database.seconds)},
+                          limit)
     return database
 
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
+from ..checked_arrays import DamagedFile, NotAFile, load_checked
 from ..device import Device
 from ..errors import RinglightError
 from ..inversion import white_cache
@@ -246,12 +246,8 @@ def radial_run(n: float, g: float, photons: int, seed: int = 0, use_cache: bool 
             return run
     run = run_radial(n, g, photons, seed, progress, device)
     if use_cache:
-        try:
-            save_checked(path, path.stem, {"photons": np.int64(run.photons), "weight": run.weight, "rho": run.rho,
-                                           "path": run.path, "seconds": np.float64(run.seconds)})
-        except (OSError, RinglightError):
-            return run  # an unwritable cache only costs the next run its time
-        white_cache.evict(path.parent, path, limit)
+        white_cache.store(path, path.stem, {"photons": np.int64(run.photons), "weight": run.weight, "rho": run.rho,
+                                            "path": run.path, "seconds": np.float64(run.seconds)}, limit)
     return run
 
 

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checked_arrays import DamagedFile, NotAFile, load_checked, save_checked
-from ..errors import RinglightError
+from ..checked_arrays import DamagedFile, NotAFile, load_checked
 from ..inversion import white_cache
 from . import table as tables
 from .radial import RadialRun, TableError
@@ -73,12 +72,8 @@ def kept_table(run: RadialRun, radii: np.ndarray, thickness: float, antialias: b
         return tables.ProfileTable(arrays["radii"], float(thickness), bool(antialias), run.n, run.g, u0, du, v0, dv,
                                    arrays["log_profile"], run.photons, run)
     table = tables.build_table(run, radii, thickness, antialias, ring_weights)
-    try:
-        save_checked(path, key, {"radii": table.radii, "grid": np.array([table.u0, table.du, table.v0, table.dv]),
-                                 "log_profile": table.log_profile})
-    except (OSError, RinglightError):
-        return table
-    white_cache.evict(path.parent, path, limit)
+    white_cache.store(path, key, {"radii": table.radii, "grid": np.array([table.u0, table.du, table.v0, table.dv]),
+                                  "log_profile": table.log_profile}, limit)
     return table
 
 
