@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from ringlight.core import ImpulseDataset, RinglightError, load_manifest, open_dataset
 from ringlight.core.colour.first_view import FirstView, first_view
+from ringlight.core.compile_ahead import start_compiling
 from ringlight.core.dataset.ground_truth import (
     PathLengthImages,
     read_path_length_images,
@@ -118,10 +119,17 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
     whole once the dataset is open, before the stacks are computed (the longest part of opening
     a big dataset from its store). The stacks' rings are summed on ``device`` (the CPU when None).
     """
+    # A fresh install's first open: its kernels compiled side by side, in processes, while the sample
+    # is written and the manifest read (a manifest's error is not kept waiting for them).
+    compilation = start_compiling()
     if path is None:
         path = sample_dataset(sample or DEMO_SAMPLE, progress=scaled(progress, 0.0, 0.3))
         progress = scaled(progress, 0.3, 1.0)
     manifest = load_manifest(path)
+    if compilation is not None:
+        phase("compiling ringlight's kernels (first start, once)")
+        compilation.wait(scaled(progress, 0.0, 0.5))
+        progress = scaled(progress, 0.5, 1.0)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)
     dataset = open_dataset(manifest, radius=radius, progress=scaled(progress, 0.0, 0.5),
                            preview=None if preview is None else _band_preview(manifest, preview))

@@ -23,7 +23,7 @@ from ringlight.core import RinglightError
 from ringlight.core.colour.display import warm_up_display
 from ringlight.core.rings.profiles import PixelProfile
 from ringlight.core.rings.stack_request import StackRequest
-from ringlight.core.rings.stacks import warm_up_kernels
+from ringlight.core.rings.stacks import kernels_compiled, warm_up_kernels
 from ringlight.widgets.capture_wizard import CaptureWizard
 from ringlight.widgets.display_controls import DisplayControls
 from ringlight.widgets.image_panel import ImagePanel
@@ -311,6 +311,10 @@ def _safe_radii(request: StackRequest) -> np.ndarray:
 
 def _warm_up() -> None:
     """The compiled kernels of an open, a stack and the image's drawing, loaded in a worker at
-    start-up (see :func:`~ringlight.core.rings.stacks.warm_up_kernels`)."""
+    start-up (see :func:`~ringlight.core.rings.stacks.warm_up_kernels`). Not on a fresh install,
+    whose first open compiles them side by side with its progress shown
+    (:func:`.session.load_for_viewing`): compiled here too, they would be compiled twice at once."""
+    if not kernels_compiled():
+        return
     warm_up_kernels()
     warm_up_display()

@@ -256,6 +256,12 @@ def pytest_runtest_makereport(item, call):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "allow_leaks(reason): the test deliberately leaves work running")
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        # On a fresh clone numba's cache is empty and every worker compiled the kernels of an open
+        # as its first test ran (all four alike); compiled first, side by side, they are loaded.
+        from ringlight.core.compile_ahead import compile_ahead
+
+        compile_ahead()
 
 
 @pytest.fixture

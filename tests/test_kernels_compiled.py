@@ -1,5 +1,5 @@
 """Whether numba's cache holds ringlight's kernels (a fresh install's first start compiles them
-first, about a minute, and the window says so): :func:`ringlight.core.rings.stacks.kernels_compiled`."""
+first, about half a minute on two cores, and the window says so): :func:`ringlight.core.rings.stacks.kernels_compiled`."""
 
 import os
 import subprocess

@@ -139,6 +139,13 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
     return RingCoverage(radii, float(thickness), members, points, mean_distance, nearest)
 
 
+def warm_up_coverage() -> None:
+    """Load the coverage's kernel (:func:`ring_coverage`) on a 2 x 1 dataset."""
+    from .stacks import warm_up_dataset
+
+    ring_coverage(warm_up_dataset(), [0.0, 1.0])
+
+
 def _points_inside(offsets: list[tuple[int, int]], height: int, width: int) -> np.ndarray:
     """(H, W) int32: how many of ``offsets`` land inside the grid from each pixel. Each offset's
     pixels form a rectangle, added to a table of corner differences that two cumulative sums

@@ -310,8 +310,9 @@ def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts
 
 def kernels_compiled() -> bool:
     """Whether numba's cache holds the stack's kernel already. False on a fresh install's first
-    start: opening a dataset then compiles ringlight's kernels first (about a minute on two cores,
-    once; later starts load them from the cache in about a second). Looks for the index file numba
+    start: opening a dataset then compiles ringlight's kernels first (half a minute on two cores,
+    side by side: :mod:`ringlight.core.compile_ahead`; once, later starts load them from the
+    cache in about a second). Looks for the index file numba
     names after the function (``stacks._ring_sums-<line>.py<version>.nbi``) in its cache folder;
     True where numba caches nothing (no folder to look in)."""
     folder = _ring_sums.stats.cache_path
@@ -321,18 +322,35 @@ def kernels_compiled() -> bool:
 
 
 def warm_up_kernels() -> None:
-    """Load the compiled kernels once on tiny arrays.
+    """Load the compiled kernels once on tiny arrays: the stack's (:func:`warm_up_stack`) and an
+    open's (:func:`ringlight.core.dataset.assembly.warm_up_assembly`).
 
     Numba's first dispatch in a process sets up its typing context while holding the GIL for
     about 0.1 s; an application calls this at start-up so that the first dataset opened in a
     worker thread does not freeze its GUI thread for that long.
     """
-    offsets = disc_offsets(1.0)
-    manifest = Manifest(
-        folder=Path("."), height=1, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
-        max_radius=1.0, frames=(), dark=None, ground_truth=None, notes=None,
-    )
-    dataset = ImpulseDataset(manifest, 1.0, offsets, np.zeros((1, 1, len(offsets), 3), np.float32),
-                             np.ones((1, 1), np.int32), np.ones((1, 1), bool))
-    ring_stack(dataset, [0.0])
+    warm_up_stack()
     warm_up_assembly()
+
+
+def warm_up_stack() -> None:
+    """Load the kernels of a ring stack (its members' counts, its rings' sums, into a whole stack's
+    images and into a band of them) and of the responses' validity flags, on a 2 x 1 dataset."""
+    dataset = warm_up_dataset()
+    ring_stack(dataset, [0.0])
+    images, counts = np.zeros((2, 3, 1, 3), np.float32), np.zeros((2, 3, 1), np.int32)
+    band_images(dataset.rows(0, 2), dataset.lit, dataset.observed, dataset.offsets,
+                _ring_tables(dataset, np.array([0.0, 1.0]), 1.0, False), 0, images[:, :2], counts[:, :2])  # not contiguous
+    dataset.validity_rows(0, 2)
+
+
+def warm_up_dataset() -> ImpulseDataset:
+    """A 2 x 1 dataset of max_radius 2, its points lit and observed, on which the warm-ups run
+    their kernels."""
+    offsets = disc_offsets(2.0)
+    manifest = Manifest(
+        folder=Path("."), height=2, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
+        max_radius=2.0, frames=(), dark=None, ground_truth=None, notes=None,
+    )
+    return ImpulseDataset(manifest, 2.0, offsets, np.zeros((2, 1, len(offsets), 3), np.float32),
+                          np.ones((2, 1), np.int32), np.ones((2, 1), bool))

@@ -1,0 +1,136 @@
+"""A fresh install's kernels compiled side by side, one process a core
+(:mod:`ringlight.core.compile_ahead`)."""
+
+import os
+import subprocess
+import sys
+from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
+
+from ringlight.core import compile_ahead as ahead
+
+# Run as a file: the pool's processes are spawned, and import the main script again (guarded).
+CHILD = """
+from numba.core import event
+
+from ringlight.core.colour.display import warm_up_display
+from ringlight.core.compile_ahead import GROUPS, _run_group, compile_ahead
+from ringlight.core.rings.stacks import kernels_compiled, warm_up_kernels
+
+
+class Compiles(event.Listener):
+    names = set()
+
+    def on_start(self, ev):
+        dispatcher = ev.data["dispatcher"]
+        self.names.add(dispatcher.py_func.__module__ + "." + dispatcher.__name__)
+
+    def on_end(self, ev):
+        pass
+
+
+if __name__ == "__main__":
+    before = kernels_compiled()
+    first = compile_ahead(workers=2)
+    event.register("numba:compile", Compiles())
+    for group in GROUPS:
+        _run_group(group)
+    warm_up_kernels()
+    warm_up_display()
+    print(before, first, kernels_compiled(), compile_ahead(workers=2))
+    print(sorted(name for name in Compiles.names if name.startswith("ringlight")))
+"""
+
+
+def test_an_empty_cache_is_filled_side_by_side_and_the_warm_ups_then_compile_nothing(tmp_path):
+    # numba's cache in an empty folder, as on a fresh install. After compile_ahead, the groups'
+    # warm-ups run here, and those of an open, a stack and the image's drawing (what the window
+    # runs at start-up), find every ringlight kernel in the cache; a second call finds the cache
+    # full and starts nothing.
+    script = tmp_path / "child.py"
+    script.write_text(CHILD)
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines() == ["False True True False", "[]"]
+
+
+def test_one_core_compiles_in_process_as_before(monkeypatch):
+    monkeypatch.setattr(ahead, "kernels_compiled", lambda: False)
+    monkeypatch.setattr(ahead, "ProcessPoolExecutor", _no_pool)
+    assert ahead.compile_ahead(workers=1) is False
+
+
+def test_processes_that_cannot_start_or_die_leave_the_compiling_to_the_caller(monkeypatch):
+    monkeypatch.setattr(ahead, "kernels_compiled", lambda: False)
+    monkeypatch.setattr(ahead, "ProcessPoolExecutor", _pool_refused)
+    assert ahead.compile_ahead(workers=2) is False
+    monkeypatch.setattr(ahead, "ProcessPoolExecutor", _BrokenPool)
+    assert ahead.compile_ahead(workers=2) is False
+    assert _BrokenPool.shut_down  # and the pool is let go
+
+
+def _no_pool(*args, **kwargs):
+    raise AssertionError("no process pool with one core")
+
+
+def _pool_refused(*args, **kwargs):
+    raise OSError(24, "Too many open files")
+
+
+class _BrokenPool:
+    """A pool whose processes died (the OS killed them, or they could not import ringlight)."""
+
+    shut_down = False
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def submit(self, function, *args):
+        future = Future()
+        future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+        return future
+
+    def shutdown(self, wait=True, cancel_futures=False):
+        type(self).shut_down = True
+
+
+class _Compiling:
+    """A compilation that records how it was waited for."""
+
+    def __init__(self):
+        self.progress = None
+
+    def wait(self, progress=None):
+        self.progress = [0.0, 0.5, 1.0]
+        for fraction in self.progress:
+            progress(fraction)
+        return True
+
+
+def test_a_first_open_reads_its_manifest_then_waits_for_the_kernels_with_its_phase_named(tmp_path, monkeypatch):
+    import numpy as np
+    import pytest
+
+    from ringlight.app import session
+    from ringlight.core.errors import RinglightError
+    from ringlight.core.phases import reporting_phases
+
+    from reference import random_impulses, write_dataset
+
+    compiling = _Compiling()
+    monkeypatch.setattr(session, "start_compiling", lambda: compiling)
+    # A folder without a manifest: its error at once, nothing waited for.
+    with pytest.raises(RinglightError, match="manifest"):
+        session.load_for_viewing(tmp_path, None, lambda fraction: None)
+    assert compiling.progress is None
+    write_dataset(tmp_path / "ds", 6, 6, random_impulses(np.random.default_rng(2), 6, 6, support=2.0), max_radius=2.0)
+    phases, fractions = [], []
+    with reporting_phases(phases.append):
+        loaded = session.load_for_viewing(tmp_path / "ds", None, fractions.append)
+    assert loaded.dataset.grid_shape == (6, 6)
+    assert compiling.progress == [0.0, 0.5, 1.0]
+    assert phases[0] == "compiling ringlight's kernels (first start, once)"
+    # The compilation's progress is the open's first half; the open's own follows it.
+    assert fractions[:3] == [0.0, 0.25, 0.5]
+    assert all(0.5 <= fraction <= 1.0 for fraction in fractions[3:]) and fractions == sorted(fractions)
