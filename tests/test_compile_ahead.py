@@ -10,12 +10,13 @@ from concurrent.futures.process import BrokenProcessPool
 from ringlight.core import compile_ahead as ahead
 
 # Run as a file: the pool's processes are spawned, and import the main script again (guarded).
+# Two small groups (about 10 CPU-s to compile), so that the run stays short; which kernels all
+# the groups hold is the next test's.
 CHILD = """
 from numba.core import event
 
-from ringlight.core.colour.display import warm_up_display
-from ringlight.core.compile_ahead import GROUPS, _run_group, compile_ahead
-from ringlight.core.rings.stacks import kernels_compiled, warm_up_kernels
+from ringlight.core import compile_ahead as ahead
+from ringlight.core.rings.stacks import kernels_compiled
 
 
 class Compiles(event.Listener):
@@ -30,29 +31,61 @@ class Compiles(event.Listener):
 
 
 if __name__ == "__main__":
+    ahead.GROUPS = ("ringlight.core.rings.coverage:warm_up_coverage", "ringlight.core.colour.display:warm_up_display")
     before = kernels_compiled()
-    first = compile_ahead(workers=2)
+    compiled = ahead.compile_ahead(workers=2)
     event.register("numba:compile", Compiles())
-    for group in GROUPS:
-        _run_group(group)
-    warm_up_kernels()
-    warm_up_display()
-    print(before, first, kernels_compiled(), compile_ahead(workers=2))
+    for group in ahead.GROUPS:
+        ahead._run_group(group)
+    print(before, compiled)
     print(sorted(name for name in Compiles.names if name.startswith("ringlight")))
 """
 
 
-def test_an_empty_cache_is_filled_side_by_side_and_the_warm_ups_then_compile_nothing(tmp_path):
-    # numba's cache in an empty folder, as on a fresh install. After compile_ahead, the groups'
-    # warm-ups run here, and those of an open, a stack and the image's drawing (what the window
-    # runs at start-up), find every ringlight kernel in the cache; a second call finds the cache
-    # full and starts nothing.
+def test_groups_compiled_in_processes_are_loaded_from_numbas_cache_here(tmp_path):
+    # numba's cache in an empty folder, as on a fresh install: the groups compile in two spawned
+    # processes, and then run here without compiling any of ringlight's kernels.
     script = tmp_path / "child.py"
     script.write_text(CHILD)
     result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600,
                             env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})
     assert result.returncode == 0, result.stderr
-    assert result.stdout.splitlines() == ["False True True False", "[]"]
+    assert result.stdout.splitlines() == ["False True", "[]"]
+
+
+def test_the_groups_hold_every_kernel_and_type_the_demos_first_open_and_the_warm_ups_load():
+    # The groups run here (from the cache the test run's start filled), then what a first start
+    # runs once they are compiled: the demo's open (its sample written into the user cache first),
+    # and the warm-ups the window runs at start-up. They add no kernel, and no argument types (a
+    # band's slices are not contiguous), that the groups lacked.
+    from ringlight.app.session import load_for_viewing
+    from ringlight.core.colour.display import warm_up_display
+    from ringlight.core.rings.stacks import warm_up_kernels
+
+    for group in ahead.GROUPS:
+        ahead._run_group(group)
+    after_groups = _ringlight_signatures()
+    loaded = load_for_viewing(None, None, lambda fraction: None)
+    assert loaded.stacks.pair.radii.size > 1
+    warm_up_kernels()
+    warm_up_display()
+    assert _ringlight_signatures() - after_groups == set()
+    assert {name for name, _ in after_groups} >= {"ringlight.core.rings.stacks._ring_sums",
+                                                  "ringlight.core.dataset.frame_batch._load_frames",
+                                                  "ringlight.core.rings.coverage._band_coverage"}
+
+
+def _ringlight_signatures() -> set[tuple[str, str]]:
+    """(kernel, argument types) of every compiled or loaded ringlight kernel in this process."""
+    from numba.core.registry import CPUDispatcher
+
+    found = set()
+    for name, module in list(sys.modules.items()):
+        if name.startswith("ringlight.") and module is not None:
+            for value in vars(module).values():
+                if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
+                    found.update((f"{name}.{value.__name__}", str(signature)) for signature in value.signatures)
+    return found
 
 
 def test_one_core_compiles_in_process_as_before(monkeypatch):

@@ -371,10 +371,13 @@ def warm_up_batches() -> None:
 
 def warm_up_frames() -> None:
     """Load the kernels that convert half floats and radiance, unpack a frame read alone, check
-    the lit points' spacing, and stat the frames' files (the response cache's identities)."""
+    the lit points' spacing, read a run of files, and stat the frames' files (the response cache's
+    identities)."""
     from .cache import _identities
     from .exr import _HALF_TO_FLOAT, _put_half
     from .exr_small import _unpack
+    from .file_batch import read_run
+    from .file_paths import FileResolver
     from .frames import _radiance
     from .spacing import close_pair
 
@@ -387,8 +390,9 @@ def warm_up_frames() -> None:
     _unpack(np.zeros(2, np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
             _HALF_TO_FLOAT, np.zeros((1, 1, 1), np.float32))
     with tempfile.TemporaryDirectory() as folder:
-        Path(folder, "frame.exr").touch()
+        Path(folder, "frame.exr").write_bytes(b"frame")
         _identities(Path(folder), ["frame.exr"])
+        read_run(FileResolver(Path(folder)), ["frame.exr"], b"fr")
 
 
 @contextmanager
