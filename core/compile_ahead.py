@@ -35,6 +35,9 @@ alone in a process with numba's cache empty: 18.0, 13.7, 12.1, 10.4, 4.5 and 3.4
 cores, 0.8 s of each the imports; together what :func:`ringlight.core.rings.stacks.warm_up_kernels`
 and :func:`ringlight.core.colour.display.warm_up_display` load, the rings' coverage, and a run of
 files read)."""
+MAX_PROCESSES = 4
+"""Processes at most: the longest group (18 s) bounds the time from four on, the two shortest
+following two others, and each process holds about 290 MB while it compiles."""
 _LOCK = threading.Lock()
 _running: Compilation | None = None
 
@@ -45,7 +48,6 @@ class Compilation:
     def __init__(self, pool: ProcessPoolExecutor):
         self._pool = pool
         self._futures = [pool.submit(_run_group, group) for group in GROUPS]
-        self._done = threading.Lock()
 
     def wait(self, progress: ProgressCallback | None = None) -> bool:
         """Wait for the groups; returns whether they compiled. ``progress(fraction)`` after each
@@ -66,11 +68,12 @@ class Compilation:
 def start_compiling(workers: int | None = None) -> Compilation | None:
     """Where numba's cache lacks ringlight's kernels (a fresh install:
     :func:`~ringlight.core.rings.stacks.kernels_compiled`), start compiling :data:`GROUPS` in up to
-    ``workers`` processes at once (default: one a core). None where there is nothing to compile,
+    ``workers`` processes at once (default: one a core this process may run on, at most
+    :data:`MAX_PROCESSES`). None where there is nothing to compile,
     with one core (where a process of its own gains nothing), or where processes cannot start.
     Threads that call it while a compilation runs get that one."""
     global _running
-    count = min(len(GROUPS), workers or os.cpu_count() or 1)
+    count = min(len(GROUPS), workers or min(MAX_PROCESSES, _cores()))
     with _LOCK:
         if _running is not None and not all(future.done() for future in _running._futures):
             return _running
@@ -87,6 +90,14 @@ def compile_ahead(progress: ProgressCallback | None = None, workers: int | None 
     """:func:`start_compiling`, then :meth:`Compilation.wait`: returns whether it compiled."""
     compilation = start_compiling(workers)
     return compilation is not None and compilation.wait(progress)
+
+
+def _cores() -> int:
+    """The cores this process may run on (its affinity where the platform says, as in a container
+    limited to some)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def _compiled(future: Future) -> bool:

@@ -167,3 +167,20 @@ def test_a_first_open_reads_its_manifest_then_waits_for_the_kernels_with_its_pha
     # The compilation's progress is the open's first half; the open's own follows it.
     assert fractions[:3] == [0.0, 0.25, 0.5]
     assert all(0.5 <= fraction <= 1.0 for fraction in fractions[3:]) and fractions == sorted(fractions)
+
+
+def test_a_many_core_machine_compiles_in_four_processes(monkeypatch):
+    # From four on the longest group bounds the time; each process holds about 290 MB.
+    made = []
+
+    def pool(workers, mp_context):
+        made.append((workers, mp_context.get_start_method()))
+        return _BrokenPool()
+
+    monkeypatch.setattr(ahead, "kernels_compiled", lambda: False)
+    monkeypatch.setattr(ahead, "_cores", lambda: 16)
+    monkeypatch.setattr(ahead, "ProcessPoolExecutor", pool)
+    assert ahead.compile_ahead() is False  # the stand-in pool's processes die
+    monkeypatch.setattr(ahead, "_cores", lambda: 3)
+    ahead.compile_ahead()
+    assert made == [(4, "spawn"), (3, "spawn")]

@@ -310,9 +310,9 @@ def _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts
 
 def kernels_compiled() -> bool:
     """Whether numba's cache holds the stack's kernel already. False on a fresh install's first
-    start: opening a dataset then compiles ringlight's kernels first (half a minute on two cores,
-    side by side: :mod:`ringlight.core.compile_ahead`; once, later starts load them from the
-    cache in about a second). Looks for the index file numba
+    start: opening a dataset then compiles ringlight's kernels first, side by side
+    (:mod:`ringlight.core.compile_ahead`: half a minute on two cores), once; later starts load them
+    from the cache in about a second. Looks for the index file numba
     names after the function (``stacks._ring_sums-<line>.py<version>.nbi``) in its cache folder;
     True where numba caches nothing (no folder to look in)."""
     folder = _ring_sums.stats.cache_path
