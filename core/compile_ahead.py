@@ -23,20 +23,20 @@ from .errors import ProgressCallback
 from .rings.stacks import kernels_compiled
 
 GROUPS = (
-    "ringlight.core.dataset.assembly:warm_up_scatter",
     "ringlight.core.dataset.assembly:warm_up_batches",
     "ringlight.core.rings.stacks:warm_up_stack",
     "ringlight.core.dataset.assembly:warm_up_frames",
+    "ringlight.core.dataset.assembly:warm_up_scatter",
     "ringlight.core.colour.display:warm_up_display",
     "ringlight.core.rings.coverage:warm_up_coverage",
 )
 """The warm-ups of an open's kernels, ``module:function``, the longest to compile first (each
-alone in a process with numba's cache empty: 18.0, 13.7, 12.1, 10.4, 4.5 and 3.4 s on two
+alone in a process with numba's cache empty: 13.7, 12.1, 10.4, 7.5, 4.5 and 3.4 s on two
 cores, 0.8 s of each the imports; together what :func:`ringlight.core.rings.stacks.warm_up_kernels`
 and :func:`ringlight.core.colour.display.warm_up_display` load, the rings' coverage, and a run of
 files read)."""
 MAX_PROCESSES = 4
-"""Processes at most: the longest group (18 s) bounds the time from four on, the two shortest
+"""Processes at most: the longest group (14 s) bounds the time from four on, the two shortest
 following two others, and each process holds about 290 MB while it compiles."""
 _LOCK = threading.Lock()
 _running: Compilation | None = None
