@@ -23,10 +23,10 @@ from .errors import ProgressCallback
 from .rings.stacks import kernels_compiled
 
 GROUPS = (
-    "ringlight.core.dataset.assembly:warm_up_batches",
+    "ringlight.core.dataset.warm_up:warm_up_batches",
     "ringlight.core.rings.stacks:warm_up_stack",
-    "ringlight.core.dataset.assembly:warm_up_frames",
-    "ringlight.core.dataset.assembly:warm_up_scatter",
+    "ringlight.core.dataset.warm_up:warm_up_frames",
+    "ringlight.core.dataset.warm_up:warm_up_scatter",
     "ringlight.core.colour.display:warm_up_display",
     "ringlight.core.rings.coverage:warm_up_coverage",
 )
@@ -48,6 +48,10 @@ class Compilation:
     def __init__(self, pool: ProcessPoolExecutor):
         self._pool = pool
         self._futures = [pool.submit(_run_group, group) for group in GROUPS]
+
+    def done(self) -> bool:
+        """Whether every group has finished (or was dropped)."""
+        return all(future.done() for future in self._futures)
 
     def wait(self, progress: ProgressCallback | None = None) -> bool:
         """Wait for the groups; returns whether they compiled. ``progress(fraction)`` after each
@@ -75,7 +79,7 @@ def start_compiling(workers: int | None = None) -> Compilation | None:
     global _running
     count = min(len(GROUPS), workers or min(MAX_PROCESSES, _cores()))
     with _LOCK:
-        if _running is not None and not all(future.done() for future in _running._futures):
+        if _running is not None and not _running.done():
             return _running
         if count < 2 or kernels_compiled():
             return None

@@ -28,12 +28,10 @@ Progress runs over every phase: reading the frames (per band) and writing the st
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import OpenEXR
@@ -49,8 +47,7 @@ from .frames import FrameReader
 from .manifest import Manifest
 from .memory import zeroed
 from .response_store import StoreWriter
-from .scatter import (_offset_order, _offset_order_rows, _scatter_batch, _scatter_frames, _scatter_rows, scatter,
-                      slots_to_offsets)
+from .scatter import scatter, slots_to_offsets
 
 BATCH_BYTES = 256 * 2**20
 """Frame rows waiting for the scatter, both batches together (radiance and owner: 14 or 16 bytes a
@@ -317,82 +314,6 @@ def assemble_into_store(assembler: Assembler, writer: StoreWriter, budget: int,
         if preview is not None:
             preview(row0, row1, steady[row0:row1].copy())
     writer.write_small(assembler.lit_counts, assembler.observed, steady)
-
-
-def warm_up_assembly() -> None:
-    """Load the assembly's compiled kernels (and the frame and spacing ones it calls) on tiny
-    arrays of the types an open passes, so that a first open in a worker does not hold the GIL
-    while numba loads them (see :func:`ringlight.core.rings.stacks.warm_up_kernels`): the
-    scattering's (:func:`warm_up_scatter`), then the frames' reading's (:func:`warm_up_reading`)."""
-    warm_up_scatter()
-    warm_up_reading()
-
-
-def warm_up_scatter() -> None:
-    """Load the kernels that place decoded frames' radiance into the responses (for both owner
-    types), and put them in offset order."""
-    one = np.zeros(1, np.int64)
-    for owner_type in (np.int16, np.int32):
-        owner, radiance = np.full((1, 1), -1, owner_type), np.zeros((1, 1, 3), np.float32)
-        owners(owner, radiance, np.zeros((1, 2), np.int64), one, one, one, np.ones((1, 1), np.float32), 0)
-        _scatter_batch(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
-        _scatter_rows(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1, 0, 1)
-        _scatter_frames(np.zeros((1, 1, 1, 3), np.float32), np.zeros((1, 1, 3)), radiance[None], owner[None], 1)
-    _offset_order(np.zeros((1, 1, 1, 3), np.float32), one)
-    _offset_order_rows(np.zeros((1, 1, 1, 3), np.float32), one, 0, 1)
-
-
-def warm_up_reading() -> None:
-    """Load the kernels that decode frames: a batch's read by the native inflater (for both owner
-    types: :func:`warm_up_batches`), then the others (:func:`warm_up_frames`)."""
-    warm_up_batches()
-    warm_up_frames()
-
-
-def warm_up_batches() -> None:
-    """Load the native inflater's batch read of frames (the longest of an open's kernels to
-    compile), for both owner types."""
-    from .exr import _HALF_TO_FLOAT
-    from .exr_small import LAYOUT_FIELDS, LENGTH_TYPE, NATIVE_INFLATE
-    from .frame_batch import _load_frames
-
-    if not NATIVE_INFLATE:
-        return
-    one = np.zeros(1, np.int64)
-    for owner_type in (np.int16, np.int32):
-        owner, radiance = np.full((1, 1), -1, owner_type), np.zeros((1, 1, 3), np.float32)
-        # one frame, marked to be read alone: loads the kernel, runs nothing
-        _load_frames(np.frombuffer(b"", np.uint8), one, np.full(1, -1, np.int64), np.zeros(LAYOUT_FIELDS, np.int64),
-                     1, one, np.ones(1, np.bool_), one, _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32),
-                     np.zeros(2, LENGTH_TYPE), np.ones(1, np.float32), np.zeros((0, 0, 3), np.float32), False,
-                     radiance[None], owner[None], 0, np.zeros((1, 2), np.int64), np.zeros(2, np.int64), one, one,
-                     one, np.ones((1, 1), np.float32), 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-
-
-def warm_up_frames() -> None:
-    """Load the kernels that convert half floats and radiance, unpack a frame read alone, check
-    the lit points' spacing, read a run of files, and stat the frames' files (the response cache's
-    identities)."""
-    from .cache import _identities
-    from .exr import _HALF_TO_FLOAT, _put_half
-    from .exr_small import _unpack
-    from .file_batch import read_run
-    from .file_paths import FileResolver
-    from .frames import _radiance
-    from .spacing import close_pair
-
-    one = np.zeros(1, np.int64)
-    _put_half(np.zeros((1, 1), np.uint16), _HALF_TO_FLOAT, np.zeros((1, 1, 3), np.float32), 0)
-    _radiance(np.zeros((1, 1, 3), np.float32), np.float32(1.0), np.zeros((1, 1, 3), np.float32), True,
-              np.zeros((1, 1, 3), np.float32))
-    close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64))
-    close_pair(np.array([[0, 0], [5, 5]], np.int64), 2.0, np.zeros(2, np.int64), first=False)
-    _unpack(np.zeros(2, np.uint8), True, 1, 0, 1, one, np.ones(1, np.bool_), np.zeros(1, np.int64),
-            _HALF_TO_FLOAT, np.zeros((1, 1, 1), np.float32))
-    with tempfile.TemporaryDirectory() as folder:
-        Path(folder, "frame.exr").write_bytes(b"frame")
-        _identities(Path(folder), ["frame.exr"])
-        read_run(FileResolver(Path(folder)), ["frame.exr"], b"fr")
 
 
 @contextmanager

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
+from ..dataset.warm_up import warm_up_dataset
 from .geometry import ring_geometry
 
 NEAR_STEPS = 0.25
@@ -141,8 +142,6 @@ def ring_coverage(dataset: ImpulseDataset, radii, thickness: float = 1.0) -> Rin
 
 def warm_up_coverage() -> None:
     """Load the coverage's kernel (:func:`ring_coverage`) on a 2 x 1 dataset."""
-    from .stacks import warm_up_dataset
-
     ring_coverage(warm_up_dataset(), [0.0, 1.0])
 
 

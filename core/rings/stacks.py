@@ -18,10 +18,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..dataset.assembly import warm_up_assembly
-from ..dataset.disc import disc_offsets
 from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
-from ..dataset.manifest import Manifest
+from ..dataset.warm_up import warm_up_assembly, warm_up_dataset
 from ..device import Device
 from ..errors import StackError
 from .geometry import ring_geometry, ring_outer_radius
@@ -323,7 +321,7 @@ def kernels_compiled() -> bool:
 
 def warm_up_kernels() -> None:
     """Load the compiled kernels once on tiny arrays: the stack's (:func:`warm_up_stack`) and an
-    open's (:func:`ringlight.core.dataset.assembly.warm_up_assembly`).
+    open's (:func:`ringlight.core.dataset.warm_up.warm_up_assembly`).
 
     Numba's first dispatch in a process sets up its typing context while holding the GIL for
     about 0.1 s; an application calls this at start-up so that the first dataset opened in a
@@ -342,15 +340,3 @@ def warm_up_stack() -> None:
     band_images(dataset.rows(0, 2), dataset.lit, dataset.observed, dataset.offsets,
                 _ring_tables(dataset, np.array([0.0, 1.0]), 1.0, False), 0, images[:, :2], counts[:, :2])  # not contiguous
     dataset.validity_rows(0, 2)
-
-
-def warm_up_dataset() -> ImpulseDataset:
-    """A 2 x 1 dataset of max_radius 2, its points lit and observed, on which the warm-ups run
-    their kernels."""
-    offsets = disc_offsets(2.0)
-    manifest = Manifest(
-        folder=Path("."), height=2, width=1, pitch_mm=None, colorspace="sRGB", frame_space="grid", mapping=None,
-        max_radius=2.0, frames=(), dark=None, ground_truth=None, notes=None,
-    )
-    return ImpulseDataset(manifest, 2.0, offsets, np.zeros((2, 1, len(offsets), 3), np.float32),
-                          np.ones((2, 1), np.int32), np.ones((2, 1), bool))
