@@ -24,8 +24,10 @@ FIRST_VIEW_MESSAGE_MS = 60_000
 DATASET_NAME_PX = 200
 """Width the dataset's name may take in the status bar; a longer one is elided in its middle."""
 EMPTY_HINT = "No dataset open: File > Open (Ctrl+O), drop a dataset folder here, or File > Open demo dataset"
-FIRST_START = "This first start compiles ringlight's numerical kernels, once: about half a minute on two cores."
-"""Said under an empty view's "Opening ..." while numba's cache is empty (a fresh install)."""
+FIRST_START = ("This first start after an install or update compiles ringlight's numerical kernels, once: "
+               "about half a minute on two cores.")
+"""Said under an empty view's "Opening ..." while numba's cache is empty (a fresh install, or sources
+changed since the kernels were compiled: :mod:`ringlight.core.kernel_cache`)."""
 
 
 class DatasetOpening:

@@ -127,7 +127,7 @@ def load_for_viewing(path: str | Path | None, request: StackRequest | None, prog
         progress = scaled(progress, 0.3, 1.0)
     manifest = load_manifest(path)
     if compilation is not None:
-        phase("compiling ringlight's kernels (first start, once)")
+        phase("compiling ringlight's kernels (first start after an install or update)")
         compilation.wait(scaled(progress, 0.0, 0.5))
         progress = scaled(progress, 0.5, 1.0)
     radius = open_radius(manifest.max_radius, manifest.height, manifest.width, request)

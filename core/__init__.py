@@ -6,7 +6,14 @@
     stack.images            # (11, 48, 48, 3) float32, NaN where undefined
 
 (docs/guide/python.md runs the same lines.)
+
+Importing it first checks that numba's cache of ringlight's kernels matches their sources
+(:mod:`.kernel_cache`), before any kernel loads.
 """
+
+from .kernel_cache import check_kernel_cache
+
+check_kernel_cache()
 
 from .dataset.exr import read_exr_rgb, write_exr_rgb
 from .dataset.disc import disc_offsets, response_memory_bytes

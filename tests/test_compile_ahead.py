@@ -179,7 +179,7 @@ def test_a_first_open_reads_its_manifest_then_waits_for_the_kernels_with_its_pha
         loaded = session.load_for_viewing(tmp_path / "ds", None, fractions.append)
     assert loaded.dataset.grid_shape == (6, 6)
     assert compiling.progress == [0.0, 0.5, 1.0]
-    assert phases[0] == "compiling ringlight's kernels (first start, once)"
+    assert phases[0] == "compiling ringlight's kernels (first start after an install or update)"
     # The compilation's progress is the open's first half; the open's own follows it.
     assert fractions[:3] == [0.0, 0.25, 0.5]
     assert all(0.5 <= fraction <= 1.0 for fraction in fractions[3:]) and fractions == sorted(fractions)
