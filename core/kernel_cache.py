@@ -52,7 +52,9 @@ def check_kernel_cache(package: Path = PACKAGE) -> bool:
     write is left to numba."""
     sources = package_sources(package)
     folders = cache_folders(package, sources)
-    stamp_path = folders[package]
+    stamp_path = folders.get(package)
+    if stamp_path is None:  # no source files to stamp (a frozen or zipped application)
+        return False
     try:
         stamp = json.loads((stamp_path / STAMP_NAME).read_text())
         kept_stats, kept_fingerprint = str(stamp["stats"]), str(stamp["sources"])

@@ -164,6 +164,14 @@ def test_the_folders_are_those_numbas_own_locators_name(tmp_path, monkeypatch):
     assert cache_folders(package)[module.parent] == Path(UserWideCacheLocator(kernel, str(module)).get_cache_path())
 
 
+def test_a_package_without_source_files_is_left_alone(tmp_path):
+    """A frozen or zipped application has no sources to stamp: nothing is removed or written."""
+    (tmp_path / "frozen").mkdir()
+    assert not check_kernel_cache(tmp_path / "frozen")
+    assert not check_kernel_cache(tmp_path / "absent")
+    assert list(tmp_path.rglob("*")) == [tmp_path / "frozen"]
+
+
 def test_ringlights_own_stamp_is_current_after_import():
     """``import ringlight.core`` checked the cache: the stamp lies where numba keeps the kernels."""
     folders = cache_folders()
