@@ -34,10 +34,13 @@ import os
 import re
 from pathlib import Path
 
-PACKAGE = Path(os.path.abspath(__file__)).parent
+from .atomic import atomic_file
+from .errors import RinglightError
+
+_THIS_FILE = Path(os.path.abspath(__file__))
+PACKAGE = _THIS_FILE.parent
 """``ringlight.core``'s folder: the kernels and every module they can reach live in it (its path made
 absolute as numba makes a kernel's file's, links not resolved)."""
-_THIS_FILE = Path(os.path.abspath(__file__))
 STAMP_NAME = "ringlight-kernels.json"
 _USES_NUMBA = re.compile(r"^\s*(import|from)\s+numba\b", re.MULTILINE)
 _IMPORT = re.compile(r"^\s*from\s+(\.+)([\w.]*)\s+import\s+(\([^)]*\)|[^\n]*)", re.MULTILINE)
@@ -64,9 +67,10 @@ def check_kernel_cache(package: Path = PACKAGE) -> bool:
     if stats == kept_stats:
         return False
     try:
-        fingerprint = _fingerprint(package, kernel_sources(package, sources))
+        texts = _read(sources)
     except OSError:  # a source removed or unreadable meanwhile: nothing is known, nothing done
         return False
+    fingerprint = _fingerprint(package, _reachable(texts), texts)
     removed = fingerprint != kept_fingerprint
     if not removed or _remove_entries(folders, sources):
         _write_stamp(stamp_path, {"stats": stats, "sources": fingerprint})
@@ -101,11 +105,19 @@ def package_sources(package: Path) -> list[Path]:
     return sorted(found)
 
 
-def kernel_sources(package: Path, sources: list[Path]) -> list[Path]:
-    """The modules of ``package`` a compiled kernel can reach: those that use numba and, transitively,
-    every module of ``package`` they import (what a kernel can call, inline or read a constant
-    from), sorted."""
-    texts = {path: path.read_text(encoding="utf-8", errors="replace") for path in sources}
+def kernel_sources(sources: list[Path]) -> list[Path]:
+    """The modules among ``sources`` (a package's, :func:`package_sources`) a compiled kernel can
+    reach: those that use numba and, transitively, every module of the package they import (what a
+    kernel can call, inline or read a constant from), sorted."""
+    return _reachable(_read(sources))
+
+
+def _read(sources: list[Path]) -> dict[Path, str]:
+    return {path: path.read_text(encoding="utf-8", errors="replace") for path in sources}
+
+
+def _reachable(texts: dict[Path, str]) -> list[Path]:
+    """:func:`kernel_sources` of the sources' ``texts``."""
     # This module imports numba only to find its per-user folder: it compiles nothing.
     reached = {path for path, text in texts.items() if _USES_NUMBA.search(text) and path != _THIS_FILE}
     waiting = list(reached)
@@ -145,41 +157,45 @@ def _stats_digest(package: Path, sources: list[Path]) -> str:
     return digest.hexdigest()
 
 
-def _fingerprint(package: Path, sources: list[Path]) -> str:
-    """SHA-256 of the relative paths and contents of ``sources``."""
+def _fingerprint(package: Path, sources: list[Path], texts: dict[Path, str]) -> str:
+    """SHA-256 of the relative paths and ``texts`` of ``sources``."""
     digest = hashlib.sha256()
     for path in sources:
-        digest.update(f"{path.relative_to(package)}\0".encode())
-        digest.update(path.read_bytes())
+        digest.update(f"{path.relative_to(package)}\0{texts[path]}".encode(errors="replace"))
     return digest.hexdigest()
 
 
 def _remove_entries(folders: dict[Path, Path], sources: list[Path]) -> bool:
     """Delete numba's index and data files of every module in ``sources`` (``<module>.<function>-
-    <line>.py<version>.nbi`` and ``.nbc``) from its folder's cache; other files are left alone.
-    False when one could not be deleted (the stamp is then not renewed: the next process tries again)."""
+    <line>.py<version>.nbi`` and ``.nbc``) from its folder's cache, each folder listed once; other
+    files are left alone. False when one could not be deleted (the stamp is then not renewed: the
+    next process tries again)."""
+    modules: dict[Path, set[str]] = {}
     for path in sources:
-        cache = folders.get(path.parent)
-        if cache is None or not cache.is_dir():
+        modules.setdefault(folders[path.parent], set()).add(path.stem)
+    for cache, stems in modules.items():
+        try:
+            entries = [entry for entry in cache.iterdir()
+                       if entry.suffix in (".nbi", ".nbc") and entry.name.split(".", 1)[0] in stems]
+        except FileNotFoundError:  # nothing cached for this folder yet
             continue
-        for pattern in (f"{path.stem}.*.nbi", f"{path.stem}.*.nbc"):
-            for entry in cache.glob(pattern):
-                try:
-                    entry.unlink()
-                except FileNotFoundError:  # another process removed it first
-                    pass
-                except OSError:
-                    return False
+        except OSError:
+            return False
+        for entry in entries:
+            try:
+                entry.unlink()
+            except FileNotFoundError:  # another process removed it first
+                pass
+            except OSError:
+                return False
     return True
 
 
 def _write_stamp(folder: Path, stamp: dict[str, str]) -> None:
-    """The stamp written atomically (a temporary file renamed over it); a folder that cannot be
-    written is left without one."""
-    temporary = folder / f".{STAMP_NAME}.{os.getpid()}.partial"
+    """The stamp written atomically (:func:`.atomic.atomic_file`); a folder that cannot be written
+    is left without one."""
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        temporary.write_text(json.dumps(stamp))
-        os.replace(temporary, folder / STAMP_NAME)
-    except OSError:
-        temporary.unlink(missing_ok=True)
+        with atomic_file(folder / STAMP_NAME, overwrite=True) as temporary:
+            temporary.write_text(json.dumps(stamp))
+    except (OSError, RinglightError):
+        pass

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ringlight.core import kernel_cache
 from ringlight.core.kernel_cache import STAMP_NAME, cache_folders, check_kernel_cache, kernel_sources, package_sources
+from ringlight.core.rings.stacks import _ring_sums
 
 A = """import numba
 from .b import g, h
@@ -34,14 +35,13 @@ def g(x):
 def h(x):
     return x + {added}
 """
-RUN = """import importlib.util, sys
+RUN = """import sys
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])
-if sys.argv[2] == "checked":  # the module alone, by its path: it imports nothing of ringlight
-    spec = importlib.util.spec_from_file_location("kernel_cache", sys.argv[3])
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    module.check_kernel_cache(Path(sys.argv[1]) / "pkg")
+if sys.argv[2] == "checked":
+    from ringlight.core.kernel_cache import check_kernel_cache
+
+    check_kernel_cache(Path(sys.argv[1]) / "pkg")
 from pkg.a import f
 print(f(1.0), sum(f.stats.cache_hits.values()))
 """
@@ -59,8 +59,8 @@ def _package(root: Path, scale: float = 2.0, added: float = 1.0) -> None:
 
 def _f(root: Path, checked: bool, env: dict) -> tuple[float, int]:
     """f(1) and the cache hits of a fresh process: 1.0 * SCALE + 1.0 + added."""
-    result = subprocess.run([sys.executable, "-c", RUN, str(root), "checked" if checked else "plain",
-                             kernel_cache.__file__], capture_output=True, text=True, timeout=120, env=env)
+    result = subprocess.run([sys.executable, "-c", RUN, str(root), "checked" if checked else "plain"],
+                            capture_output=True, text=True, timeout=120, env=env)
     assert result.returncode == 0, result.stderr
     value, hits = result.stdout.split()
     return float(value), int(hits)
@@ -109,7 +109,7 @@ def test_the_sources_a_kernel_reaches_are_the_numba_modules_and_what_they_import
     (package / "b.py").write_text(B.format(added=1.0) + "from .sub.deep import NOTE as DEEP\n")
     sources = package_sources(package)
     assert sources == sorted(package.rglob("*.py"))
-    reached = [path.relative_to(package).as_posix() for path in kernel_sources(package, sources)]
+    reached = [path.relative_to(package).as_posix() for path in kernel_sources(sources)]
     # a and b use numba; b imports constants and sub.deep; deep imports unrelated and, from its own
     # package, sibling (and so sub's __init__). No module imports pkg/__init__.py.
     assert reached == ["a.py", "b.py", "constants.py", "sub/__init__.py", "sub/deep.py", "sub/sibling.py",
@@ -152,7 +152,7 @@ def test_the_folders_are_those_numbas_own_locators_name(tmp_path, monkeypatch):
     from numba.core.caching import InTreeCacheLocator, UserProvidedCacheLocator, UserWideCacheLocator
 
     package = Path(kernel_cache.__file__).parent
-    kernel = __import__("ringlight.core.rings.stacks", fromlist=["_ring_sums"])._ring_sums.py_func
+    kernel = _ring_sums.py_func
     module = Path(kernel.__code__.co_filename)
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-cache"))
     monkeypatch.setattr("numba.core.config.CACHE_DIR", str(tmp_path / "numba-cache"))  # as numba read it
