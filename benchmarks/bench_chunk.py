@@ -5,7 +5,8 @@ ratio moves by a third between rounds (the stack streams 1.41 GiB), far more tha
 half of the pass does. This times each half of what the maps' one pass does per chunk
 (:mod:`ringlight.core.optics.one_pass`) on CHUNK pixels of one grid row whose data stay in the core's
 cache (the benchmark's homogeneous medium, mus' 0.2, mua 0.01 per grid step, 3 % noise on each
-response, max_radius 8):
+response, max_radius 8), after the yardstick, the stack's own kernel on the same chunk:
+  - the stack's sums (``_ring_sums``, as ``ring_stack`` runs it: its parallel loop's launch included);
   - the chunk's rings and their standard errors from the responses
     (:func:`~ringlight.core.rings.stack_spread.spread_row`);
   - its node fits, 3 channels (:func:`~ringlight.core.optics.node_fit.node_fit_row`): the rings'
@@ -32,10 +33,19 @@ from ringlight.core.optics.one_pass import CHUNK
 from ringlight.core.optics.pixel_fit import coarse_nodes, fit_outputs
 from ringlight.core.optics.synthetic import homogeneous_dataset
 from ringlight.core.optics.table import table_for
+from ringlight.core.rings.members import ring_members
 from ringlight.core.rings.stack_spread import band_members, spread_row, spread_rings
+from ringlight.core.rings.stacks import _ring_sums
 
 ROW, FIRST = 10, 10
 """The chunk: grid row ROW from column FIRST, every ring whole (max_radius 8 on a 20 x (CHUNK + 20) grid)."""
+
+
+@numba.njit
+def stack_chunk_repeatedly(repeats, responses, first, stop, weight_start, weights, unweighted, counts, totals, images):
+    """The stack's own sums (``_ring_sums``, as ``ring_stack`` runs them) of the chunk ``repeats`` times."""
+    for _ in range(repeats):
+        _ring_sums(responses, first, stop, weight_start, weights, unweighted, counts, totals, images)
 
 
 @numba.njit
@@ -93,7 +103,17 @@ def main() -> None:
     start = np.stack([out["u"][0, 0], out["v"][0, 0]], axis=1)
     fit_chunk_repeatedly(1, start, *fits)
     steps = np.bincount(out["node_steps"].ravel(), minlength=3)
-    halves = {"rings and errors": lambda repeats: spread_chunk_repeatedly(repeats, *spread),
+    # The yardstick: the stack alone, its rings' sums over the same chunk.
+    chunk = np.ascontiguousarray(pixels).reshape(1, CHUNK, -1, 3)
+    members, totals = ring_members(dataset.lit, dataset.observed, dataset.offsets, rings.tables, rings.unweighted,
+                                   ROW, ROW + 1)
+    window = slice(FIRST, FIRST + CHUNK)
+    stack = (chunk, *rings.tables, rings.unweighted, np.ascontiguousarray(members[:, :, window]),
+             np.ascontiguousarray(totals[:, :, window]), np.empty_like(images))
+    stack_chunk_repeatedly(1, *stack)
+    assert np.allclose(stack[-1], images, rtol=1e-6, atol=0.0)  # the same rings as the pass's
+    halves = {"the stack's sums": lambda repeats: stack_chunk_repeatedly(repeats, *stack),
+              "rings and errors": lambda repeats: spread_chunk_repeatedly(repeats, *spread),
               "node fits": lambda repeats: fit_chunk_repeatedly(repeats, start, *fits)}
     print(f"a {CHUNK}-pixel chunk, 3 channels, max_radius 8 ({steps[1]} fits from one node, {steps[2]} from two, "
           f"{steps[0]} full fits); {args.trials} trials of {args.repeats} chunks, "

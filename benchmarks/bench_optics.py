@@ -157,5 +157,6 @@ def main() -> None:
         print(f"map ({unit:4s}, each phase's fastest round): beyond the stack "
               f"{(times['map pass'][:, index].min() - fastest) / fastest:.2f} x (target <= 1)")
 
+
 if __name__ == "__main__":
     main()
