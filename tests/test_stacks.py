@@ -47,6 +47,26 @@ def test_transient_stack_equals_brute_force_on_random_datasets(tmp_path, height,
     assert dataset.missing_count == height * width - len(impulses)
 
 
+
+def test_a_datasets_rows_are_read_only_as_assembled_and_as_read_from_its_store(tmp_path):
+    """Opened the first time a dataset is assembled in memory (writeable); opened again it is read
+    from its store (read-only). Its rows are read-only either way, and its array untouched, so that
+    the stack's kernel is compiled for read-only responses only (numba compiled it once for each,
+    3-6 s on a fresh install; the stacks are the same)."""
+    from ringlight.core.rings.stacks import _ring_sums
+
+    rng = np.random.default_rng(3)
+    impulses = random_impulses(rng, 6, 7, support=20)
+    write_dataset(tmp_path / "ds", 6, 7, impulses)
+    assembled, stored = open_dataset(tmp_path / "ds", radius=3), open_dataset(tmp_path / "ds", radius=3)
+    assert assembled.store is None and stored.store is not None
+    assert assembled.responses.flags.writeable
+    for dataset in (assembled, stored):
+        assert not dataset.rows(0, 6).flags.writeable and not dataset.rows(2, 3).flags.writeable
+    np.testing.assert_array_equal(ring_stack(assembled, [0, 1, 2]).images, ring_stack(stored, [0, 1, 2]).images)
+    assert assembled.responses.flags.writeable
+    assert _ring_sums.signatures and all(not signature[0].mutable for signature in _ring_sums.signatures)
+
 def test_ring_counts_are_the_number_of_lit_in_grid_members(tmp_path):
     rng = np.random.default_rng(5)
     impulses = random_impulses(rng, 8, 10, support=20, missing=0.2)

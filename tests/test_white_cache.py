@@ -110,3 +110,17 @@ def test_a_stored_database_is_read_back_and_an_unwritable_place_is_skipped(tmp_p
     blocked.write_bytes(b"")
     white_cache.store(blocked / f"{4:024x}.npz", "key", {"values": np.arange(4.0)}, limit=0)
     assert kept.exists() and blocked.read_bytes() == b""
+
+
+def test_optics_given_as_integers_are_the_same_optics_as_floats(tmp_path, monkeypatch):
+    """A depth of 8 and of 8.0 (g 0 and 0.0, ...) are one slab: one cache file, and one run read
+    back from it (json wrote "8" and "8.0", two keys, and numba compiled the walk once for each)."""
+    monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(tmp_path))
+    whole = SlabOptics((1, 1, 1), 0, 1, 8, 4.0)
+    floats = SlabOptics((1.0, 1.0, 1.0), 0.0, 1.0, 8.0, 4)
+    assert whole.key(500, 0) == floats.key(500, 0) and database_path(whole, 500, 0) == database_path(floats, 500, 0)
+    assert [type(v) for v in (whole.g, whole.n, whole.depth, whole.reach, *whole.mus)] == [float] * 3 + [int] + [float] * 3
+    first = white_database(whole, 500)
+    again = white_database(floats, 500)
+    assert again.seconds == first.seconds  # read back from the file the first wrote, not run again
+    np.testing.assert_array_equal(again.lengths, first.lengths)

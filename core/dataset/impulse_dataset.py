@@ -131,9 +131,16 @@ class ImpulseDataset:
         return [(row, min(row + rows, height)) for row in range(0, height, rows)]
 
     def rows(self, row0: int, row1: int) -> np.ndarray:
-        """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32 (read-only when read
-        from the store; a view of the in-memory array)."""
-        return self.responses[row0:row1] if self.responses is not None else self.store.rows(row0, row1)
+        """Responses of grid rows ``row0 .. row1``: (rows, W, K, 3) float32, read-only (a view of
+        the in-memory array, or the store's band or copy). Read-only whatever their source, so that
+        each kernel that reads them is compiled for one type: numba compiled the stack's, the
+        spread's and the interpolated rings' kernels once for writeable and once for read-only
+        responses (3-5 s each on a fresh install)."""
+        rows = self.responses[row0:row1] if self.responses is not None else self.store.rows(row0, row1)
+        if rows.flags.writeable:
+            rows = rows.view()
+            rows.flags.writeable = False
+        return rows
 
     def point(self, y: int, x: int) -> np.ndarray:
         """Responses at grid point ``p = [y, x]``: (K, 3) float32 (one store chunk read)."""

@@ -78,6 +78,15 @@ class SlabOptics:
     depth: float
     reach: int
 
+    def __post_init__(self):
+        # One type per field: a depth of 24 and of 24.0 are the same optics, so they must give the
+        # same cache key (json writes "24" and "24.0") and the same compiled walk (numba compiled
+        # the walk once for each: 8 s more).
+        object.__setattr__(self, "mus", tuple(float(m) for m in self.mus))
+        for name in ("g", "n", "depth"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "reach", int(self.reach))
+
     @property
     def bins(self) -> int:
         return len(self.mus)

@@ -3,7 +3,9 @@
 
 The pages show them from ``_generated/screenshots/`` (not kept in git). The samples are written
 into the build's cache folder first (``conf.py`` sets ``RINGLIGHT_CACHE_DIR``), then the windows
-are rendered two at a time.
+are rendered: the first alone, which compiles the kernels a window needs into numba's cache on a
+fresh install (two windows at once compiled each of them twice: 10 s of CPU for the noise's kernel
+alone), then the others two at a time, loading them from there.
 """
 
 from __future__ import annotations
@@ -38,14 +40,18 @@ def make_screenshots(app) -> None:
         dataset = sample_dataset(sample)
         commands.append([sys.executable, "-m", "ringlight.app", str(dataset), "--screenshot", str(folder / name),
                          "--overwrite", *extra])
+    _finish(commands[0], _start(commands[0], environment))
     running = []
-    for command in commands:
-        running.append((command, subprocess.Popen(command, env=environment, stdout=subprocess.PIPE,
-                                                  stderr=subprocess.STDOUT, text=True)))
+    for command in commands[1:]:
+        running.append((command, _start(command, environment)))
         if len(running) >= PARALLEL:
             _finish(*running.pop(0))
     for command, process in running:
         _finish(command, process)
+
+
+def _start(command, environment) -> subprocess.Popen:
+    return subprocess.Popen(command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 def _finish(command, process) -> None:
