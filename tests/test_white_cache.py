@@ -119,7 +119,8 @@ def test_optics_given_as_integers_are_the_same_optics_as_floats(tmp_path, monkey
     whole = SlabOptics((1, 1, 1), 0, 1, 8, 4.0)
     floats = SlabOptics((1.0, 1.0, 1.0), 0.0, 1.0, 8.0, 4)
     assert whole.key(500, 0) == floats.key(500, 0) and database_path(whole, 500, 0) == database_path(floats, 500, 0)
-    assert [type(v) for v in (whole.g, whole.n, whole.depth, whole.reach, *whole.mus)] == [float] * 3 + [int] + [float] * 3
+    types = [type(v) for v in (whole.g, whole.n, whole.depth, whole.reach, *whole.mus)]
+    assert types == [float] * 3 + [int] + [float] * 3
     first = white_database(whole, 500)
     again = white_database(floats, 500)
     assert again.seconds == first.seconds  # read back from the file the first wrote, not run again
