@@ -113,6 +113,20 @@ def test_interpolated_transients_are_differences_of_interpolated_rings():
     np.testing.assert_array_equal(transients.images, rings[:2] - rings[1:])
 
 
+
+def test_interpolated_rings_are_the_same_band_by_band_and_compiled_for_the_whole_stack(monkeypatch):
+    """Bands of 3 rows (as a large dataset's) give the one band's interpolated rings, and the
+    kernel writes into the whole (n, H, W, 3) stack: each band's slice was strided where one band's
+    is contiguous, two compiles of the same kernel (4-5 s each)."""
+    from ringlight.core.rings.interpolate import _interpolated_rings
+
+    dataset = slab(2)
+    whole = interpolated_ring_stack(dataset, [1.0, 2.0, 3.0]).images
+    monkeypatch.setattr(ImpulseDataset, "band_height", property(lambda self: 3))
+    assert len(dataset.bands()) > 2
+    np.testing.assert_array_equal(interpolated_ring_stack(dataset, [1.0, 2.0, 3.0]).images, whole)
+    assert all(signature[-2].layout == "C" for signature in _interpolated_rings.signatures)
+
 def test_the_stack_command_writes_coverage_and_its_warning(tmp_path, capsys):
     impulses = random_impulses(np.random.default_rng(6), 9, 9, support=4)
     sparse = {q: image for q, image in impulses.items() if q[0] % 3 == 0 and q[1] % 3 == 0}

@@ -214,3 +214,21 @@ def test_progress_reaches_one_and_a_cancel_stops_the_estimate(random_dataset):
         raise Cancelled("cancelled")
     with pytest.raises(Cancelled):
         stack_noise(dataset, [1.0, 2.0], progress=cancel)
+
+
+def test_the_spread_is_the_same_band_by_band_and_its_kernel_compiled_for_whole_outputs(random_dataset,
+                                                                                         monkeypatch):
+    """Bands of 2 rows (as a large dataset's) give the one band's standard errors, and the kernel
+    writes into the whole (n, H, W) outputs: each band's slice was strided where one band's is
+    contiguous, two compiles of the same kernel (9-17 s each)."""
+    from ringlight.core.dataset.impulse_dataset import ImpulseDataset
+    from ringlight.core.rings.noise import _spread_kernel
+
+    _, dataset = random_dataset
+    whole = stack_noise(dataset, [0.0, 1.0, 2.0])
+    monkeypatch.setattr(ImpulseDataset, "band_height", property(lambda self: 2))
+    assert len(dataset.bands()) == 5
+    banded = stack_noise(dataset, [0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(banded.ring, whole.ring)
+    np.testing.assert_array_equal(banded.ring_luminance, whole.ring_luminance)
+    assert all(signature[-1].layout == signature[-2].layout == "C" for signature in _spread_kernel.signatures)

@@ -56,10 +56,13 @@ def _profile_value(distances, values, count, target, channel, max_gap):  # pragm
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_offsets, max_gap, out, row0,
-                        height):  # pragma: no cover - compiled
-    """``out[i, y]`` for the band of rows ``row0 + y`` (``responses``, ``validity`` and ``out``
-    hold the band's rows; ``height`` is the grid's)."""
+def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_offsets, max_gap, out,
+                        row0):  # pragma: no cover - compiled
+    """``out[i, row0 + y]`` of the whole grid's (n, H, W, 3) ``out`` for the band of grid rows
+    ``row0 + y`` (``responses`` and ``validity`` hold the band's rows): the whole array, so that the
+    kernel is compiled for one layout (a band's slice was contiguous when one band covered the grid
+    and strided otherwise: two compiles of 4-5 s)."""
+    height = out.shape[1]
     rows, width, offsets = validity.shape
     for y in numba.prange(rows):
         samples = np.empty(offsets, np.float64)
@@ -93,7 +96,7 @@ def _interpolated_rings(responses, validity, dy, dx, distance, ring_start, ring_
                     for c in range(3):
                         total[c] += _profile_value(samples, values, count, distance[k], c, max_gap) if count else np.nan
                 for c in range(3):
-                    out[i, y, x, c] = total[c] / used if used else np.nan
+                    out[i, row0 + y, x, c] = total[c] / used if used else np.nan
 
 
 def interpolated_ring_stack(dataset: ImpulseDataset, radii, thickness: float = 1.0,
@@ -130,7 +133,7 @@ def interpolated_ring_stack(dataset: ImpulseDataset, radii, thickness: float = 1
     for row0, row1 in dataset.bands():
         _interpolated_rings(dataset.rows(row0, row1), dataset.validity_rows(row0, row1),
                             np.ascontiguousarray(offsets[:, 0]), np.ascontiguousarray(offsets[:, 1]), distance,
-                            ring_start, ring_offsets, float(max_gap), images[:, row0:row1], row0, height)
+                            ring_start, ring_offsets, float(max_gap), images, row0)
     images[:, ~dataset.observed] = np.nan
     yy, xx = np.mgrid[:height, :width]
     counts = np.stack([sum(((yy + offsets[k, 0] >= 0) & (yy + offsets[k, 0] < height) & (xx + offsets[k, 1] >= 0)

@@ -209,22 +209,27 @@ def _ring_spread(dataset, radii, thickness, antialias, luma, progress):
     se_luminance = np.empty((len(radii), height, width), np.float32)
     for row0, row1 in dataset.bands():
         _spread_kernel(dataset.rows(row0, row1), dataset.validity_rows(row0, row1), first, stop, weight_start,
-                       weights, group_end, luma, 0, row1 - row0, se[:, row0:row1], se_luminance[:, row0:row1])
+                       weights, group_end, luma, row0, se, se_luminance)
         if progress is not None:
             progress(row1 / height)
     return se, se_luminance
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _spread_kernel(responses, validity, first, stop, weight_start, weights, group_end, luma, row0, row1,
-                   se, se_luminance):
-    """Standard error of each ring's weighted mean (module docstring), rows row0 <= y < row1.
+def _spread_kernel(responses, validity, first, stop, weight_start, weights, group_end, luma, row0, se,
+                   se_luminance):
+    """Standard error of each ring's weighted mean (module docstring) of the band of grid rows from
+    ``row0`` (``responses`` and ``validity`` hold the band's rows), into the whole grid's ``se``
+    (n, H, W, 3) and ``se_luminance`` (n, H, W) at rows ``row0 + y``: whole arrays, so that the
+    kernel is compiled for one layout (a band's slice of them was contiguous when one band covered
+    the grid and strided otherwise: two compiles of 9-17 s).
 
     Per distance group: its weighted mean, then the weighted squared deviations from it (two
     passes over a few cached members, no cancellation as in sum x^2 - n mean^2).
     """
-    width = validity.shape[1]
-    for y in numba.prange(row0, row1):
+    rows, width = validity.shape[0], validity.shape[1]
+    for y in numba.prange(rows):
+        row = row0 + y
         for x in range(width):
             pixel = responses[y, x]
             valid = validity[y, x]
@@ -273,14 +278,14 @@ def _spread_kernel(responses, validity, first, stop, weight_start, weights, grou
                     v2 += g2
                     start = end
                 if pairs == 0:
-                    se[j, y, x, 0] = np.nan
-                    se[j, y, x, 1] = np.nan
-                    se[j, y, x, 2] = np.nan
-                    se_luminance[j, y, x] = np.nan
+                    se[j, row, x, 0] = np.nan
+                    se[j, row, x, 1] = np.nan
+                    se[j, row, x, 2] = np.nan
+                    se_luminance[j, row, x] = np.nan
                     continue
                 # SE^2 = s_w^2 / n_eff = (sum_g sum w d^2 / sum_g (V1_g - V2_g / V1_g)) * V2 / V1^2
                 factor = v2 / (dof * v1 * v1)
-                se[j, y, x, 0] = math.sqrt(q0 * factor)
-                se[j, y, x, 1] = math.sqrt(q1 * factor)
-                se[j, y, x, 2] = math.sqrt(q2 * factor)
-                se_luminance[j, y, x] = math.sqrt(qy * factor)
+                se[j, row, x, 0] = math.sqrt(q0 * factor)
+                se[j, row, x, 1] = math.sqrt(q1 * factor)
+                se[j, row, x, 2] = math.sqrt(q2 * factor)
+                se_luminance[j, row, x] = math.sqrt(qy * factor)
