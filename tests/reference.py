@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -186,3 +187,32 @@ def assert_same_for_any_thread_count(simulate):
     assert np.array_equal(results[0].windows, results[1].windows)
     assert np.array_equal(results[0].path_length_images, results[1].path_length_images)
     return results[0]
+
+
+class CountingReads:
+    """Counts EXR frame decodes, alone or in a run of small frames (the work the cache exists to
+    avoid), from whichever thread decodes them: an open decodes its frames in a pool of threads, and
+    an unguarded ``+=`` from two of them lost a run's count now and then (24 of 30 frames counted
+    once in a loaded CI)."""
+
+    def __init__(self, monkeypatch):
+        import ringlight.core.dataset.frames as frames_module
+        from ringlight.core.dataset.frame_batch import BatchDecoder
+
+        self.count = 0
+        lock = threading.Lock()
+        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
+
+        def counted(*args, **kwargs):
+            with lock:
+                self.count += 1
+            return original(*args, **kwargs)
+
+        def counted_run(decoder, *args, **kwargs):
+            run, status, bad = original_run(decoder, *args, **kwargs)
+            with lock:
+                self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
+            return run, status, bad
+
+        monkeypatch.setattr(frames_module, "read_exr_channels", counted)
+        monkeypatch.setattr(BatchDecoder, "load", counted_run)

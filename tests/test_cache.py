@@ -6,9 +6,8 @@ import time
 
 import numpy as np
 import pytest
-import ringlight.core.dataset.frames as frames_module
 from numpy.testing import assert_array_equal
-from reference import random_impulses, write_dataset, write_rgb
+from reference import CountingReads, random_impulses, write_dataset, write_rgb
 from ringlight.core import open_dataset, ring_stack
 from ringlight.core.dataset.cache import CACHE_FOLDER_NAME
 
@@ -18,28 +17,6 @@ def dataset(tmp_path):
     impulses = random_impulses(np.random.default_rng(0), 7, 6, support=10)
     write_dataset(tmp_path / "ds", 7, 6, impulses)
     return tmp_path / "ds"
-
-
-class CountingReads:
-    """Counts EXR frame decodes, alone or in a run of small frames (the work the cache exists to avoid)."""
-
-    def __init__(self, monkeypatch):
-        from ringlight.core.dataset.frame_batch import BatchDecoder
-
-        self.count = 0
-        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
-
-        def counted(*args, **kwargs):
-            self.count += 1
-            return original(*args, **kwargs)
-
-        def counted_run(decoder, *args, **kwargs):
-            run, status, bad = original_run(decoder, *args, **kwargs)
-            self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
-            return run, status, bad
-
-        monkeypatch.setattr(frames_module, "read_exr_channels", counted)
-        monkeypatch.setattr(BatchDecoder, "load", counted_run)
 
 
 def test_second_open_reads_the_cache_instead_of_frames(dataset, monkeypatch):

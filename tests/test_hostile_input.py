@@ -11,8 +11,8 @@ from contextlib import contextmanager
 import numpy as np
 import OpenEXR
 import pytest
-import ringlight.core.dataset.frames as frames_module
 from reference import (
+    CountingReads,
     edit_manifest,
     random_impulses,
     write_dataset,
@@ -82,28 +82,6 @@ def refused(folder, *needles, **options):
     for needle in needles:
         assert needle in message, message
     return message
-
-
-class CountingReads:
-    """Counts frame decodes, alone or in a run of small frames (the work the cache exists to avoid)."""
-
-    def __init__(self, monkeypatch):
-        from ringlight.core.dataset.frame_batch import BatchDecoder
-
-        self.count = 0
-        original, original_run = frames_module.read_exr_channels, BatchDecoder.load
-
-        def counted(*args, **kwargs):
-            self.count += 1
-            return original(*args, **kwargs)
-
-        def counted_run(decoder, *args, **kwargs):
-            run, status, bad = original_run(decoder, *args, **kwargs)
-            self.count += int(np.count_nonzero(status == 0))  # the others are read alone, counted above
-            return run, status, bad
-
-        monkeypatch.setattr(frames_module, "read_exr_channels", counted)
-        monkeypatch.setattr(BatchDecoder, "load", counted_run)
 
 
 # Manifest: the bounded JSON reader -------------------------------------------------------------
