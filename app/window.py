@@ -34,6 +34,7 @@ from ringlight.widgets.levels_histogram import LevelsHistogram
 from ringlight.widgets.profile_plot import ProfilePlot
 from ringlight.widgets.scrub_bar import ScrubBar
 from ringlight.widgets.stack_controls import StackControls
+from ringlight.widgets.status_bar import ElidingStatusBar
 
 from .capture_tab import CaptureTab
 from .dataset_opening import DatasetOpening
@@ -97,6 +98,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, OpticsView,
 
         # Numba's one-time set-up holds the GIL for ~0.1 s: pay it now, in the worker, not mid-use.
         self.pool.start(_warm_up)
+        self.setStatusBar(ElidingStatusBar(self))
         self._build_widgets()
         self.layer_tab = LayerTab(self.layer_panel, self.image_panel, self.scrub_bar, self.export_jobs,
                                   self.fit_jobs, self)

@@ -51,6 +51,9 @@ def test_the_demo_opens_on_the_bead_at_a_radius_and_levels_where_it_shows(qtbot,
     np.testing.assert_allclose(window.current_levels(), np.percentile(image, [0.5, 99.5]), rtol=1e-5)
     message = window.statusBar().currentMessage()
     assert "structure" in message and "scrub" in message and "Layers" in message
+    # Drawn whole, or cut with an ellipsis before the jobs' indicators: the whole line is the tooltip.
+    shown = window.statusBar().shown_message()
+    assert window.statusBar().toolTip() == message and (shown == message or message.startswith(shown[:-1]))
 
 
 def test_a_layered_sample_opens_on_the_layers_tab(qtbot, new_user_window, place_sample):
