@@ -1,5 +1,7 @@
 """The status bar's temporary message elided before the permanent widgets, its whole text the tooltip."""
 
+import threading
+
 import numpy as np
 from PySide6.QtWidgets import QLabel, QMainWindow
 from ringlight.widgets.status_bar import ElidingStatusBar
@@ -46,3 +48,34 @@ def test_a_long_message_ends_in_an_ellipsis_before_a_running_jobs_label_and_the_
     assert bar.shown_message() == LINE
     bar.clearMessage()
     assert bar.toolTip() == "" and bar.shown_message() == "" and window.statusBar() is bar
+
+
+def test_a_running_jobs_indicator_takes_no_more_room_than_it_needs(qtbot):
+    """The indicator (label, progress bar, Cancel) in a wide bar showing a message: its width is its
+    size hint's, so the message keeps the rest (the bar's expanding progress bar made the
+    indicator take a share of the room, a blank stretch after its label's text)."""
+    from PySide6.QtCore import QThreadPool
+    from ringlight.widgets.job_indicator import JobIndicator
+    from ringlight.widgets.jobs import JobSlot
+
+    window = QMainWindow()
+    bar = ElidingStatusBar(window)
+    window.setStatusBar(bar)
+    pool = QThreadPool()
+    slot = JobSlot(pool)
+    indicator = JobIndicator(slot)
+    bar.addPermanentWidget(indicator)
+    window.resize(1366, 120)
+    qtbot.addWidget(window)
+    window.show()
+    qtbot.waitExposed(window)
+    release = threading.Event()
+    slot.start("Noise of 11 radii", lambda progress: release.wait(10))  # runs until released
+    bar.showMessage("short")
+    try:
+        qtbot.waitUntil(lambda: indicator.isVisible())
+        assert indicator.width() == indicator.sizeHint().width()
+        assert bar.message_room().right() >= 1366 - indicator.sizeHint().width() - 40
+    finally:
+        release.set()
+        pool.waitForDone(10000)

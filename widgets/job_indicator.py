@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QToolButton, QWidget
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QSizePolicy, QToolButton, QWidget
 
 from .jobs import JobSlot
 
@@ -26,6 +26,9 @@ class JobIndicator(QWidget):
         layout.setContentsMargins(0, 0, 0, 0)
         for widget in (self.label, self.bar, self.cancel_button):
             layout.addWidget(widget)
+        # No wider than its contents: its progress bar expands, so the status bar gave the indicator
+        # a share of the room a temporary message leaves, and its label a blank stretch beside the text.
+        self.setSizePolicy(QSizePolicy.Policy.Maximum, QSizePolicy.Policy.Preferred)
         slot.started.connect(self._on_started)
         slot.progress.connect(self._on_progress)
         slot.phase.connect(self._on_phase)
