@@ -24,8 +24,10 @@ class ElidingStatusBar(QStatusBar):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
+        # Kept here: QStatusBar lists no permanent widgets, and its size grip, the other child shown
+        # beside a message, is placed only once laid out (at 0, 0 until then).
         self._permanent: list[QWidget] = []
-        self.messageChanged.connect(self._message_changed)
+        self.messageChanged.connect(self.setToolTip)
 
     def addPermanentWidget(self, widget: QWidget, stretch: int = 0) -> None:
         self._permanent.append(widget)
@@ -62,6 +64,3 @@ class ElidingStatusBar(QStatusBar):
         painter.drawText(self.message_room(),
                          Qt.AlignmentFlag.AlignLeading | Qt.AlignmentFlag.AlignVCenter | Qt.TextFlag.TextSingleLine,
                          self.shown_message())
-
-    def _message_changed(self, message: str) -> None:
-        self.setToolTip(message)

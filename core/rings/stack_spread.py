@@ -213,7 +213,7 @@ def spread_row(pixels, py, px, lit, dy, dx, first, stop, groups, ring_groups, co
     # channel; the same reciprocals, the same errors to the bit).
     inverses = np.empty(groups.shape[0])
     for g in range(groups.shape[0]):
-        inverses[g] = 1.0 / max(groups[g, 1] - groups[g, 0], 1)
+        inverses[g] = 1.0 / (groups[g, 1] - groups[g, 0])  # a group holds a member at least
     for x in range(width):
         pixel = pixels[x]
         whole = True
