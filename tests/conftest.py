@@ -280,8 +280,9 @@ def pytest_collection_finish(session):
     leaves a window's widgets to the collector; each such collection scanned them all: 0.16 s a
     test in tests/test_window.py (31 collections, 5.0 s of its 62 s under cProfile), 0.06 s with
     them frozen (2.0 s). Frozen objects are still freed by reference counting."""
-    gc.collect()
-    gc.freeze()
+    from ringlight.app.gui import settle_heap  # no Qt import: the module imports Qt where it runs
+
+    settle_heap()
 
 
 @pytest.fixture
