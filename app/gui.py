@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import gc
 import os
 import sys
 import tempfile
@@ -12,6 +11,8 @@ from pathlib import Path
 from ringlight.core import RinglightError
 from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.image_export import write_bytes
+
+from .heap import settle_heap
 
 APPLICATION = "ringlight"
 
@@ -62,17 +63,6 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     status = app.exec()
     _dispose(window)
     return status
-
-
-def settle_heap() -> None:
-    """Put what start-up made (modules, Qt wrappers, the window: about 200 000 objects) out of the
-    cyclic garbage collector's sight (``gc.freeze``). A full collection otherwise scans them all
-    while holding the GIL, about 110 ms here, and one that falls due while a worker parses a
-    manifest (which allocates a list per lit point) stalls the event loop as long:
-    ``benchmarks/bench_gui.py`` measured 130-170 ms while opening a 128 px dataset, 22 ms after
-    this. Frozen objects are still freed by reference counting; only cycles among them stay."""
-    gc.collect()
-    gc.freeze()
 
 
 def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: tuple[int, int] | None,

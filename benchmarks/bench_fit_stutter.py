@@ -30,7 +30,7 @@ from PySide6.QtCore import QEventLoop, QSettings, QTimer
 from PySide6.QtWidgets import QApplication
 import ringlight.app.layer_tab as layer_tab
 from ringlight.app.fit_process import invert_region_apart
-from ringlight.app.gui import settle_heap
+from ringlight.app.heap import settle_heap
 from ringlight.core.inversion.report import invert_region
 from ringlight.app.window import MainWindow
 from ringlight.widgets.layer_panel import INVERSE

@@ -38,7 +38,7 @@ from PySide6.QtWidgets import QApplication
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_stack import synthetic_dataset  # noqa: E402
-from ringlight.app.gui import settle_heap  # noqa: E402
+from ringlight.app.heap import settle_heap  # noqa: E402
 from ringlight.app.session import LoadedDataset, compute_view_stacks  # noqa: E402
 from ringlight.app.window import MainWindow  # noqa: E402
 from ringlight.core import DatasetWriter, open_dataset  # noqa: E402

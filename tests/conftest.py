@@ -276,11 +276,11 @@ def pytest_configure(config):
 def pytest_collection_finish(session):
     """Put what collecting imported (numpy, numba, SciPy, Qt, pyqtgraph, colour-science: the test
     modules import them) out of the cyclic collector's sight, as the app does at start-up
-    (:func:`ringlight.app.gui.settle_heap`). :func:`no_leaks` collects in full after every test that
+    (:func:`ringlight.app.heap.settle_heap`). :func:`no_leaks` collects in full after every test that
     leaves a window's widgets to the collector; each such collection scanned them all: 0.16 s a
     test in tests/test_window.py (31 collections, 5.0 s of its 62 s under cProfile), 0.06 s with
     them frozen (2.0 s). Frozen objects are still freed by reference counting."""
-    from ringlight.app.gui import settle_heap  # no Qt import: the module imports Qt where it runs
+    from ringlight.app.heap import settle_heap  # imports gc alone: the OpenEXR floor's venv has no Qt or OpenCV
 
     settle_heap()
 
