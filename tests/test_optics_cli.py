@@ -3,6 +3,7 @@
 calibration, and one-line refusals."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -59,6 +60,22 @@ def test_optics_writes_maps_and_the_regions_values(homogeneous, tmp_path, capsys
     rd = np.array(list(result["R_d"].values()))
     assert (np.diff(rd, axis=0) < 0).all()  # R_d falls with frequency in every channel
     assert "wrote" in capsys.readouterr().out
+
+
+def test_the_white_run_of_a_regions_fit_is_traced_once_with_its_progress(homogeneous, tmp_path, monkeypatch,
+                                                                         caplog):
+    """An empty user cache: ``--json`` alone traced the table's white run inside the region's fit,
+    with no progress (about 50 s at the default photons on two cores, after a line saying it ran).
+    It is traced first, its progress logged, and the fit reads it from the cache: one run."""
+    monkeypatch.setenv("RINGLIGHT_LOG", "info")  # every step's line (the command sets its logger's level)
+    caplog.set_level("INFO", logger="ringlight")
+    traced = []
+    trace = radial.run_radial
+    monkeypatch.setattr(radial, "run_radial", lambda *args, **kwargs: traced.append(args) or trace(*args, **kwargs))
+    assert main(["optics", homogeneous, "--json", str(tmp_path / "region.json"), *PHOTONS]) == 0
+    lines = [record.getMessage() for record in caplog.records]
+    assert [line for line in lines if re.fullmatch(r"white run on CPU \(\d+ cores?\): +100%", line)], lines
+    assert len(traced) == 1
 
 
 def test_a_calibration_made_on_a_reference_is_taken_by_later_maps(homogeneous, tmp_path, capsys):
