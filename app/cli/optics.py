@@ -92,9 +92,9 @@ def run_optics(args) -> int:
     manifest = load_manifest(args.dataset)
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
-    # The tables' white run, traced here with its progress into the user cache, where the tables
-    # below read it (a run of the same photons), or read from there. A region's fit and a calibration
-    # traced it themselves on the CPU, silent: about 50 s at the default photons on two cores.
+    # The tables' white run, read from the user cache or traced here under its own progress bar into
+    # it, where the tables below read it (a run of the same photons): a region's fit and a calibration
+    # take no progress of their own, and the run is about 50 s at the default photons on two cores.
     with progress_bar(f"white run on {device.name}") as progress:
         radial_run(*sample_optics(dataset, args.n, args.g), args.photons, progress=progress, device=device)
     print(f"white run on {device.name} (or read from the user cache)")
