@@ -149,7 +149,7 @@ def test_without_the_cache_a_dataset_over_the_budget_is_refused_in_one_line(fold
         open_dataset(folder, use_cache=False, memory_budget_bytes=1)
 
 
-@pytest.mark.allow_leaks("dask.distributed keeps its IO loop threads for the process")
+@pytest.mark.allow_leaks("dask.distributed keeps its offload thread (Dask-Offload_0) for the process")
 def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_for_bit(folder):
     from dask.distributed import Client, LocalCluster
 
@@ -168,15 +168,27 @@ def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_f
     assert fractions[-1] == 1.0 and len(fractions) == 6
 
 
-@pytest.mark.allow_leaks("dask.distributed keeps its IO loop threads for the process")
 @pytest.mark.parametrize("address", ["garbage", "tcp://", "127.0.0.1:abc", "inproc://x"])
 def test_a_scheduler_address_that_is_no_dask_scheduler_is_one_line(folder, address):
-    """Malformed addresses gave dask's ValueError tracebacks (a user review)."""
+    """Malformed addresses gave dask's ValueError tracebacks (a user review); each failed client
+    left its IO loop thread running for the process (the leak guard fails the test on a thread)."""
     from ringlight.core.errors import StackError
 
     lazy = open_dataset(folder, memory_budget_bytes=1)
     with pytest.raises(StackError, match=f"{re.escape(repr(address))} is not the address of a dask scheduler"):
         ring_stack(lazy, RADII, scheduler=address)
+
+
+def test_a_scheduler_that_does_not_answer_is_one_line_and_leaves_no_thread(folder, monkeypatch):
+    """No scheduler listens on port 1: the client's connection times out, the stack is refused in
+    one line, and its IO loop thread ends with it (the leak guard checks)."""
+    from ringlight.core.errors import StackError
+    from ringlight.core.rings import distributed
+
+    monkeypatch.setattr(distributed, "CONNECT_TIMEOUT_S", 0.5)
+    lazy = open_dataset(folder, memory_budget_bytes=1)
+    with pytest.raises(StackError, match=re.escape("cannot reach the dask scheduler at tcp://127.0.0.1:1 (")):
+        ring_stack(lazy, RADII, scheduler="tcp://127.0.0.1:1")
 
 
 def test_camera_frames_with_a_dark_frame_and_exposures_give_the_same_bands(tmp_path, impulses, monkeypatch):

@@ -13,6 +13,7 @@ path (a shared or network file system); the workers need ringlight installed.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,6 +21,9 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled, StackError
+
+CONNECT_TIMEOUT_S = 10.0
+"""Seconds a scheduler given by its address has to answer before the stack is refused."""
 
 
 def band_ring_sums(store_path: str, row0: int, row1: int, lit: np.ndarray, observed: np.ndarray,
@@ -49,7 +53,7 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
     try:
         if client is None:
             try:
-                client = Client(str(scheduler), timeout="10s")
+                client = _client_class()(str(scheduler), timeout=CONNECT_TIMEOUT_S, set_as_default=False)
             except OSError as error:
                 raise StackError(f"cannot reach the dask scheduler at {scheduler} ({error})") from None
             except Exception as error:  # a malformed address, or a service that is not a scheduler
@@ -66,7 +70,7 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
                  for row0, row1 in _store_bands(dataset)}
         done = 0
         try:
-            for future in as_completed(bands):
+            for future in as_completed(bands, loop=client.loop):
                 row0, row1 = bands[future]
                 images[:, row0:row1], counts[:, row0:row1] = future.result()
                 done += 1
@@ -79,6 +83,28 @@ def distributed_ring_images(dataset: ImpulseDataset, tables: tuple, scheduler,
     finally:
         if client is not None and client is not scheduler:
             client.close()
+
+
+@functools.cache
+def _client_class() -> type:
+    """A ``dask.distributed.Client`` whose IO loop thread ends when its connection fails.
+
+    A ``Client`` starts a thread for its event loop before it connects; when the connection
+    fails (a malformed address, or no scheduler answering in time) the constructor raises and
+    that thread runs on for the life of the process, one per failed try (distributed 2026.8).
+    """
+    from dask.distributed import Client
+
+    class ClosingClient(Client):
+        def start(self, **kwargs):
+            try:
+                super().start(**kwargs)
+            except BaseException:
+                self.close()  # nothing to do once the failed connection closed it
+                self._loop_runner.stop()
+                raise
+
+    return ClosingClient
 
 
 def _store_bands(dataset: ImpulseDataset) -> list[tuple[int, int]]:
