@@ -29,6 +29,37 @@ def test_progress_lines_reach_stderr_while_the_exr_library_is_silenced():
     assert percentages == [f"{10 * step}%" for step in range(11)], result.stderr
 
 
+def test_the_log_follows_stderr_when_a_command_runs_again_on_another(monkeypatch):
+    """Commands run twice in one process (a notebook, a test's captured stderr): the second's lines
+    go to the stderr it runs with. The handler kept the first's stream, closed by then, and a
+    command's slow-work line became a logging error's traceback (the option fuzz test, with numba's
+    cache empty)."""
+    import io
+    import logging
+
+    from ringlight.app.cli.progress import configure_logging, logger
+
+    level = logger.level
+    first, second = io.StringIO(), io.StringIO()
+    monkeypatch.setattr(sys, "stderr", first)
+    monkeypatch.setenv("RINGLIGHT_LOG", "warning")
+    try:
+        configure_logging()
+        logger.warning("first command")
+        first.close()
+        monkeypatch.setattr(sys, "stderr", second)
+        configure_logging()
+        logger.warning("second command")
+        ours = [handler for handler in logger.handlers if isinstance(handler, logging.StreamHandler)]
+        assert len(ours) == 1 and ours[0].stream is second
+        assert second.getvalue().endswith(" ringlight: second command\n"), second.getvalue()
+        assert second.getvalue().count("\n") == 1
+    finally:
+        for handler in list(logger.handlers):  # the next command adds its own
+            logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
 def fake_clock(monkeypatch):
     from ringlight.app.cli import progress as module
 

@@ -32,14 +32,23 @@ logger = logging.getLogger("ringlight")
 
 def configure_logging() -> None:
     """Send the ``ringlight`` logger to stderr (:func:`stderr_copy`) at the level
-    ``$RINGLIGHT_LOG`` names (default warning), with a time stamp."""
+    ``$RINGLIGHT_LOG`` names (default warning), with a time stamp.
+
+    Called by every command: in one process (a notebook or a test calling ``main`` again) the
+    handler follows ``sys.stderr`` when that is another stream than the one it was made for, which
+    may be closed by then (a line logged there was a logging error's traceback)."""
     level = os.environ.get("RINGLIGHT_LOG", "warning").upper()
     logger.setLevel(level if level in logging.getLevelNamesMapping() else "WARNING")
-    if not any(getattr(handler, "ringlight", False) for handler in logger.handlers):
-        handler = logging.StreamHandler(stderr_copy())
-        handler.setFormatter(logging.Formatter("%(asctime)s ringlight: %(message)s", "%H:%M:%S"))
-        handler.ringlight = True
-        logger.addHandler(handler)
+    for handler in [handler for handler in logger.handlers if getattr(handler, "ringlight", None) is not None]:
+        if handler.ringlight is sys.stderr:
+            return
+        logger.removeHandler(handler)
+        if handler.stream is not handler.ringlight:  # its own duplicate of the descriptor
+            handler.stream.close()
+    handler = logging.StreamHandler(stderr_copy())
+    handler.setFormatter(logging.Formatter("%(asctime)s ringlight: %(message)s", "%H:%M:%S"))
+    handler.ringlight = sys.stderr  # the stream it was made for
+    logger.addHandler(handler)
 
 
 def stderr_copy() -> TextIO:
