@@ -331,8 +331,11 @@ def open_dataset(
                         write_assembled(writer, assembled, progress, 1.0 - WRITE_SHARE)
                 except (OSError, RinglightError):  # no store: the next open assembles again
                     pass
+                else:  # as a reopen has it: what a cluster's workers read (module .distributed of rings)
+                    store = open_store(location, key, shape, budget // 2)
             return dataset(responses=assembled.responses, lit_counts=assembled.lit_counts,
-                           observed=assembled.observed, steady=assembled.steady, cache_key=key, channels=channels)
+                           observed=assembled.observed, steady=assembled.steady, store=store, cache_key=key,
+                           channels=channels)
         try:
             with write_store(location, manifest_key, shape, tile, channels) as writer:
                 write_manifest_copy(writer.folder, manifest)
