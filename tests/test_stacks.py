@@ -49,17 +49,17 @@ def test_transient_stack_equals_brute_force_on_random_datasets(tmp_path, height,
 
 
 def test_a_datasets_rows_are_read_only_as_assembled_and_as_read_from_its_store(tmp_path):
-    """Opened the first time a dataset is assembled in memory (writeable); opened again it is read
-    from its store (read-only). Its rows are read-only either way, and its array untouched, so that
-    the stack's kernel is compiled for read-only responses only (numba compiled it once for each,
-    3-6 s on a fresh install; the stacks are the same)."""
+    """Opened the first time a dataset is assembled in memory (writeable), its store written and
+    kept; opened again it is read from its store. Its rows are read-only either way, and its array
+    untouched, so that the stack's kernel is compiled for read-only responses only (numba compiled
+    it once for each, 3-6 s on a fresh install; the stacks are the same)."""
     from ringlight.core.rings.stacks import _ring_sums
 
     rng = np.random.default_rng(3)
     impulses = random_impulses(rng, 6, 7, support=20)
     write_dataset(tmp_path / "ds", 6, 7, impulses)
     assembled, stored = open_dataset(tmp_path / "ds", radius=3), open_dataset(tmp_path / "ds", radius=3)
-    assert assembled.store is None and stored.store is not None
+    assert assembled.store is not None and stored.store is not None
     assert assembled.responses.flags.writeable
     for dataset in (assembled, stored):
         assert not dataset.rows(0, 6).flags.writeable and not dataset.rows(2, 3).flags.writeable

@@ -13,6 +13,7 @@ path (a shared or network file system); the workers need ringlight installed.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable
 from pathlib import Path
@@ -100,8 +101,11 @@ def _client_class() -> type:
             try:
                 super().start(**kwargs)
             except BaseException:
-                self.close()  # nothing to do once the failed connection closed it
-                self._loop_runner.stop()
+                with contextlib.suppress(Exception):  # the connection's error is the one to tell
+                    self.close()  # nothing to do once the failed connection closed it
+                runner = getattr(self, "_loop_runner", None)  # distributed's own attribute
+                if runner is not None:
+                    runner.stop()
                 raise
 
     return ClosingClient
