@@ -96,6 +96,28 @@ def test_cancel_stops_the_maps(run):
     assert fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
+def test_each_part_of_the_maps_is_named_and_the_fits_report_progress(run):
+    """A map from a stack and its errors (the full estimator; replicates take this path too): each
+    part names itself, so that the fits (their kernels compiled on a first run: 24 s at two cores
+    on the skin1 sample) no longer ran under the frames' reading's name, at 60 % and silent."""
+    from ringlight.core.phases import reporting_phases
+
+    dataset = model_dataset(run, 0.5, 0.02, 16, 8)
+    named, fractions = [], []
+    with reporting_phases(named.append):
+        optical_maps(dataset, photons=TEST_PHOTONS, estimator="full",
+                     progress=lambda fraction: fractions.append((named[-1] if named else None, fraction)))
+    assert [name for name in named if name.startswith("the ")] == [
+        "the rings and their spread", "the look-up table", "the fits"]
+    fits = [fraction for name, fraction in fractions if name == "the fits"]
+    assert fits and all(0.7 <= fraction <= 1.0 for fraction in fits) and fits[-1] == 1.0
+    assert [fraction for _, fraction in fractions] == sorted(fraction for _, fraction in fractions)
+    named.clear()
+    with reporting_phases(named.append):
+        optical_maps(dataset, photons=TEST_PHOTONS)  # the maps' one pass
+    assert named[-2:] == ["the look-up table", "the rings and the fits"]
+
+
 def test_missing_index_is_one_line_naming_the_dataset(run):
     dataset = model_dataset(run, 0.5, 0.02, 12, 6)
     from dataclasses import replace

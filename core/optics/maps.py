@@ -39,6 +39,7 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled, RinglightError
+from ..phases import phase
 from ..rings.geometry import ring_geometry
 from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
@@ -225,31 +226,38 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     from_spread = stack is None and errors is None and len(dataset.manifest.replicates) <= 1
     if from_spread and estimator == "nodes":
         # The rings, their spread and the fits in one pass over the responses, row by row.
+        phase("the look-up table")
         table = table_for(n, g, radii, photons=photons, progress=report.part(0.0, 0.1))
         inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
+        phase("the rings and the fits")
         fitted, complete = fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
                                            progress=report.part(0.1, 1.0), cancelled=report.cancelled)
         return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
     inflation = np.ones(len(radii))  # errors given are taken as they are
     if from_spread:
         # The rings and their spread in one pass over the responses (one read of them, not two).
+        phase("the rings and their spread")
         stack, errors = ring_stack_and_errors(dataset, radii, progress=report.part(0.0, 0.6))
         noise_source = "ring spread"
         inflation = t_inflation(error_freedom(dataset, radii, noise_source))
     elif stack is None:
+        phase("the rings")
         stack = ring_stack(dataset, radii, progress=report.part(0.0, 0.3))
     elif not np.array_equal(stack.radii, radii) or stack.thickness != 1.0 or stack.antialias:
         raise OpticsError(f"the stack given holds radii {stack.radii.tolist()}, not the rings 0..{radii[-1]:g} "
                           f"(thickness 1) that optical maps fit")
     report.check()
     if errors is None:
+        phase("the rings' errors")
         errors, noise_source = ring_errors(dataset, radii, progress=report.part(0.3, 0.6))
         inflation = t_inflation(error_freedom(dataset, radii, noise_source))
     report.check()
+    phase("the look-up table")
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
+    phase("the fits")  # the fits' kernels compile here on a first run (20 s at two cores)
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
-                          floor=floor, inflation=inflation, estimator=estimator)
+                          floor=floor, inflation=inflation, estimator=estimator, progress=report.part(0.7, 1.0))
     report.progress(1.0)
     whole = np.asarray([_ring_members(r) for r in radii])
     complete = (stack.counts == whole[:, None, None]).all(axis=0)

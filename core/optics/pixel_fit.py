@@ -54,7 +54,7 @@ the minimum lies on the table's edge (beyond the scattering or absorption it spa
 
 def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, scale: np.ndarray,
                  cancelled=None, counts: np.ndarray | None = None, floor: float = 0.0,
-                 inflation: np.ndarray | None = None, estimator: str = "full") -> dict[str, np.ndarray]:
+                 inflation: np.ndarray | None = None, estimator: str = "full", progress=None) -> dict[str, np.ndarray]:
     """Fit every pixel and channel of ``measured`` (R, H, W, C) with ``sigma`` (R, H, W, C) and the
     rig's ``scale`` (C,).
 
@@ -68,7 +68,8 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     its covariance in the table's coordinates), ``chi2``, ``rings`` (used), int8 ``status``
     (:data:`CONVERGED` ...) and int8 ``node_steps`` (the nodes a node fit stepped from; 0 for a
     full fit). ``cancelled()`` is asked between bands of rows; True stops the work by
-    raising :class:`ringlight.core.errors.Cancelled`.
+    raising :class:`ringlight.core.errors.Cancelled`. ``progress(fraction)`` is called after each
+    band (the fraction of the rows fitted).
 
     ``estimator`` ``"full"`` fits each profile by Levenberg-Marquardt on the table's splines (this
     module); ``"nodes"`` by Gauss-Newton steps from a finer table's nodes (:mod:`.node_fit`, the
@@ -99,10 +100,12 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
                           measured, sigma, scale, errors_given, counts, float(floor), inflation, row0, row1, out["u"],
                           out["v"], out["cuu"], out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"],
                           out["node_steps"])
-            continue
-        _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
-                  errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
-                  out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+        else:
+            _fit_rows(table.log_profile, coarse, table.u0, table.du, table.v0, table.dv, measured, sigma, scale,
+                      errors_given, counts, float(floor), inflation, row0, row1, out["u"], out["v"], out["cuu"],
+                      out["cuv"], out["cvv"], out["chi2"], out["rings"], out["status"])
+        if progress is not None:
+            progress(row1 / height)
     return out
 
 
