@@ -55,8 +55,7 @@ def warm_readers() -> None:
     objects, loaded by the first compiled kernel a process calls) and the readers' kernels are the
     process's, not an open's. Run alone, a test's traced open loaded them: 34 MB against its 16."""
     with tempfile.TemporaryDirectory() as folder:
-        write_dataset(Path(folder) / "ds", 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
-        open_dataset(Path(folder) / "ds", use_cache=False)
+        open_dataset(write_valid(Path(folder) / "ds"), use_cache=False)
 
 
 @contextmanager
@@ -73,11 +72,16 @@ def traced_peak():
         tracemalloc.stop()
 
 
+def write_valid(folder: Path) -> Path:
+    """Write a valid 6 x 5 one-point-per-frame dataset (30 frames) into ``folder``; returns it."""
+    write_dataset(folder, 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
+    return folder
+
+
 @pytest.fixture
 def dataset(tmp_path):
-    """A valid 6 x 5 one-point-per-frame dataset (30 frames); tests break one thing each."""
-    write_dataset(tmp_path / "ds", 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
-    return tmp_path / "ds"
+    """A valid dataset (:func:`write_valid`); tests break one thing each."""
+    return write_valid(tmp_path / "ds")
 
 
 def replace_in_manifest(folder, old, new):
@@ -238,7 +242,7 @@ def test_file_names_no_file_system_can_hold_are_refused(dataset, name, needle):
 def test_lone_surrogates_are_refused_in_file_names_and_text(dataset):
     replace_in_manifest(dataset, '"frames/00000.exr"', '"frames/\\ud800.exr"')
     refused(dataset, "'frames[0].file' must be a file name in valid Unicode")
-    write_dataset(dataset, 6, 5, random_impulses(np.random.default_rng(0), 6, 5, support=10))
+    write_valid(dataset)
     replace_in_manifest(dataset, '"version": 1', '"version": 1, "notes": "\\udc80 x"')
     refused(dataset, "'notes' must be a string of valid Unicode")
 
