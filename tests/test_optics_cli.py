@@ -107,6 +107,51 @@ def test_bad_arguments_are_one_line_and_exit_2(homogeneous, tmp_path, monkeypatc
     assert not (tmp_path / "r.json").exists()
 
 
+@pytest.mark.parametrize("photons", ["0", "-5", "9999", "100000001"])
+def test_a_white_run_outside_the_photon_range_is_refused_before_the_dataset_is_read(tmp_path, capsys, photons):
+    """``--photons 0`` traced 16 photons and mapped skin1 37 % off in mu_s', silently. The range is
+    checked first: a dataset that does not exist is not what the one line names."""
+    assert main(["optics", str(tmp_path / "missing"), "--json", str(tmp_path / "r.json"), "--photons", photons]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error == ("ringlight: error: photons of the white run must be a whole number from 10000 to 100000000, "
+                     f"got {photons}")
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_every_public_fit_refuses_a_table_of_too_few_photons(homogeneous):
+    from ringlight.core import open_dataset
+    from ringlight.core.optics import calibrate, model_profile, optical_maps, region_optics
+    from ringlight.core.optics.radial import TableError
+
+    dataset = open_dataset(homogeneous)
+    calls = (lambda: optical_maps(dataset, photons=16), lambda: region_optics(dataset, photons=16),
+             lambda: calibrate(dataset, 0.2, 5.0, photons=16),
+             lambda: model_profile(0.2, 5.0, np.arange(6.0), n=1.4, photons=16))
+    for call in calls:
+        with pytest.raises(TableError, match="from 10000 to 100000000, got 16"):
+            call()
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--json", "r.json", "--roi", "0,0,99,99"], "inside the 26 x 26 grid"),
+    (["--out", "m.exr", "--roi", "0,0,4,4"], "--roi and --layers are for the region of --json"),
+    (["--out", "m.exr", "--layers", "2"], "--roi and --layers are for the region of --json"),
+    (["--json", "r.json", "--reference-mua", "0.1", "--reference-musp", "1"],
+     "describe the reference of --write-calibration"),
+    (["--json", "r.json", "--reference-description", "a phantom"], "describe the reference of --write-calibration"),
+])
+def test_options_that_cannot_apply_are_refused_before_the_white_run(homogeneous, tmp_path, monkeypatch, capsys,
+                                                                    arguments, message):
+    """A region outside the grid was refused only after the white run and the maps (a minute at the
+    default photons), and the reference's options without ``--write-calibration`` were ignored:
+    the user believed the rig calibrated. Each is one line before any run (none is in the cache)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["optics", homogeneous, *arguments, "--photons", "12345"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and "\n" not in error
+    assert not radial.radial_path(1.4, 0.0, 12345, 0).exists() and not list(tmp_path.iterdir())
+
+
 def test_an_existing_file_is_not_replaced_without_force(homogeneous, tmp_path, capsys):
     out = tmp_path / "maps.exr"
     out.write_bytes(b"mine")

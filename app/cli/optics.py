@@ -19,7 +19,7 @@ from ringlight.core.device import CHOICES, choose_device
 from ringlight.core.optics.maps import OpticalMaps, optical_maps, sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.region import RegionOptics, region_optics
-from ringlight.core.optics.table import DEFAULT_PHOTONS
+from ringlight.core.optics.table import DEFAULT_PHOTONS, PHOTON_RANGE, check_photons
 
 from .progress import progress_bar
 
@@ -51,7 +51,8 @@ def add_arguments(optics) -> None:
     calibration.add_argument("--reference-musp", metavar="S|R,G,B", help="the reference's reduced scattering")
     calibration.add_argument("--reference-description", default="", help="what the reference is")
     optics.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
-                        help=f"photons of the white run behind the look-up table (default {DEFAULT_PHOTONS})")
+                        help=f"photons of the white run behind the look-up table, {PHOTON_RANGE[0]} to "
+                             f"{PHOTON_RANGE[1]} (default {DEFAULT_PHOTONS})")
     optics.add_argument("--device", choices=CHOICES, default="auto",
                         help="trace the table's white run on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; "
                              "auto (default) takes a usable GPU")
@@ -76,10 +77,18 @@ def parse_numbers(text: str, option: str, count: int | None = None) -> list[floa
 def run_optics(args) -> int:
     if not (args.out or args.json or args.write_calibration):
         raise RinglightError("give --out, --json or --write-calibration: nothing to write")
+    check_photons(args.photons)
     frequencies_text = [part.strip() for part in args.mtf.split(",")]
     frequencies = parse_numbers(args.mtf, "--mtf")
     if args.write_calibration and (args.reference_mua is None or args.reference_musp is None):
         raise RinglightError("--write-calibration needs the reference's --reference-mua and --reference-musp")
+    if not args.write_calibration and (args.reference_mua is not None or args.reference_musp is not None
+                                       or args.reference_description):
+        raise RinglightError("--reference-mua, --reference-musp and --reference-description describe the reference "
+                             "of --write-calibration: give it, or leave them out")
+    if (args.roi or args.layers != 1) and not args.json:
+        raise RinglightError("--roi and --layers are for the region of --json: give it, or leave them out")
+    rectangle = parse_rectangle(args.roi) if args.roi else None
     reference = (parse_numbers(args.reference_mua, "--reference-mua", 3),
                  parse_numbers(args.reference_musp, "--reference-musp", 3)) if args.write_calibration else None
     for path in (args.out, args.json, args.write_calibration):
@@ -92,6 +101,8 @@ def run_optics(args) -> int:
     manifest = load_manifest(args.dataset)
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
+    # The region is checked against the grid before the white run and the maps, not after them.
+    region = None if rectangle is None else rectangle_region(dataset.grid_shape, *rectangle)
     # The tables' white run, read from the user cache or traced here under its own progress bar into
     # it, where the tables below read it (a run of the same photons): a region's fit and a calibration
     # take no progress of their own, and the run is about 50 s at the default photons on two cores.
@@ -116,10 +127,6 @@ def run_optics(args) -> int:
               f"{maps.noise_source}; {determined:.1f} % of pixel channels determined")
         print(f"wrote {args.out}")
     if args.json:
-        region = None
-        if args.roi:
-            y0, x0, y1, x1 = parse_rectangle(args.roi)
-            region = rectangle_region(dataset.grid_shape, y0, x0, y1, x1)
         result = region_optics(dataset, region, n=args.n, g=args.g, calibration=calibration, layers=args.layers,
                                frequencies=frequencies, photons=args.photons)
         write_text(args.json, json.dumps(region_document(result, frequencies_text, args.roi), indent=1) + "\n",

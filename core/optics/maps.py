@@ -47,7 +47,7 @@ from ..rings.stack_spread import ring_stack_and_errors
 from ..rings.stacks import Stack, ring_stack
 from .one_pass import fit_in_one_pass
 from .pixel_fit import CONVERGED, fit_profiles
-from .table import DEFAULT_PHOTONS, ProfileTable, table_for
+from .table import DEFAULT_PHOTONS, ProfileTable, check_photons, table_for
 
 MODEL_FLOOR = 0.005
 """Relative standard deviation added to every ring's: the table's own noise (at its default
@@ -207,7 +207,8 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         The ring stack at :func:`profile_radii` (thickness 1) and its standard errors (R, H, W, 3),
         when already computed (the explorer has them); computed here otherwise.
     photons
-        Photons of the table's white run (:func:`.table.table_for`).
+        Photons of the table's white run (:func:`.table.table_for`), within
+        :data:`.table.PHOTON_RANGE` (TableError otherwise).
     floor
         Relative standard deviation added to every ring (:data:`MODEL_FLOOR`).
     estimator
@@ -219,6 +220,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     OpticalMaps
         (H, W, 3) maps in per mm when the manifest gives ``grid.pitch_mm``, else per grid step.
     """
+    check_photons(photons)
     n, g = sample_optics(dataset, n, g)
     radii = profile_radii(dataset)
     report = _Phases(progress, cancelled)
