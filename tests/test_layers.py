@@ -178,6 +178,24 @@ def test_layers_command_writes_the_same_numbers_as_the_library(synthetic, tmp_pa
     assert "must be Y0,X0,Y1,X1" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("arguments, message", [
+    (["--layers", "2"], "--layers is the inverse method's, not --method paper's"),
+    (["--method", "radiance", "--n", "1.4", "--photons", "5000"],
+     "--n, --photons are the inverse method's, not --method radiance's"),
+    (["--mus", "1", "--device", "cpu"], "--mus, --device are the inverse method's"),
+    (["--method", "inverse", "--radii", "1,2,3"],
+     "--radii is the paper and radiance methods', not --method inverse's"),
+    (["--method", "inverse", "--auto", "3", "--step", "2", "--dr", "2", "--thickness", "2"],
+     "--auto, --step, --dr, --thickness are the paper and radiance methods'"),
+])
+def test_another_methods_options_are_one_line_before_the_dataset_is_read(tmp_path, capsys, arguments, message):
+    """They were ignored: ``--method paper --layers 2`` printed three layers as if two had been
+    asked for, and ``--method inverse --radii 1,2,3`` ran its fit for minutes on other rings."""
+    assert main(["layers", str(tmp_path / "missing"), *arguments]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and "\n" not in error and "missing" not in error
+
+
 def test_layers3_preset_recovers_colours_within_the_measured_bound(tmp_path, capsys):
     """The simulator's layers3 at 16 x 16, 1500 photons, seed 0, auto radii (1, 5, 10), paper method.
 

@@ -35,6 +35,14 @@ from ringlight.core.rings.stack_request import StackRequest
 from .progress import progress_bar
 
 
+INVERSE_ONLY = {"layers": "auto", "boundaries": None, "mus": None, "n": None, "g": None, "depth": DEFAULT_DEPTH,
+                "photons": DEFAULT_PHOTONS, "final_photons": DEFAULT_FINAL_PHOTONS, "device": "auto"}
+"""The inverse method's options and their defaults: given to another method, they are refused."""
+TRANSIENT_ONLY = {"radii": None, "auto": None, "step": 1.0, "dr": 1.0, "thickness": 1.0}
+"""The transient images' options (paper and radiance) and their defaults: the inverse method fits
+the rings at radii 0, 1, 2, ... of thickness 1 and refuses them."""
+
+
 def add_arguments(layers) -> None:
     """Add the arguments of ``ringlight layers`` to its parser, with its handler."""
     layers.add_argument("dataset", help="dataset folder or its dataset.json")
@@ -46,7 +54,7 @@ def add_arguments(layers) -> None:
                         help="paper / radiance: chromaticities of transient images at picked radii; inverse: fit a "
                              "layered model to the ring-light profiles, with a two-sigma region per layer")
     inverse = layers.add_argument_group("inverse method")
-    inverse.add_argument("--layers", default="auto", metavar="N|auto",
+    inverse.add_argument("--layers", default=INVERSE_ONLY["layers"], metavar="N|auto",
                          help=f"number of layers, or auto to compare 1..{MAX_LAYERS} by BIC (default auto)")
     inverse.add_argument("--boundaries", metavar="B1,B2,...",
                          help="depths (whole grid steps) where layers meet (default: searched down to 8)")
@@ -66,7 +74,7 @@ def add_arguments(layers) -> None:
     inverse.add_argument("--final-photons", type=int, default=DEFAULT_FINAL_PHOTONS,
                          help="photons of the white run of each structure fitted at the end, tallied in compact "
                               f"cells (default {DEFAULT_FINAL_PHOTONS})")
-    inverse.add_argument("--device", choices=CHOICES, default="auto",
+    inverse.add_argument("--device", choices=CHOICES, default=INVERSE_ONLY["device"],
                          help="run the white Monte Carlo on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; "
                               "auto (default) takes a usable GPU")
     layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
@@ -97,7 +105,20 @@ def parse_inversion(args) -> InversionSettings:
     return replace(settings, device=choose_device(args.device).kind)
 
 
+def check_method_options(args) -> None:
+    """One line naming the options given that ``args.method`` does not use (they were ignored:
+    ``--method paper --layers 2`` reported three layers as if two had been asked for)."""
+    inverse = args.method == "inverse"
+    unused = TRANSIENT_ONLY if inverse else INVERSE_ONLY
+    given = [f"--{name.replace('_', '-')}" for name, default in unused.items() if getattr(args, name) != default]
+    if given:
+        which = "the paper and radiance methods'" if inverse else "the inverse method's"
+        raise RinglightError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} {which}, not --method "
+                             f"{args.method}'s: leave {'it' if len(given) == 1 else 'them'} out or choose that method")
+
+
 def run_layers(args) -> int:
+    check_method_options(args)
     radii = parse_radii(args.radii) if args.radii else None
     StackRequest(step=args.step, dr=args.dr, thickness=args.thickness).check_rings()  # before the dataset opens
     settings = parse_inversion(args) if args.method == "inverse" else None
