@@ -53,6 +53,16 @@ def test_transient_step_can_differ_from_the_radius_spacing(tmp_path, impulses):
     assert np.allclose(np.nan_to_num(images[1]), np.nan_to_num(expected), rtol=1e-4, atol=1e-6)
 
 
+def test_a_transient_step_given_to_a_ring_stack_is_one_line_before_the_dataset_is_read(tmp_path, capsys):
+    """``--kind ring --dr 2`` wrote the ring stack as if ``--dr`` meant something to it."""
+    assert main(["stack", str(tmp_path / "missing"), "--kind", "ring", "--radii", "0:4:1", "--dr", "2",
+                 "--out", str(tmp_path / "o")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error == ("ringlight: error: --dr is the transient step (T_r = E_r - E_{r+dr}): it applies to --kind "
+                     "transient, not ring")
+    assert not (tmp_path / "o").exists()
+
+
 def test_info_reports_grid_frames_points_radius_truth_and_memory(tmp_path, impulses, capsys):
     write_dataset(
         tmp_path / "ds", 11, 8, impulses, max_radius=2.5, multiplex=True,

@@ -62,6 +62,9 @@ def run_stack(args) -> int:
         default_step = 1.0
     step = args.dr if args.dr is not None else default_step
     reach = needed_radius(radii, args.thickness, step if args.kind == "transient" else 0.0, args.antialias)
+    if args.dr is not None and args.kind == "ring":
+        raise StackError("--dr is the transient step (T_r = E_r - E_{r+dr}): it applies to --kind transient, "
+                         "not ring")
     if args.interpolate and args.antialias:
         raise StackError("--interpolate estimates the default ring mean; it cannot be combined with --antialias")
     if args.scheduler and (args.no_cache or args.interpolate):
