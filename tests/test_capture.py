@@ -178,6 +178,29 @@ def test_a_plugin_that_fails_to_import_is_skipped_with_a_message(tmp_path, monke
     sys.modules.pop("broken_rig", None)
 
 
+def test_a_plugin_that_did_not_load_is_told_in_the_list_and_when_a_device_asked_for_is_missing(tmp_path, capsys,
+                                                                                             monkeypatch):
+    """Every capture began with a warning per plugin that did not load (FLIR's SDK absent, with the
+    simulated rig asked for). It is told by ``--list``, and in the one line that says the device asked
+    for is not there; a capture of a device that is there says nothing of it."""
+    from dataclasses import replace
+
+    from ringlight.app.cli import capture
+
+    broken = replace(discover_plugins(), failures=(("broken", "driver library missing"),))
+    monkeypatch.setattr(capture, "discover_plugins", lambda: broken)
+    assert main(["capture", "--list"]) == 0
+    assert capsys.readouterr().err == "warning: hardware plugin broken skipped: driver library missing\n"
+    assert main(["capture", "--camera", "broken-camera", "--projector", "simulated", "--out", str(tmp_path / "a")]) == 2
+    cameras = ", ".join(sorted(broken.cameras()))
+    assert capsys.readouterr().err == (f"ringlight: error: --camera 'broken-camera': no such device (available: "
+                                       f"{cameras}); hardware plugin broken skipped: driver library missing\n")
+    assert main(["capture", "--camera", "simulated", "--projector", "simulated", "--out", str(tmp_path / "b"),
+                 "--max-radius", "0"]) == 2  # refused before any device opens: nothing else to say
+    assert capsys.readouterr().err.splitlines() == [
+        "ringlight: error: --max-radius must be > 0 and at most 4096 grid steps, got 0"]
+
+
 def grid_dataset_from_windows(folder, windows, max_radius):
     """The scene's own impulse dataset: each lit point's window placed in a grid frame."""
     height, width = windows.shape[:2]

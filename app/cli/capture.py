@@ -44,9 +44,12 @@ def add_arguments(capture) -> None:
 
 def run_capture(args) -> int:
     discovery = discover_plugins()
-    for name, reason in discovery.failures:
-        print(f"warning: hardware plugin {name} skipped: {reason}", file=sys.stderr)
+    # A plugin that did not load is told where it matters: in the list, and when the device asked
+    # for is not there (every capture of the simulated rig began with a warning about FLIR's SDK).
+    skipped = [f"hardware plugin {name} skipped: {reason}" for name, reason in discovery.failures]
     if args.list:
+        for line in skipped:
+            print(f"warning: {line}", file=sys.stderr)
         print("cameras     " + ", ".join(sorted(discovery.cameras())))
         print("projectors  " + ", ".join(sorted(discovery.projectors())))
         return 0
@@ -54,6 +57,11 @@ def run_capture(args) -> int:
               if not value]
     if absent:
         raise ScanError(f"capture needs {', '.join(absent)} (see ringlight capture --list for device names)")
+    for option, name, factories in (("--camera", args.camera, discovery.cameras()),
+                                    ("--projector", args.projector, discovery.projectors())):
+        if name not in factories:
+            raise ScanError("; ".join([f"{option} {name!r}: no such device (available: "
+                                       f"{', '.join(sorted(factories)) or 'none'})", *skipped]))
     if args.multiplex:
         s_matrix(args.multiplex)  # refuses an order that has no code before any device opens
     if not 0 < args.max_radius <= MAX_RING_REACH:  # 1e308 overflowed the lattice spacing after the correspondence
