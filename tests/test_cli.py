@@ -227,6 +227,10 @@ def test_demo_out_writes_the_sample_where_asked_and_never_over_a_dataset(tmp_pat
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star")]) == 2
     assert "already holds a dataset" in capsys.readouterr().err
     assert main(["demo", "--sample", "star", "--out", str(tmp_path / "star"), "--overwrite"]) == 0
+    capsys.readouterr()
+    # --overwrite without --out was ignored: nothing was replaced, and nothing said so.
+    assert main(["demo", "--sample", "star", "--overwrite"]) == 2
+    assert capsys.readouterr().err.startswith("ringlight: error: --overwrite replaces a dataset at --out: give --out")
 
 
 def test_a_dataset_copy_refuses_a_manifest_naming_a_file_outside_its_folder(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ringlight.core import RinglightError
 from ringlight.core.simulate.samples import DEMO_SAMPLE, sample_dataset, sample_names, write_sample
 
 from .info import run_info
@@ -23,6 +24,9 @@ def add_arguments(demo) -> None:
 
 def run_demo(args) -> int:
     """Write (once, or into ``--out``) and describe a bundled sample dataset."""
+    if args.overwrite and args.out is None:
+        raise RinglightError("--overwrite replaces a dataset at --out: give --out DIR (the user cache's sample is "
+                             "written on its first use)")
     if args.out is not None:
         with progress_bar(f"writing the {args.sample} sample") as progress:
             path = write_sample(args.sample, args.out, overwrite=args.overwrite, progress=progress)
