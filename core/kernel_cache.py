@@ -48,6 +48,19 @@ _IMPORT = re.compile(r"^\s*from\s+(\.+)([\w.]*)\s+import\s+(\([^)]*\)|[^\n]*)", 
 line, or a bracket's lines."""
 
 
+def is_cached(kernel) -> bool:
+    """Whether numba's cache holds ``kernel`` (a dispatcher made with ``cache=True``) already: the
+    index file numba names after its module and function (``<module>.<function>-<line>.py<version>.nbi``)
+    in its cache folder. False on a fresh install (or after an update) until its first call has
+    compiled it; True where numba caches nothing (no folder to look in). Reads no numba state but
+    the dispatcher's own, so it costs a folder listing."""
+    folder = kernel.stats.cache_path
+    if not folder:
+        return True
+    module = kernel.py_func.__module__.rsplit(".", 1)[-1]
+    return any(Path(folder).glob(f"{module}.{kernel.py_func.__qualname__}-*.nbi"))
+
+
 def check_kernel_cache(package: Path = PACKAGE) -> bool:
     """Remove ringlight's compiled kernels from numba's cache when the sources they can reach
     changed since they were stamped (module docstring). Returns True when entries were removed

@@ -178,3 +178,29 @@ def test_ringlights_own_stamp_is_current_after_import():
     package = Path(kernel_cache.__file__).parent
     assert not check_kernel_cache()
     assert (folders[package] / STAMP_NAME).is_file()
+
+
+IS_CACHED = """
+import sys
+
+sys.path.insert(0, sys.argv[1])
+from numba import njit
+
+from ringlight.core.kernel_cache import is_cached
+from tiny import twice
+
+before = is_cached(twice)
+twice(2.0)
+print(before, is_cached(twice), is_cached(njit(lambda x: x)))
+"""
+
+
+def test_is_cached_says_whether_numbas_cache_holds_a_kernel_before_and_after_its_first_call(tmp_path):
+    """The first-run notes (the window's, the maps' fits) ask it; a kernel numba does not cache is
+    taken as cached (nothing would compile ahead)."""
+    (tmp_path / "tiny.py").write_text("from numba import njit\n\n\n@njit(cache=True)\n"
+                                      "def twice(x):\n    return 2 * x\n")
+    result = subprocess.run([sys.executable, "-c", IS_CACHED, str(tmp_path)], capture_output=True, text=True,
+                            timeout=300, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["False", "True", "True"]

@@ -45,13 +45,16 @@ from ..rings.noise import luminance_weights, stack_noise
 from ..rings.replicate_noise import replicate_spread
 from ..rings.stack_spread import ring_stack_and_errors
 from ..rings.stacks import Stack, ring_stack
-from .one_pass import fit_in_one_pass
-from .pixel_fit import CONVERGED, fit_profiles
+from . import one_pass
+from .pixel_fit import CONVERGED, fit_profiles, fits_compiled
 from .table import DEFAULT_PHOTONS, ProfileTable, check_photons, table_for
 
 MODEL_FLOOR = 0.005
 """Relative standard deviation added to every ring's: the table's own noise (at its default
 10^6 photons, 0.03-0.3 % per ring, from four independent runs) and what else the model leaves out."""
+FIRST_RUN = " (first run after an install or update: compiling them, about 20 s)"
+"""Said after the fits' phase where numba's cache lacks their kernel: the bar stays where it is
+meanwhile (20-24 s at 60 % on the skin1 sample)."""
 DETERMINED_RELATIVE_ERROR = 0.5
 """A value is *determined* where its fit converged inside the table and its standard error is
 below this fraction of it."""
@@ -231,8 +234,8 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         phase("the look-up table")
         table = table_for(n, g, radii, photons=photons, progress=report.part(0.0, 0.1))
         inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
-        phase("the rings and the fits")
-        fitted, complete = fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
+        phase("the rings and the fits" + ("" if one_pass.fits_compiled() else FIRST_RUN))
+        fitted, complete = one_pass.fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
                                            progress=report.part(0.1, 1.0), cancelled=report.cancelled)
         return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
     inflation = np.ones(len(radii))  # errors given are taken as they are
@@ -257,7 +260,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     phase("the look-up table")
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
-    phase("the fits")  # the fits' kernels compile here on a first run (20 s at two cores)
+    phase("the fits" + ("" if fits_compiled(estimator) else FIRST_RUN))
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
                           floor=floor, inflation=inflation, estimator=estimator, progress=report.part(0.7, 1.0))
     report.progress(1.0)

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled
+from ..kernel_cache import is_cached
 from ..rings.stack_spread import band_members, spread_rings, spread_row
 from .node_fit import fine_nodes, node_fit_row
 from .pixel_fit import coarse_nodes, fit_outputs
@@ -79,6 +80,12 @@ def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTa
         if progress is not None:
             progress(row1 / height)
     return out, complete
+
+
+def fits_compiled() -> bool:
+    """Whether numba's cache holds the pass's kernel (false on a first run after an install or an
+    update, when it compiles: about 20 s on two cores)."""
+    return is_cached(_stack_fit_rows)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numba
 import numpy as np
@@ -22,6 +21,7 @@ from ..dataset.impulse_dataset import ImpulseDataset, ProgressCallback
 from ..dataset.warm_up import warm_up_assembly, warm_up_dataset
 from ..device import Device
 from ..errors import StackError
+from ..kernel_cache import is_cached
 from .geometry import ring_geometry, ring_outer_radius
 from .members import ring_members, unit_weight_rings
 from .radii import RADIUS_DECIMALS, as_radii, check_reach
@@ -311,12 +311,9 @@ def kernels_compiled() -> bool:
     start: opening a dataset then compiles ringlight's kernels first, side by side
     (:mod:`ringlight.core.compile_ahead`: half a minute on two cores), once; later starts load them
     from the cache in about a second. Looks for the index file numba
-    names after the function (``stacks._ring_sums-<line>.py<version>.nbi``) in its cache folder;
-    True where numba caches nothing (no folder to look in)."""
-    folder = _ring_sums.stats.cache_path
-    if not folder:
-        return True
-    return any(Path(folder).glob(f"stacks.{_ring_sums.py_func.__name__}-*.nbi"))
+    names after the function (``stacks._ring_sums-<line>.py<version>.nbi``) in its cache folder
+    (:func:`ringlight.core.kernel_cache.is_cached`); True where numba caches nothing."""
+    return is_cached(_ring_sums)
 
 
 def warm_up_kernels() -> None:
