@@ -236,7 +236,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
         phase("the rings and the fits" + ("" if one_pass.fits_compiled() else FIRST_RUN))
         fitted, complete = one_pass.fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
-                                           progress=report.part(0.1, 1.0), cancelled=report.cancelled)
+                                                    progress=report.part(0.1, 1.0), cancelled=report.cancelled)
         return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
     inflation = np.ones(len(radii))  # errors given are taken as they are
     if from_spread:

@@ -273,7 +273,7 @@ def check_photons(photons: int) -> int:
     naming the range otherwise."""
     low, high = PHOTON_RANGE
     if isinstance(photons, bool) or not isinstance(photons, (int, np.integer)) or not low <= photons <= high:
-        raise TableError(f"photons of the white run must be a whole number from {low} to {high}, got {photons!r}")
+        raise TableError(f"photons of the white run must be a whole number from {low} to {high}, got {photons}")
     return int(photons)
 
 
