@@ -57,3 +57,7 @@ def test_bad_regions_are_refused(run):
         region_optics(dataset, np.zeros((12, 12), bool), photons=TEST_PHOTONS)
     with pytest.raises(OpticsError, match="1 or 2 layers"):
         region_optics(dataset, layers=3, photons=TEST_PHOTONS)
+    # Frequencies the command line refuses were taken here: NaN gave NaN R_d, -1 that of +1, none an empty one.
+    for frequencies in ([np.nan], [-1.0], [], "abc", [[0.1]], [0.1, np.inf]):
+        with pytest.raises(OpticsError, match="frequencies must be one or more finite numbers >= 0"):
+            region_optics(dataset, frequencies=frequencies, photons=TEST_PHOTONS)

@@ -102,6 +102,10 @@ def test_profile_outside_the_table_is_nan(run):
     table = build_table(run, np.arange(4.0))
     assert np.isnan(table.profile(100.0, 0.01)).all()
     assert np.isnan(table.profile(0.1, 1e-9)).all()
+    # No absorption, a negative or a non-finite value: outside too, NaN (it raised "math domain error").
+    for musp, mua in ((0.1, 0.0), (0.1, -0.01), (-1.0, 0.01), (0.0, 0.01), (np.nan, 0.01), (0.1, np.inf)):
+        assert np.isnan(table.profile(musp, mua)).all(), (musp, mua)
+    assert np.isfinite(table.profile(0.1, 0.01)).all()
 
 
 def test_cached_run_is_read_back_and_a_damaged_one_rerun(tmp_path):

@@ -84,6 +84,12 @@ def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n:
     if layers not in (1, 2):
         raise OpticsError(f"a region is fitted with 1 or 2 layers, got {layers}")
     check_photons(photons)
+    try:
+        asked = np.atleast_1d(np.asarray(frequencies, np.float64))
+    except (TypeError, ValueError):
+        asked = np.array([np.nan])
+    if asked.ndim != 1 or not asked.size or not (np.isfinite(asked) & (asked >= 0)).all():
+        raise OpticsError(f"frequencies must be one or more finite numbers >= 0, got {frequencies!r}")
     n, g = sample_optics(dataset, n, g)
     height, width = dataset.grid_shape
     mask = np.ones((height, width), bool) if mask is None else np.asarray(mask, bool)
@@ -112,7 +118,6 @@ def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n:
                       & (musp_se < DETERMINED_RELATIVE_ERROR * musp))
     model = np.stack([scale[c] * table.profile(musp[c] / per, mua[c] / per) if np.isfinite(mua[c])
                       else np.full(len(radii), np.nan) for c in range(3)], axis=1)
-    asked = np.atleast_1d(np.asarray(frequencies, np.float64))
     per_step = asked * pitch if pitch else asked
     reflectance = diffuse_reflectance(radii, mean, per_step)
     beyond = radii[-1] + 0.5

@@ -92,8 +92,11 @@ class ProfileTable:
 
     def profile(self, musp: float, mua: float) -> np.ndarray:
         """(R,) E(r) of reduced scattering ``musp`` and absorption ``mua`` per grid step
-        (interpolated); NaN outside the table."""
+        (interpolated); NaN outside the table (and where either is not a positive number: no
+        absorption at all lies outside it too, below its smallest mua / mus)."""
         mus = musp / (1.0 - self.g)
+        if not (mus > 0.0 and mua > 0.0 and math.isfinite(mus) and math.isfinite(mua)):
+            return np.full(len(self.radii), np.nan)
         values = np.empty(len(self.radii))
         slopes = np.empty((2, len(self.radii)))
         inside = interpolate(self.log_profile, self.u0, self.du, self.v0, self.dv, math.log(mus),
