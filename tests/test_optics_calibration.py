@@ -109,3 +109,6 @@ def test_reference_outside_the_table_is_refused(run):
         calibrate(reference, 0.03, 100.0, photons=TEST_PHOTONS)
     with pytest.raises(CalibrationError, match="positive numbers"):
         calibrate(reference, -0.03, 1.0, photons=TEST_PHOTONS)
+    for mua, musp in (([0.03, 0.04], 1.0), (0.03, "one"), (0.03, [[1.0, 1.0, 1.0]] * 2)):  # numpy's words before
+        with pytest.raises(CalibrationError, match=r"each be one number or one per channel \(3\), got"):
+            calibrate(reference, mua, musp, photons=TEST_PHOTONS)

@@ -106,8 +106,12 @@ def calibrate(dataset: ImpulseDataset, reference_mua, reference_musp, *, n: floa
     """
     check_photons(photons)
     n, g = sample_optics(dataset, n, g)
-    mua = np.broadcast_to(np.asarray(reference_mua, np.float64), (3,)).copy()
-    musp = np.broadcast_to(np.asarray(reference_musp, np.float64), (3,)).copy()
+    try:
+        mua = np.broadcast_to(np.asarray(reference_mua, np.float64), (3,)).copy()
+        musp = np.broadcast_to(np.asarray(reference_musp, np.float64), (3,)).copy()
+    except (TypeError, ValueError):  # numpy's own words ("could not be broadcast ... remapped shapes")
+        raise CalibrationError(f"the reference's mua and musp must each be one number or one per channel (3), "
+                               f"got {reference_mua!r} and {reference_musp!r}") from None
     if not (np.isfinite(mua).all() and np.isfinite(musp).all() and (mua > 0).all() and (musp > 0).all()):
         raise CalibrationError(f"the reference's mua and musp must be positive numbers, got {mua.tolist()} and "
                                f"{musp.tolist()}")
