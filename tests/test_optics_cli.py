@@ -134,8 +134,9 @@ def test_every_public_fit_refuses_a_table_of_too_few_photons(homogeneous):
 
 @pytest.mark.parametrize("arguments, message", [
     (["--json", "r.json", "--roi", "0,0,99,99"], "inside the 26 x 26 grid"),
-    (["--out", "m.exr", "--roi", "0,0,4,4"], "--roi and --layers are for the region of --json"),
-    (["--out", "m.exr", "--layers", "2"], "--roi and --layers are for the region of --json"),
+    (["--out", "m.exr", "--roi", "0,0,4,4"], "--roi, --layers and --mtf are for the region of --json"),
+    (["--out", "m.exr", "--layers", "2"], "--roi, --layers and --mtf are for the region of --json"),
+    (["--out", "m.exr", "--mtf", "0,0.1"], "--roi, --layers and --mtf are for the region of --json"),
     (["--json", "r.json", "--reference-mua", "0.1", "--reference-musp", "1"],
      "describe the reference of --write-calibration"),
     (["--json", "r.json", "--reference-description", "a phantom"], "describe the reference of --write-calibration"),

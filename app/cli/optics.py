@@ -31,7 +31,7 @@ def add_arguments(optics) -> None:
                         help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se")
     optics.add_argument("--json", metavar="OUT",
                         help="write the region's values (--roi, default the whole grid) and R_d as JSON")
-    optics.add_argument("--mtf", metavar="F1,F2,...", default="0",
+    optics.add_argument("--mtf", metavar="F1,F2,...", default=None,
                         help="spatial frequencies of R_d in the JSON: cycles per mm when the dataset gives "
                              "grid.pitch_mm, else per grid step (default 0)")
     optics.add_argument("--roi", metavar="Y0,X0,Y1,X1", help="the region of --json, end exclusive (default: all)")
@@ -78,16 +78,17 @@ def run_optics(args) -> int:
     if not (args.out or args.json or args.write_calibration):
         raise RinglightError("give --out, --json or --write-calibration: nothing to write")
     check_photons(args.photons)
-    frequencies_text = [part.strip() for part in args.mtf.split(",")]
-    frequencies = parse_numbers(args.mtf, "--mtf")
+    mtf = "0" if args.mtf is None else args.mtf
+    frequencies_text = [part.strip() for part in mtf.split(",")]
+    frequencies = parse_numbers(mtf, "--mtf")
     if args.write_calibration and (args.reference_mua is None or args.reference_musp is None):
         raise RinglightError("--write-calibration needs the reference's --reference-mua and --reference-musp")
     if not args.write_calibration and (args.reference_mua is not None or args.reference_musp is not None
                                        or args.reference_description):
         raise RinglightError("--reference-mua, --reference-musp and --reference-description describe the reference "
                              "of --write-calibration: give it, or leave them out")
-    if (args.roi or args.layers != 1) and not args.json:
-        raise RinglightError("--roi and --layers are for the region of --json: give it, or leave them out")
+    if (args.roi or args.layers != 1 or args.mtf is not None) and not args.json:
+        raise RinglightError("--roi, --layers and --mtf are for the region of --json: give it, or leave them out")
     rectangle = parse_rectangle(args.roi) if args.roi else None
     reference = (parse_numbers(args.reference_mua, "--reference-mua", 3),
                  parse_numbers(args.reference_musp, "--reference-musp", 3)) if args.write_calibration else None
