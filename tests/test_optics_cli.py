@@ -120,13 +120,15 @@ def test_a_white_run_outside_the_photon_range_is_refused_before_the_dataset_is_r
 
 def test_every_public_fit_refuses_a_table_of_too_few_photons(homogeneous):
     from ringlight.core import open_dataset
-    from ringlight.core.optics import calibrate, model_profile, optical_maps, region_optics
+    from ringlight.core.optics import calibrate, model_profile, optical_maps, reflectance_maps, region_optics
     from ringlight.core.optics.radial import TableError
 
     dataset = open_dataset(homogeneous)
+    maps = optical_maps(dataset, photons=TEST_PHOTONS)  # R_d maps take its table's photons apart
     calls = (lambda: optical_maps(dataset, photons=16), lambda: region_optics(dataset, photons=16),
              lambda: calibrate(dataset, 0.2, 5.0, photons=16),
-             lambda: model_profile(0.2, 5.0, np.arange(6.0), n=1.4, photons=16))
+             lambda: model_profile(0.2, 5.0, np.arange(6.0), n=1.4, photons=16),
+             lambda: reflectance_maps(maps, np.ones((6, 26, 26, 3), np.float32), [0.0], photons=16))
     for call in calls:
         with pytest.raises(TableError, match="from 10000 to 100000000, got 16"):
             call()

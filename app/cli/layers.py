@@ -37,10 +37,11 @@ from .progress import progress_bar
 
 INVERSE_ONLY = {"layers": "auto", "boundaries": None, "mus": None, "n": None, "g": None, "depth": DEFAULT_DEPTH,
                 "photons": DEFAULT_PHOTONS, "final_photons": DEFAULT_FINAL_PHOTONS, "device": "auto"}
-"""The inverse method's options and their defaults: given to another method, they are refused."""
+"""The inverse method's options and their defaults (the parser's): given to another method, they
+are refused."""
 TRANSIENT_ONLY = {"radii": None, "auto": None, "step": 1.0, "dr": 1.0, "thickness": 1.0}
-"""The transient images' options (paper and radiance) and their defaults: the inverse method fits
-the rings at radii 0, 1, 2, ... of thickness 1 and refuses them."""
+"""The transient images' options (paper and radiance) and their defaults (the parser's): the
+inverse method fits the rings at radii 0, 1, 2, ... of thickness 1 and refuses them."""
 
 
 def add_arguments(layers) -> None:
@@ -66,20 +67,22 @@ def add_arguments(layers) -> None:
                               f"states one, else chosen from {', '.join(f'{n:g}' for n in N_GRID)} by chi-square)")
     inverse.add_argument("--g", type=float, default=None,
                          help=f"scattering anisotropy g (default: the dataset's sample.g, else {DEFAULT_G:g})")
-    inverse.add_argument("--depth", type=float, default=DEFAULT_DEPTH,
+    inverse.add_argument("--depth", type=float, default=INVERSE_ONLY["depth"],
                          help=f"modelled thickness in grid steps (default {DEFAULT_DEPTH:g}: a thick sample)")
-    inverse.add_argument("--photons", type=int, default=DEFAULT_PHOTONS,
+    inverse.add_argument("--photons", type=int, default=INVERSE_ONLY["photons"],
                          help=f"photons of each white Monte Carlo database a search compares structures with "
                               f"(default {DEFAULT_PHOTONS})")
-    inverse.add_argument("--final-photons", type=int, default=DEFAULT_FINAL_PHOTONS,
+    inverse.add_argument("--final-photons", type=int, default=INVERSE_ONLY["final_photons"],
                          help="photons of the white run of each structure fitted at the end, tallied in compact "
                               f"cells (default {DEFAULT_FINAL_PHOTONS})")
     inverse.add_argument("--device", choices=CHOICES, default=INVERSE_ONLY["device"],
                          help="run the white Monte Carlo on an NVIDIA GPU (cuda, needs ringlight[cuda]) or the CPU; "
                               "auto (default) takes a usable GPU")
-    layers.add_argument("--step", type=float, default=1.0, help="radius spacing of the stack (default 1)")
-    layers.add_argument("--dr", type=float, default=1.0, help="transient step dr (default 1)")
-    layers.add_argument("--thickness", type=float, default=1.0, help="ring thickness (default 1)")
+    layers.add_argument("--step", type=float, default=TRANSIENT_ONLY["step"],
+                        help="radius spacing of the stack (default 1)")
+    layers.add_argument("--dr", type=float, default=TRANSIENT_ONLY["dr"], help="transient step dr (default 1)")
+    layers.add_argument("--thickness", type=float, default=TRANSIENT_ONLY["thickness"],
+                        help="ring thickness (default 1)")
     layers.add_argument("--json", metavar="OUT", help="write the result as JSON to OUT (a new file)")
     layers.add_argument("--force", action="store_true", help="replace an existing --json file")
     layers.add_argument("--allow-outside", action="store_true",

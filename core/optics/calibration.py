@@ -38,7 +38,7 @@ from ..inversion.measured import measured_profile
 from ..validation import Validator, read_json
 from .maps import MODEL_FLOOR, profile_radii, sample_optics
 from .ring_sigma import ring_sigma
-from .table import DEFAULT_PHOTONS, check_photons, table_for
+from .table import DEFAULT_PHOTONS, table_for
 
 FORMAT = "ringlight-calibration"
 VERSION = 1
@@ -104,7 +104,6 @@ def calibrate(dataset: ImpulseDataset, reference_mua, reference_musp, *, n: floa
     description
         What the reference is, kept in the calibration.
     """
-    check_photons(photons)
     n, g = sample_optics(dataset, n, g)
     try:
         mua = np.broadcast_to(np.asarray(reference_mua, np.float64), (3,)).copy()

@@ -223,7 +223,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     OpticalMaps
         (H, W, 3) maps in per mm when the manifest gives ``grid.pitch_mm``, else per grid step.
     """
-    check_photons(photons)
+    check_photons(photons)  # as table_for does, but before the rings that one path computes first
     n, g = sample_optics(dataset, n, g)
     radii = profile_radii(dataset)
     report = _Phases(progress, cancelled)
@@ -234,7 +234,7 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
         phase("the look-up table")
         table = table_for(n, g, radii, photons=photons, progress=report.part(0.0, 0.1))
         inflation = t_inflation(error_freedom(dataset, radii, "ring spread"))
-        phase("the rings and the fits" + ("" if one_pass.fits_compiled() else FIRST_RUN))
+        _fits_phase("the rings and the fits", one_pass.fits_compiled())
         fitted, complete = one_pass.fit_in_one_pass(dataset, radii, table, scale, floor, inflation,
                                                     progress=report.part(0.1, 1.0), cancelled=report.cancelled)
         return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, "ring spread", scale)
@@ -260,13 +260,18 @@ def optical_maps(dataset: ImpulseDataset, *, n: float | None = None, g: float | 
     phase("the look-up table")
     table = table_for(n, g, radii, photons=photons, progress=report.part(0.6, 0.7))
     report.check()
-    phase("the fits" + ("" if fits_compiled(estimator) else FIRST_RUN))
+    _fits_phase("the fits", fits_compiled(estimator))
     fitted = fit_profiles(table, stack.images, errors, scale, cancelled=report.cancelled, counts=stack.counts,
                           floor=floor, inflation=inflation, estimator=estimator, progress=report.part(0.7, 1.0))
     report.progress(1.0)
     whole = np.asarray([_ring_members(r) for r in radii])
     complete = (stack.counts == whole[:, None, None]).all(axis=0)
     return maps_from_fit(fitted, table, dataset.manifest.pitch_mm, complete, radii, noise_source or "given", scale)
+
+
+def _fits_phase(name: str, compiled: bool) -> None:
+    """Name the fits' phase, with :data:`FIRST_RUN` said where their kernel is not ``compiled`` yet."""
+    phase(name if compiled else name + FIRST_RUN)
 
 
 def maps_from_fit(fitted: dict, table: ProfileTable, pitch_mm: float | None, complete: np.ndarray, radii: np.ndarray,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .table import DEFAULT_PHOTONS, check_photons, table_for
+from .table import DEFAULT_PHOTONS, table_for
 
 
 def model_profile(mua: float, musp: float, radii, *, n: float, g: float = 0.0, pitch_mm: float | None = None,
@@ -35,5 +35,5 @@ def model_profile(mua: float, musp: float, radii, *, n: float, g: float = 0.0, p
         NaN outside the table's range of scattering and absorption.
     """
     per_step = float(pitch_mm) if pitch_mm else 1.0
-    table = table_for(n, g, np.asarray(radii, np.float64), thickness, photons=check_photons(photons))
+    table = table_for(n, g, np.asarray(radii, np.float64), thickness, photons=photons)
     return scale * table.profile(musp * per_step, mua * per_step)

@@ -16,7 +16,7 @@ from ..inversion.measured import measured_profile
 from .pixel_fit import CONVERGED, fit_profiles
 from .ring_sigma import ring_sigma
 from .maps import DETERMINED_RELATIVE_ERROR, MODEL_FLOOR, OpticsError, profile_radii, sample_optics
-from .table import DEFAULT_PHOTONS, check_photons, table_for
+from .table import DEFAULT_PHOTONS, table_for
 from .transform import diffuse_reflectance, model_tail
 
 
@@ -83,7 +83,6 @@ def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n:
     """
     if layers not in (1, 2):
         raise OpticsError(f"a region is fitted with 1 or 2 layers, got {layers}")
-    check_photons(photons)
     try:
         asked = np.atleast_1d(np.asarray(frequencies, np.float64))
     except (TypeError, ValueError):

@@ -260,13 +260,14 @@ DEFAULT_PHOTONS = 1_000_000
 4 * 10^5 on a slab of mus' 0.1, mua 0.01 per grid step; the run takes about 50 s on two busy
 cores for g = 0 (longer as g nears 1), once per n and g (then read from the user cache)."""
 PHOTON_RANGE = (10_000, 100_000_000)
-"""Photons of a table's white run that the maps, a region's fit, a calibration and a model profile
-take (:func:`check_photons`). Below the range the table is noise: against a run of 10^6 photons,
-the profile of 8 rings (radii 0-7, mus' 0.1-1 and mua 0.001-0.1 per grid step, n 1.4) was off by
-2-13 % rms per ring at 10^3 photons (up to 22 %), 0.9-4.6 % at 10^4, 0.2-1.3 % at 4 * 10^4 and
-0.1-0.7 % at 10^5, where the maps' standard errors allow 0.5 % (:data:`.maps.MODEL_FLOOR`); a run
-of 0 photons traced 16 and gave maps 37 % off in mu_s' on skin1 without a word. Above it a run
-takes hours on a CPU (about 50 s per 10^6 photons on two cores)."""
+"""Photons of a table's white run that :func:`table_for` takes (:func:`check_photons`), and so the
+maps, a region's fit, a calibration, a model profile and R_d maps. Below the range the table is
+noise: against a run of 10^6 photons, the profile of 8 rings (radii 0-7, mus' 0.1-1 and mua
+0.001-0.1 per grid step, n 1.4) was off by 2-13 % rms per ring at 10^3 photons (up to 22 %),
+0.9-4.6 % at 10^4, 0.2-1.3 % at 4 * 10^4 and 0.1-0.7 % at 10^5, where the maps' standard errors
+allow 0.5 % (:data:`.maps.MODEL_FLOOR`); a run of 0 photons traced 16 and gave maps 37 % off in
+mu_s' on skin1 without a word. Above it a run takes hours on a CPU (about 50 s per 10^6 photons on
+two cores)."""
 _TABLES: dict[tuple, ProfileTable] = {}
 _KEPT_TABLES = 8
 
@@ -288,10 +289,12 @@ def table_for(n: float, g: float, radii, thickness: float = 1.0, antialias: bool
     beside it or built (:mod:`.table_cache`), and kept in memory for the next call with the same
     arguments. ``use_cache=False`` traces and builds without reading or writing either.
     ``progress(fraction)`` while tracing (may raise Cancelled); ``ring_weights`` as
-    :func:`build_table` takes them."""
+    :func:`build_table` takes them. ``photons`` outside :data:`PHOTON_RANGE` is a TableError
+    (:func:`check_photons`), for every function that makes its table here."""
     from .radial import radial_run
     from .table_cache import kept_table  # which builds tables with this module's build_table
 
+    check_photons(photons)
     radii = np.asarray(radii, np.float64)
     cut = None if ring_weights is None else hashlib.sha256(np.ascontiguousarray(ring_weights, np.float64)).hexdigest()
     key = (float(n), float(g), tuple(radii.tolist()), float(thickness), bool(antialias), int(photons), int(seed), cut)

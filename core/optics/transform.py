@@ -144,7 +144,7 @@ def reflectance_maps(maps, images: np.ndarray, frequencies, *, photons: int | No
     pitch = maps.pitch_mm if maps.units == "per_mm" else None
     per_step = frequencies * pitch if pitch else frequencies
     out = diffuse_reflectance(maps.radii, images, per_step)
-    table = table_for(maps.n, maps.g, maps.radii, photons=photons or DEFAULT_PHOTONS)
+    table = table_for(maps.n, maps.g, maps.radii, photons=DEFAULT_PHOTONS if photons is None else photons)
     u = table.u0 + table.du * np.arange(table.log_profile.shape[0])
     v = table.v0 + table.dv * np.arange(table.log_profile.shape[1])
     tails = tail_table(table.run, u, v, per_step, float(maps.radii[-1]) + 0.5)
