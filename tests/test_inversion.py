@@ -106,6 +106,32 @@ def test_white_derivatives_match_finite_differences():
     assert_slopes_are_central_differences(forward, np.array([0.1, 0.03]))
 
 
+def test_white_profile_and_slopes_are_the_records_weights_summed_over_each_ring():
+    """Forward.profile from its definition, in numpy: each record of the white run weighs ``value
+    exp(-lengths . mua)``, its depth bins' lengths times the absorption of the layer each bin lies
+    in, summed per pixel and over each ring (ring_matrix), over the photons; the slopes the same
+    sums of minus the weight times the layer's length. Three layers, the first bin-by-bin as the
+    kernel's layer loop adds them."""
+    optics = SlabOptics((1.0,) * 5, 0.0, 1.3, 16.0, REACH)
+    starts = (0, 1, 3)
+    forward = Forward(run_white(optics, 3_000, seed=5), Structure(starts), RADII)
+    database = forward.database
+    layer_of_bin = np.searchsorted(np.array(starts), np.arange(database.lengths.shape[1]), side="right") - 1
+    lengths = database.lengths.astype(np.float64)  # stored float32: summed in float64, as the model does
+    layer_lengths = np.stack([lengths[:, layer_of_bin == k].sum(axis=1) for k in range(len(starts))], axis=1)
+    rings = ring_matrix(RADII, REACH)
+    for mua in (np.array([0.2, 0.03, 0.01]), np.array([1e-4, 0.5, 3.0])):
+        weight = database.value * np.exp(-(layer_lengths @ mua))
+        per_pixel = np.zeros((len(starts) + 1, rings.shape[1]))
+        for row, term in enumerate((weight, *(-weight * layer_lengths[:, k] for k in range(len(starts))))):
+            np.add.at(per_pixel[row], database.pixel, term)
+        expected = per_pixel @ rings.T / database.photons  # (1 + L, R)
+        profile, slopes = forward.profile(mua, derivatives=True)
+        np.testing.assert_allclose(profile, expected[0], rtol=1e-12)
+        np.testing.assert_allclose(slopes, expected[1:].T, rtol=1e-12)
+        np.testing.assert_array_equal(forward.profile(mua), profile)
+
+
 @pytest.fixture(scope="module")
 def shared_cache(tmp_path_factory):
     """One user cache for this module's dataset tests, so the white database is run once."""
