@@ -89,6 +89,27 @@ def place_sample(sample_originals):
     return place
 
 
+@pytest.fixture
+def link_sample(sample_originals):
+    """``link_sample(name)``: bundled sample ``name`` in the user cache now in effect (where
+    ``sample_dataset(name)`` finds it) as a symbolic link to :func:`sample_originals`' folder, for
+    tests that only read a sample: its frames are not copied (layers3's 5000 took 4 s of the
+    kernel's time here, each time) and its store is made once for the run, by the first test that
+    opens it (in the shared folder: ringlight's caches are written for processes that share a
+    dataset). Tests of a first open, or that write into the sample, use :func:`place_sample`.
+    Returns the folder."""
+    from ringlight.core.simulate.samples import sample_folder
+
+    def link(name: str):
+        target = sample_folder(name)
+        if not target.exists():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.symlink_to(sample_originals(name), target_is_directory=True)
+        return target
+
+    return link
+
+
 @pytest.fixture(autouse=True, scope="session")
 def private_settings(tmp_path_factory):
     """The folder that holds every QSettings the tests create without naming a file."""

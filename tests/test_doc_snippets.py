@@ -132,7 +132,7 @@ DEMO_OUT = re.compile(r"^ringlight demo --sample (?P<name>[\w-]+) --out ", re.MU
 COLD = ROOT / "README.md"
 """The page whose samples are written as a new user's first run writes them: every other page
 finds the samples its ``ringlight demo --sample NAME --out DIR`` commands name already in its
-user cache (copies of the ones the suite writes once), as after an earlier ``ringlight demo``,
+user cache (links to the ones the suite writes once), as after an earlier ``ringlight demo``,
 so the command copies them (1 CPU-s) instead of writing 5000 frames anew (10 CPU-s)."""
 
 
@@ -206,7 +206,7 @@ def test_a_served_command_prints_and_exits_as_the_console_script(tmp_path, comma
 
 
 @pytest.mark.parametrize("document", RUNNABLE, ids=lambda path: str(path.relative_to(ROOT)))
-def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch, place_sample,
+def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_cache, monkeypatch, link_sample,
                                                    command_server):
     work = tmp_path / "work"
     work.mkdir()
@@ -222,7 +222,7 @@ def test_every_command_and_snippet_runs_as_written(document, tmp_path, private_c
     environment = dict(os.environ)  # RINGLIGHT_CACHE_DIR: private_cache's
     if document != COLD:
         for name in samples_written_out(document):
-            place_sample(name)  # into private_cache, where the page's demo command copies it from
+            link_sample(name)  # into private_cache, where the page's demo command copies it from
     for block in blocks(document):
         if block.language not in RUN or block.skip:
             continue

@@ -21,8 +21,8 @@ def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("RINGLIGHT_CACHE_DIR", str(tmp_path / "cache"))
 
 
-def sample_stack(name, place_sample):
-    place_sample(name)  # as sample_dataset writes it, written once for the whole run
+def sample_stack(name, link_sample):
+    link_sample(name)  # as sample_dataset writes it, written once for the whole run
     dataset = open_dataset(sample_dataset(name))
     return dataset, compute_stacks(dataset, default_request(dataset.max_radius)).transient
 
@@ -55,8 +55,8 @@ def brute_contrast_and_noise(image, counts, outer_counts, weights):
     return (np.percentile(means, 99) - np.percentile(means, 1)) / median, 1.4826 * mad / median
 
 
-def test_contrast_and_noise_per_radius_equal_brute_force_on_the_red_bead_sample(place_sample):
-    dataset, stack = sample_stack("red-bead", place_sample)
+def test_contrast_and_noise_per_radius_equal_brute_force_on_the_red_bead_sample(link_sample):
+    dataset, stack = sample_stack("red-bead", link_sample)
     view = first_view(stack.images, stack.counts, stack.outer_counts, dataset.colorspace)
     weights = luminance_weights(dataset.colorspace)
     expected = np.array([brute_contrast_and_noise(stack.images[i], stack.counts[i], stack.outer_counts[i], weights)
@@ -67,8 +67,8 @@ def test_contrast_and_noise_per_radius_equal_brute_force_on_the_red_bead_sample(
     assert view.radius_index == int(np.argmax(ratio))
 
 
-def test_the_red_bead_opens_on_the_bead_at_a_radius_where_it_stands_out(place_sample):
-    dataset, stack = sample_stack("red-bead", place_sample)
+def test_the_red_bead_opens_on_the_bead_at_a_radius_where_it_stands_out(link_sample):
+    dataset, stack = sample_stack("red-bead", link_sample)
     view = first_view(stack.images, stack.counts, stack.outer_counts, dataset.colorspace)
     scene = json.loads(resources.files("ringlight.resources.scenes").joinpath("red-bead.json").read_text())
     height, width = dataset.grid_shape
@@ -83,8 +83,8 @@ def test_the_red_bead_opens_on_the_bead_at_a_radius_where_it_stands_out(place_sa
 
 
 @pytest.mark.parametrize("name", ["layers3", "skin1"])
-def test_layered_samples_have_no_lateral_structure_and_keep_the_robust_maximum(name, place_sample):
-    dataset, stack = sample_stack(name, place_sample)
+def test_layered_samples_have_no_lateral_structure_and_keep_the_robust_maximum(name, link_sample):
+    dataset, stack = sample_stack(name, link_sample)
     view = first_view(stack.images, stack.counts, stack.outer_counts, dataset.colorspace)
     assert not view.structured
     assert (view.radius_index, view.pick, view.normalisation) == (0, (24, 24), "per-image")

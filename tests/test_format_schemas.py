@@ -226,8 +226,8 @@ def manifest_of(folder: Path) -> dict:
 
 
 @pytest.mark.parametrize("name", sample_names())
-def test_every_bundled_sample_validates(name, place_sample):
-    place_sample(name)  # as sample_dataset writes it, written once for the whole run
+def test_every_bundled_sample_validates(name, link_sample):
+    link_sample(name)  # as sample_dataset writes it, written once for the whole run
     document = manifest_of(sample_dataset(name))
     assert assert_accepted_validates(document)
 

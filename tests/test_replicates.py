@@ -168,12 +168,12 @@ def test_replicate_standard_errors_match_the_spread_of_independent_simulations()
     assert 0.5 < ratio < 2.0
 
 
-def test_the_bundled_layered_samples_have_nonzero_standard_errors_at_every_radius(place_sample):
+def test_the_bundled_layered_samples_have_nonzero_standard_errors_at_every_radius(link_sample):
     """layers3 ships its replicates (as skin1 does): every standard error of E_r and T_r is finite
     and above 0, r = 0 included (the members' spread gave 0 at r = 0 and 0.005-0.03 % elsewhere,
     the replicates 0.1-3 %)."""
     for name in ("layers3",):
-        place_sample(name)  # as sample_dataset writes it, written once for the whole run
+        link_sample(name)  # as sample_dataset writes it, written once for the whole run
         dataset = open_dataset(sample_dataset(name))
         assert len(dataset.manifest.replicates) == 8
         noise = stack_noise(dataset, np.arange(0.0, 6.0))
