@@ -40,7 +40,7 @@ def private_cache(tmp_path_factory, monkeypatch):
 def sample_originals(tmp_path_factory):
     """``sample_originals(name)``: bundled sample ``name`` written as a dataset once per test run
     (layers3 and skin1 hold 5000 frames, 60 MB: layers3 takes 12 CPU-s), for :func:`place_sample`
-    to copy.
+    to copy and :func:`link_sample` to link to.
 
     pytest-xdist's workers share them (each wrote its own before: layers3 up to four times): a
     sample is written in the worker's own folder, then renamed into the run's shared one, which is
