@@ -163,10 +163,10 @@ class Forward:
         (C, L), over the first ``rings`` rings (all by default), from the run's own photons: each
         photon's contribution to a ring per channel (independent photons), their covariance over
         the photons, over the photon count. The channels share the photons, so they covary."""
-        mua = np.asarray(mua, np.float64)
-        # (C, L) @ (L, records): the same products and sums as (records, L) @ (L, C), which
-        # OpenBLAS takes ten times longer over hundreds of thousands of records.
-        weights = self.value * np.exp(-(mua @ self.lengths.T))  # (C, records)
+        mua = np.ascontiguousarray(mua, np.float64)
+        # The weights :meth:`profile` sums, channel by channel (9.7 -> 6.9 ms for three channels of
+        # 410 000 records where numpy's product and exp took them).
+        weights = np.stack([_weights(self.value, self.lengths, channel) for channel in mua])  # (C, records)
         photons = self.database.photons
         rings = len(self.radii) if rings is None else rings
         covariance = np.empty((rings, len(mua), len(mua)))
