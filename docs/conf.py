@@ -30,6 +30,7 @@ extensions = [
     "myst_parser",
     "sphinx_gallery.gen_gallery",
     "screenshots",
+    "ringlight_gallery",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}

@@ -126,3 +126,23 @@ def test_plugin_skeleton_follows_the_protocols(tmp_path, run_example):
     (tmp_path / "cwd").mkdir()
     out = run_example("plugin_skeleton.py", cache=tmp_path / "cache", cwd=tmp_path / "cwd")
     assert out.splitlines() == ["camera follows the protocol: True", "projector follows the protocol: True"]
+
+
+def test_the_gallerys_example_folders_are_fresh_and_removed(tmp_path, monkeypatch):
+    """The documentation build's hooks (docs/_ext/ringlight_gallery.py): each example writes into a
+    new empty folder under the system's temporary folder, its PNGs are what the scraper shows, and
+    no folder outlives the build (one was left per example per build: 198 in /tmp here)."""
+    monkeypatch.syspath_prepend(str(EXAMPLES.parent / "docs" / "_ext"))
+    gallery = pytest.importorskip("ringlight_gallery")
+    monkeypatch.setattr(gallery, "_BASE", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    folders = []
+    for name in ("first", "second"):
+        gallery.reset_example_folder({}, name)
+        folder = Path(tempfile.gettempdir())
+        assert folder.parent == tmp_path and not any(folder.iterdir())
+        (folder / f"{name}.png").write_bytes(b"png")
+        folders.append(folder)
+        assert sorted(path.name for path in tmp_path.iterdir()) == [folder.name]  # the last one's removed
+    gallery.remove_example_folders(None, None)  # the build's end
+    assert not any(tmp_path.iterdir()) and tempfile.tempdir is None

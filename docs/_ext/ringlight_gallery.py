@@ -1,5 +1,7 @@
 """sphinx-gallery hooks: each example writes into a fresh temporary folder, and the PNG files it
-writes there are shown in the gallery as its figures.
+writes there are shown in the gallery as its figures. A folder is removed once its example has
+run (when the next one starts; the last when the build ends), and ``tempfile`` points at the
+system's temporary folder again.
 
 The examples draw with ringlight's own display pipeline and save PNGs (no matplotlib), so the
 gallery's image scraper collects those files instead of matplotlib figures.
@@ -19,10 +21,20 @@ _BASE = tempfile.gettempdir()
 
 
 def reset_example_folder(gallery_conf, fname, when=None):
-    """Point ``tempfile`` at a new, empty folder before each example runs."""
+    """Point ``tempfile`` at a new, empty folder before each example runs, removing the last
+    example's (its figures are copied into the gallery by then)."""
+    remove_example_folders()
     folder = Path(tempfile.mkdtemp(prefix="ringlight-gallery-", dir=_BASE))
     _FOLDERS.append(folder)
     tempfile.tempdir = str(folder)
+
+
+def remove_example_folders(app=None, exception=None) -> None:
+    """Remove the examples' folders and point ``tempfile`` at the system's temporary folder again
+    (also Sphinx's ``build-finished`` handler)."""
+    while _FOLDERS:
+        shutil.rmtree(_FOLDERS.pop(), ignore_errors=True)
+    tempfile.tempdir = None
 
 
 class ExampleFileScraper:
@@ -45,3 +57,9 @@ class ExampleFileScraper:
 
 scrape_example_files = ExampleFileScraper()
 """The gallery's image scraper (``conf.py`` names it)."""
+
+
+def setup(app):
+    """Sphinx extension entry: the last example's folder is removed when the build ends."""
+    app.connect("build-finished", remove_example_folders)
+    return {"parallel_read_safe": True}
