@@ -156,7 +156,11 @@ def test_a_local_cluster_of_two_worker_processes_gives_the_in_memory_stack_bit_f
 
     memory = open_dataset(folder, use_cache=False)
     lazy = open_dataset(folder, memory_budget_bytes=1)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    import dask
+
+    # The workers' scratch space in the test's folder (by default dask leaves dask-scratch-space in /tmp).
+    with dask.config.set({"temporary-directory": str(folder.parent / "dask-scratch")}), \
+            LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with Client(cluster) as client:
             fractions = []
             ring, transient = ring_and_transient_stacks(lazy, RADII, scheduler=client, progress=fractions.append)
