@@ -67,10 +67,17 @@ def _dataset_problem(dataset: str | None, commands: list[str]) -> str | None:
     return f"{dataset}: no such dataset folder or command{hint}"
 
 
+XCB_LIBRARIES = {"xcb-cursor": "libxcb-cursor0", "xcb-icccm": "libxcb-icccm4", "xcb-keysyms": "libxcb-keysyms1",
+                 "xcb-image": "libxcb-image0", "xcb-render-util": "libxcb-render-util0", "xcb-xkb": "libxcb-xkb1",
+                 "xkbcommon-x11": "libxkbcommon-x11-0", "xcb-shape": "libxcb-shape0", "xcb-randr": "libxcb-randr0"}
+"""The X11 libraries Qt's xcb platform plugin loads (``ldd libqxcb.so``, PySide6 6.11) that a bare
+Debian or Ubuntu lacks, each with its Debian/Ubuntu package."""
+
+
 def display_problem() -> str | None:
     """Why Qt could not open a window here, in one line, or None.
 
-    Without a display, or on X11 without the xcb-cursor library, Qt aborts the process with a
+    Without a display, or on X11 without one of :data:`XCB_LIBRARIES`, Qt aborts the process with a
     misleading message; this is checked first (Linux only; other systems always have a display),
     whenever the platform Qt would use needs a display server: xcb (X11), wayland, or the one Qt
     picks itself when ``QT_QPA_PLATFORM`` is unset.
@@ -91,9 +98,12 @@ def display_problem() -> str | None:
             why = "DISPLAY and WAYLAND_DISPLAY are unset"
         return (f"no display to open a window on ({why}); run it on a desktop, "
                 "or use --screenshot FILE.png, or the command-line tools (ringlight --help)")
-    if not wayland and ctypes.util.find_library("xcb-cursor") is None:
-        return ("Qt needs the X11 library libxcb-cursor (Debian/Ubuntu: apt install libxcb-cursor0 and the "
-                "other xcb libraries listed in docs/guide/install.md)")
+    missing = [name for name in XCB_LIBRARIES if ctypes.util.find_library(name) is None] if not wayland else []
+    if missing:
+        names = ", ".join(f"lib{name}" for name in missing)
+        packages = " ".join(XCB_LIBRARIES[name] for name in missing)
+        return (f"Qt needs the X11 librar{'ies' if len(missing) > 1 else 'y'} {names}, not installed (Debian/Ubuntu: "
+                f"apt install {packages}; docs/guide/install.md lists them all)")
     return None
 
 

@@ -1,8 +1,10 @@
 """Launching ringlight: one clear line instead of a Qt abort or a window for a typo; helpful --help."""
 
 import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from ringlight.app import main as main_module
@@ -74,6 +76,26 @@ def test_missing_xcb_cursor_is_named(monkeypatch):
     monkeypatch.setenv("DISPLAY", ":99")
     monkeypatch.setattr(main_module.ctypes.util, "find_library", lambda name: None)
     assert "apt install libxcb-cursor0" in main_module.display_problem()
+
+
+def test_every_xcb_library_qt_loads_that_is_missing_is_named_with_its_package(monkeypatch):
+    """This machine had libxcb-cursor but not libxcb-icccm or libxcb-keysyms, which the plugin also
+    loads: the check passed and Qt aborted. Every library of ``ldd libqxcb.so`` is checked."""
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("QT_QPA_PLATFORM", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("DISPLAY", ":99")
+    absent = {"xcb-icccm", "xcb-keysyms"}
+    monkeypatch.setattr(main_module.ctypes.util, "find_library",
+                        lambda name: None if name in absent else f"lib{name}.so")
+    assert main_module.display_problem() == (
+        "Qt needs the X11 libraries libxcb-icccm, libxcb-keysyms, not installed (Debian/Ubuntu: apt install "
+        "libxcb-icccm4 libxcb-keysyms1; docs/guide/install.md lists them all)")
+    absent.clear()
+    assert main_module.display_problem() is None
+    # The packages named are those the installation guide's apt line installs.
+    guide = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "install.md").read_text()
+    assert set(main_module.XCB_LIBRARIES.values()) <= set(re.findall(r"lib[a-z0-9-]+", guide))
 
 
 @pytest.mark.parametrize("command", ["info", "stack", "simulate", "layers", "capture", "demo"])
