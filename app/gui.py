@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ringlight.core import RinglightError
 from ringlight.core.atomic import check_output_file
+from ringlight.core.dataset.writer import refuse_dataset_file
 from ringlight.core.colour.image_export import write_bytes
 
 from .heap import settle_heap
@@ -37,8 +38,10 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         pick = parse_pick(args.pick)
     except ValueError as error:
         parser.error(str(error))
-    if (args.radius is not None or pick is not None or args.overwrite) and not args.screenshot:
-        parser.error("--radius and --pick go with --screenshot")
+    alone = [option for option, given in (("--radius", args.radius is not None), ("--pick", pick is not None),
+                                          ("--overwrite", args.overwrite)) if given]
+    if alone and not args.screenshot:
+        parser.error(f"{' and '.join(alone)} go{'es' if len(alone) == 1 else ''} with --screenshot")
     if args.screenshot is not None and not args.screenshot.strip():
         parser.error("--screenshot needs a file name")
     if args.radius is not None and not 0 <= args.radius < float("inf"):
@@ -72,7 +75,11 @@ def take_screenshot(dataset: str | None, out: Path, radius: float | None, pick: 
     from PySide6.QtCore import QCoreApplication, QEventLoop, QSettings
 
     try:
-        check_output_file(out, overwrite, probe=True)  # before any window: an existing file is not replaced
+        if out.suffix.lower() != ".png":
+            raise RinglightError(f"{out}: a screenshot is written as PNG: give a name ending in .png")
+        check_output_file(out, overwrite, probe=True, overwrite_option="--overwrite")  # before any window
+        if dataset is not None:
+            refuse_dataset_file(out, dataset)
     except RinglightError as error:
         print(f"ringlight: error: {error}", file=sys.stderr)
         return 2

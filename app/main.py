@@ -13,12 +13,17 @@ import os
 import sys
 from pathlib import Path
 
-from . import cli
+EXIT_INTERRUPTED = 130
+"""Exit status after Ctrl-C (128 + SIGINT, as a shell reports a process it ended)."""
+EXIT_BROKEN_PIPE = 141
+"""Exit status when the output's reader went away (128 + SIGPIPE, as ``git log | head``)."""
 
 
 def build_command_parser(command: str) -> argparse.ArgumentParser:
     """The parser of ``ringlight COMMAND ...`` that runs ``command``: the other commands' parsers
     hold no arguments (:func:`.cli.add_commands`)."""
+    from . import cli
+
     parser = argparse.ArgumentParser(
         prog="ringlight",
         description="Variable ring light imaging: transient images of subsurface light transport.",
@@ -29,6 +34,8 @@ def build_command_parser(command: str) -> argparse.ArgumentParser:
 
 
 def build_window_parser() -> argparse.ArgumentParser:
+    from . import cli
+
     parser = argparse.ArgumentParser(
         prog="ringlight",
         description="Open the ringlight explorer on DATASET (default: the bundled demo dataset).",
@@ -43,6 +50,42 @@ def build_window_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``ringlight`` console script; returns its exit status.
+
+    ``ringlight`` and its commands import nothing heavy before this runs (the library, numpy,
+    numba and Qt are imported inside it), so that a Ctrl-C at any moment after the interpreter's
+    start is one line and status 130, not a traceback of the import it interrupted; a Ctrl-C that
+    reaches a compiled kernel (numba's dispatcher then raises SystemError with the interrupt as its
+    context) too. A closed output pipe (``ringlight info DATASET | head -1``) ends quietly with 141."""
+    try:
+        return _main(argv)
+    except BaseException as error:
+        if _interrupted(error):
+            print("ringlight: interrupted; nothing was written", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        if isinstance(error, BrokenPipeError):
+            try:  # the interpreter's last flush of stdout would fail again, printing a warning
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):  # stdout is not a file (a test's capture)
+                pass
+            return EXIT_BROKEN_PIPE
+        raise
+
+
+def _interrupted(error: BaseException | None) -> bool:
+    """True when ``error`` is a KeyboardInterrupt or was raised while handling one."""
+    for _ in range(16):  # an exception's chain of causes and contexts, which Python keeps acyclic
+        if error is None:
+            return False
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
+
+
+def _main(argv: list[str] | None) -> int:
+    from . import cli
+
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in cli.COMMANDS:
         args = build_command_parser(argv[0]).parse_args(argv)

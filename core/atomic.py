@@ -283,18 +283,25 @@ def atomic_file(final: str | os.PathLike, *, overwrite: bool = False, make_paren
             pass
 
 
-def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: bool = False) -> None:
+def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: bool = False,
+                      overwrite_option: str = "--force") -> None:
     """Raise :class:`OutputError` unless :func:`atomic_file` may write ``final`` (call it before
     long work, so that a refusal comes first). With ``probe``, a hidden temporary is also created
     and removed in ``final``'s folder where that exists, so that a folder the user cannot write
-    (``/proc``, a read-only mount) is refused before the work rather than after it."""
+    (``/proc``, a read-only mount) is refused before the work rather than after it. Something
+    that is neither a file nor a link (a device such as ``/dev/null``, a FIFO, a socket) is never
+    replaced, even with ``overwrite`` (the rename made ``/dev/null`` a file). The refusal of an
+    existing file names the command line's ``overwrite_option``."""
     final = Path(final)
     try:
         if final.is_dir():
             raise OutputError(f"{final}: is a folder; give a file name")
+        if os.path.lexists(final) and not final.is_symlink() and not final.is_file():
+            raise OutputError(f"{final}: is not a file (a device, a FIFO or a socket); refusing to replace it; "
+                              "give a file name")
         if os.path.lexists(final) and not overwrite:
             raise OutputError(f"{final}: already exists; refusing to overwrite it "
-                              "(choose another name, or allow overwriting: --force on the command line)")
+                              f"(choose another name, or allow overwriting: {overwrite_option} on the command line)")
         above = next((folder for folder in final.parents if os.path.lexists(folder)), None)
         if above is not None and not above.is_dir():
             raise OutputError(f"{final}: {above} is a file, not a folder; give another path")

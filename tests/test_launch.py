@@ -1,9 +1,12 @@
 """Launching ringlight: one clear line instead of a Qt abort or a window for a typo; helpful --help."""
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -189,3 +192,65 @@ def test_a_capture_max_radius_that_overflows_the_lattice_is_refused_before_any_d
     assert err.strip().splitlines()[-1] == ("ringlight: error: --max-radius must be > 0 and at most 4096 grid "
                                             "steps, got 1e+308")
     assert "Traceback" not in err and not (tmp_path / "scan").exists()
+
+
+def test_a_screenshots_name_and_options_are_checked_with_the_right_option_named(tmp_path, capsys):
+    """A screenshot is a PNG (``shot.jpg`` held PNG bytes); an existing one is replaced with
+    ``--overwrite`` (the refusal named ``--force``, which the window's command line does not take),
+    and ``--overwrite`` alone is named as what goes with ``--screenshot``."""
+    def refused(*arguments):
+        with pytest.raises(SystemExit) if "--screenshot" not in arguments else contextlib.nullcontext():
+            assert main([str(argument) for argument in arguments]) == 2
+        return capsys.readouterr().err.strip().splitlines()
+
+    assert refused("--screenshot", tmp_path / "shot.jpg") == [
+        f"ringlight: error: {tmp_path / 'shot.jpg'}: a screenshot is written as PNG: give a name ending in .png"]
+    existing = tmp_path / "shot.png"
+    existing.write_bytes(b"mine")
+    assert refused("--screenshot", existing) == [
+        f"ringlight: error: {existing}: already exists; refusing to overwrite it (choose another name, or allow "
+        "overwriting: --overwrite on the command line)"]
+    assert existing.read_bytes() == b"mine" and sorted(tmp_path.iterdir()) == [existing]
+    assert refused("--overwrite")[-1].endswith("error: --overwrite goes with --screenshot")
+    assert refused("--radius", "2", "--pick", "1,1")[-1].endswith("error: --radius and --pick go with --screenshot")
+
+
+@pytest.mark.parametrize("raised, status, err", [
+    (KeyboardInterrupt(), 130, "ringlight: interrupted; nothing was written\n"),
+    ("kernel", 130, "ringlight: interrupted; nothing was written\n"),
+    (BrokenPipeError(32, "Broken pipe"), 141, ""),
+])
+def test_ctrl_c_and_a_closed_pipe_end_a_command_in_one_line_or_quietly(monkeypatch, capsys, raised, status, err):
+    """Ctrl-C that reached a compiled kernel came back as numba's SystemError ("returned a result
+    with an exception set", a traceback); ``ringlight info DATASET | head -1`` printed "error:
+    Broken pipe" and exit 2, as if the user had erred."""
+    import ringlight.app.cli.info as info
+
+    def interrupted_kernel():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function _kernel>) returned a result with an exception set")
+
+    def handler(args):
+        if raised == "kernel":
+            interrupted_kernel()
+        raise raised
+
+    monkeypatch.setattr(info, "run_info", handler)
+    assert main(["info", "anything"]) == status
+    assert capsys.readouterr().err == err
+
+
+def test_ctrl_c_while_ringlight_still_imports_is_one_line(tmp_path):
+    """A Ctrl-C in a command's first second (numpy, numba and the library still importing) printed
+    the traceback of the import it interrupted: the console script imports them inside main."""
+    environment = {**os.environ, "RINGLIGHT_CACHE_DIR": str(tmp_path / "cache")}
+    process = subprocess.Popen([sys.executable, "-c", "import sys; from ringlight.app.main import main; "
+                                "sys.exit(main())", "simulate", "layers3", "--out", str(tmp_path / "sim")],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environment)
+    time.sleep(0.3)  # the interpreter is up (its SIGINT handler set), the imports have begun
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and err.splitlines()[-1:] == ["ringlight: interrupted; nothing was written"], err
+    assert "Traceback" not in err and not (tmp_path / "sim").exists()

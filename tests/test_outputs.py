@@ -228,6 +228,50 @@ def test_a_file_that_appears_while_another_is_written_is_never_replaced(tmp_path
     assert path.read_text() == "theirs" and sorted(tmp_path.iterdir()) == [path]
 
 
+def test_a_device_or_a_fifo_is_never_replaced_even_with_force(tmp_path, dataset, capsys):
+    """``--force`` renamed a file over ``/dev/null`` (as root: the system's null device became a
+    3 KB JSON file) and over a FIFO: something that is neither a file nor a link is refused, with
+    or without overwriting, before any work."""
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match="fifo.json: is not a file .a device, a FIFO or a socket.; refusing"):
+            write_text(fifo, "{}", overwrite=overwrite)
+    # (A FIFO, not /dev/null itself: were the check broken, the suite would replace the machine's.)
+    line = one_line(capsys, "layers", dataset, "--radii", "0,1", "--json", fifo, "--force")
+    assert line == (f"ringlight: error: {fifo}: is not a file (a device, a FIFO or a socket); refusing to replace "
+                    "it; give a file name")
+    assert fifo.is_fifo()
+
+
+def test_a_result_is_never_written_over_the_dataset_it_is_computed_from(tmp_path, dataset, capsys):
+    """``layers DATASET --json DATASET/dataset.json --force`` wrote its result over the manifest (the
+    dataset was lost, exit 0); the same for a frame, and anything in ringlight's store. A new file
+    in the dataset's folder is still written."""
+    before = tree(dataset)
+    frame = json.loads((dataset / "dataset.json").read_text())["frames"][0]["file"]
+    for target in (dataset / "dataset.json", dataset / frame, dataset / ".ringlight-cache" / "notes.json"):
+        line = one_line(capsys, "layers", dataset, "--radii", "0,1", "--json", target, "--force")
+        assert line == (f"ringlight: error: {target}: is a file of the dataset {dataset} that this command reads; "
+                        "refusing to replace it; write elsewhere")
+    assert tree(dataset) == before
+    assert main(["layers", str(dataset), "--radii", "0,1", "--json", str(dataset / "layers.json")]) == 0
+    assert json.loads((dataset / "layers.json").read_text())["radii"] == [0, 1]
+
+
+def test_the_optics_outputs_are_checked_together_before_the_work(tmp_path, dataset, capsys):
+    """Two outputs naming one file wrote the maps and then refused the JSON (or, with --force,
+    replaced the maps by it); maps named .png were an EXR under that name."""
+    same = tmp_path / "same.exr"
+    line = one_line(capsys, "optics", dataset, "--out", same, "--json", same, "--force")
+    assert line == f"ringlight: error: {same}, {same}: two outputs name the same file; give each its own"
+    line = one_line(capsys, "optics", dataset, "--out", tmp_path / "maps.png")
+    assert line == f"ringlight: error: {tmp_path / 'maps.png'}: the maps are written as OpenEXR: give a name ending in .exr"
+    line = one_line(capsys, "optics", dataset, "--out", dataset / "dataset.json", "--force")
+    assert "is a file of the dataset" not in line  # the extension is refused first, as cheaply
+    assert not same.exists() and sorted(path.name for path in tmp_path.iterdir()) == ["ds"]
+
+
 def test_the_layers_command_refuses_an_existing_json_file(tmp_path, dataset, capsys):
     existing = tmp_path / "layers.json"
     existing.write_text("thesis data")

@@ -5,7 +5,8 @@ has ``add_arguments(parser)``, which adds the arguments and a ``handler``. Only 
 command being run is imported: each one loads what its work needs (cv2 for capture, the optics
 package, the simulator, the inversion), and a command should not pay for the others' (0.4-0.55 s
 of CPU at every start, of 1.2-3.7 s for ``simulate --list``, ``info`` and a small ``stack``).
-:func:`run_handler` runs a handler and turns user errors into one line and exit status 2.
+:func:`run_handler` runs a handler and turns user errors into one line and exit status 2 (a
+Ctrl-C and a closed output pipe are :func:`ringlight.app.main.main`'s).
 """
 
 from __future__ import annotations
@@ -49,10 +50,9 @@ def run_handler(handler, args) -> int:
     except RinglightError as error:
         print(f"ringlight: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:
+        raise  # the output's reader went away: not the user's error (:func:`ringlight.app.main.main`)
     except OSError as error:
         where = f"{error.filename}: " if error.filename else ""
         print(f"ringlight: error: {where}{error.strerror or error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("ringlight: interrupted; nothing was written", file=sys.stderr)
-        return 130

@@ -16,6 +16,7 @@ from ringlight.core.colour.layer_report import (
 )
 from ringlight.core.colour.regions import full_region, parse_rectangle, rectangle_region
 from ringlight.core.dataset.frames import dataset_channels
+from ringlight.core.dataset.writer import refuse_dataset_file
 from ringlight.core.device import CHOICES, choose_device
 from ringlight.core.phases import phase
 from ringlight.core.inversion.settings import (
@@ -130,6 +131,8 @@ def run_layers(args) -> int:
             raise RinglightError("--json needs a file name")
         check_output_file(args.json, args.force, probe=True)  # refused before the dataset is opened
     manifest = load_manifest(args.dataset)
+    if args.json is not None:
+        refuse_dataset_file(args.json, manifest.folder)
     require_colour(dataset_channels(manifest, args.allow_outside))  # from the first frame's header
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)

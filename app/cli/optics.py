@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from ringlight.core.atomic import atomic_file, check_output_file
 from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.regions import parse_rectangle, rectangle_region
 from ringlight.core.dataset.exr import write_exr_channels
+from ringlight.core.dataset.writer import refuse_dataset_file
 from ringlight.core.optics.calibration import calibrate, read_calibration, write_calibration
 from ringlight.core.device import CHOICES, choose_device
 from ringlight.core.optics.maps import OpticalMaps, optical_maps, sample_optics
@@ -92,14 +94,20 @@ def run_optics(args) -> int:
     rectangle = parse_rectangle(args.roi) if args.roi else None
     reference = (parse_numbers(args.reference_mua, "--reference-mua", 3),
                  parse_numbers(args.reference_musp, "--reference-musp", 3)) if args.write_calibration else None
-    for path in (args.out, args.json, args.write_calibration):
-        if path is not None:
-            if not path.strip():
-                raise RinglightError("an output file needs a name")
-            check_output_file(path, args.force, probe=True)  # refused before the work
+    outputs = [path for path in (args.out, args.json, args.write_calibration) if path is not None]
+    for path in outputs:
+        if not path.strip():
+            raise RinglightError("an output file needs a name")
+        check_output_file(path, args.force, probe=True)  # refused before the work
+    if args.out is not None and not args.out.lower().endswith(".exr"):
+        raise RinglightError(f"{args.out}: the maps are written as OpenEXR: give a name ending in .exr")
+    if len({os.path.realpath(path) for path in outputs}) < len(outputs):
+        raise RinglightError(f"{', '.join(outputs)}: two outputs name the same file; give each its own")
     calibration = read_calibration(args.calibration) if args.calibration else None
     device = choose_device(args.device)
     manifest = load_manifest(args.dataset)
+    for path in outputs:
+        refuse_dataset_file(path, manifest.folder)
     with progress_bar("opening the dataset") as progress:
         dataset = open_dataset(manifest, progress=progress, allow_outside=args.allow_outside)
     # The region is checked against the grid before the white run and the maps, not after them.

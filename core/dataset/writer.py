@@ -12,13 +12,15 @@ ringlight wrote there (the rule of :mod:`ringlight.core.atomic`).
 
 from __future__ import annotations
 
+import fnmatch
 import json
+import os
 from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import check_output_folder, output_folder
+from ..atomic import OutputError, check_output_folder, output_folder
 from ..colourspaces import colourspace_json
 from ..errors import DatasetError
 from ..ownership import Owned
@@ -60,6 +62,27 @@ def dataset_files(folder: Path) -> Owned | None:
             names += [entry.get("file") for entry in entries if isinstance(entry, dict)]
     return Owned(frozenset([MANIFEST_NAME, *(name for name in names if isinstance(name, str))]),
                  RINGLIGHT_SUBFOLDERS)
+
+
+def refuse_dataset_file(output, folder) -> None:
+    """Raise :class:`~ringlight.core.atomic.OutputError` when writing the file ``output`` would
+    replace a file of the dataset in ``folder`` (its manifest, a file the manifest names, or
+    anything in ringlight's subfolders), with ``--force`` too: a result written over the dataset
+    it was computed from destroyed it (``layers DATASET --json DATASET/dataset.json --force``).
+    Links are followed to what they reach."""
+    owned = dataset_files(Path(folder))
+    if owned is None:
+        return
+    try:
+        relative = Path(os.path.realpath(output)).relative_to(os.path.realpath(folder)).as_posix()
+    except ValueError:  # outside the dataset's folder
+        return
+    parts = relative.split("/")
+    in_subfolder = any(fnmatch.fnmatchcase("/".join(parts[:end]), tree)
+                       for end in range(1, len(parts) + 1) for tree in owned.trees)
+    if relative in owned.files or in_subfolder:
+        raise OutputError(f"{output}: is a file of the dataset {folder} that this command reads; "
+                          "refusing to replace it; write elsewhere")
 
 
 def check_dataset_target(path, overwrite: bool = False) -> None:
