@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -185,3 +186,15 @@ def test_the_installed_command_prints_no_traceback(tmp_path):
     )
     assert result.returncode == 2
     assert result.stderr.strip() == f"ringlight: error: {tmp_path / 'absent'}: no such dataset folder"
+
+
+@pytest.mark.parametrize("radii", ["1e308:1e308:1", "0:1e300:1e296"])
+def test_radii_too_large_to_hold_are_one_line_without_a_warning(dataset, capsys, radii):
+    """1e308:1e308:1 overflowed in the radii's rounding (numpy's RuntimeWarning on the terminal) and
+    was refused as not finite, though every number given was."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        status, err = run_cli(capsys, "stack", dataset, "--radii", radii, "--out", dataset.parent / "o")
+    stop = radii.split(":")[1]
+    assert status == 2 and err.strip() == (f"ringlight: error: ring radius {float(stop):g} reaches beyond 4096 grid "
+                                           "steps, more than any dataset holds")
