@@ -48,6 +48,19 @@ def test_missing_manifest(tmp_path, capsys):
     assert_one_line_error(capsys, tmp_path / "empty", "empty/dataset.json", "manifest not found")
 
 
+def test_a_file_given_as_the_dataset_is_named_as_a_file(tmp_path, capsys):
+    """``ringlight info notes.txt`` said "notes.txt/dataset.json: manifest not found"."""
+    (tmp_path / "notes.txt").write_text("mine")
+    line = assert_one_line_error(capsys, tmp_path / "notes.txt", command="info")
+    assert line == f"ringlight: error: {tmp_path / 'notes.txt'}: is a file, not a dataset folder or its dataset.json"
+
+
+def test_empty_radii_are_refused_not_taken_for_auto(dataset, capsys):
+    status, err = run_cli(capsys, "layers", dataset, "--radii", "")
+    assert status == 2 and err.strip() == ("ringlight: error: --radii '' must be numbers separated by commas, "
+                                           "e.g. 2,5,8")
+
+
 def test_missing_folder(tmp_path, capsys):
     assert_one_line_error(capsys, tmp_path / "nowhere", "nowhere", "no such dataset folder", command="info")
 

@@ -123,7 +123,7 @@ def check_method_options(args) -> None:
 
 def run_layers(args) -> int:
     check_method_options(args)
-    radii = parse_radii(args.radii) if args.radii else None
+    radii = parse_radii(args.radii) if args.radii is not None else None  # --radii '' is refused, not --auto
     StackRequest(step=args.step, dr=args.dr, thickness=args.thickness).check_rings()  # before the dataset opens
     settings = parse_inversion(args) if args.method == "inverse" else None
     if args.json is not None:

@@ -185,6 +185,8 @@ def locate_manifest(folder: str | Path) -> tuple[Path, Path]:
         path = folder / MANIFEST_NAME
         if not folder.exists():
             raise DatasetError(f"{folder}: no such dataset folder")
+        if not folder.is_dir():
+            raise DatasetError(f"{folder}: is a file, not a dataset folder or its {MANIFEST_NAME}")
         if not path.exists():
             raise DatasetError(f"{path}: manifest not found")
     except OSError as error:  # a name too long, a permission denied on the way
