@@ -60,6 +60,10 @@ def test_calibration_file_round_trips_and_validates_against_its_schema(tmp_path)
     with pytest.raises(OutputError):
         write_calibration(path, calibration)  # exists: not without overwrite
     write_calibration(path, calibration, overwrite=True)
+    at_the_bounds = Calibration((1e-30, 1.0, 1e30), (0.0, 0.0, 1e30), (0.01,) * 3, (1.0,) * 3, "per_mm", 1.4, 0.0)
+    write_calibration(path, at_the_bounds, overwrite=True)
+    assert read_calibration(path) == at_the_bounds
+    schema().validate(json.loads(path.read_text()))
 
 
 @pytest.mark.parametrize("change, message", [
@@ -82,6 +86,46 @@ def test_bad_calibration_is_one_line_naming_the_file_and_the_schema_agrees(tmp_p
         read_calibration(path)
     text = str(error.value)
     assert text.startswith(str(path)) and message in text and "\n" not in text
+    assert not schema().is_valid(document)
+
+
+def edited_calibration(tmp_path, **changes) -> tuple:
+    """A calibration file as ``write_calibration`` writes it, with its top-level keys then set to
+    ``changes``; returns its path and the edited document."""
+    calibration = Calibration((412.7, 398.2, 405.9), (1.1, 1.0, 1.2), (0.01, 0.012, 0.015), (1.0,) * 3, "per_mm",
+                              1.4, 0.0, "phantom")
+    path = tmp_path / "cal.json"
+    write_calibration(path, calibration)
+    document = json.loads(path.read_text())
+    document.update(changes)
+    path.write_text(json.dumps(document))
+    return path, document
+
+
+@pytest.mark.parametrize("channels", [["X", "Y", "Z"], ["B", "G", "R"], ["R", "G"], ["Y"], "RGB"])
+def test_calibration_channels_other_than_r_g_b_in_order_are_one_line_naming_the_file(tmp_path, channels):
+    # scale and reference are applied by position to the maps' R, G, B: any other names or order
+    # would be applied silently to the wrong channels.
+    path, document = edited_calibration(tmp_path, channels=channels)
+    with pytest.raises(CalibrationError) as error:
+        read_calibration(path)
+    assert str(error.value) == (f"{path}: 'channels' must be [\"R\", \"G\", \"B\"] (scale and reference are in that "
+                                f"order), got {channels!r}")
+    assert not schema().is_valid(document)
+
+
+@pytest.mark.parametrize("key, values, expected", [
+    ("scale", [1e308, 1e308, 1e308], "3 positive numbers within [1e-30, 1e+30]"),  # the fits overflow: maps all NaN
+    ("scale", [1.0, 1e31, 1.0], "3 positive numbers within [1e-30, 1e+30]"),
+    ("scale", [1e-31, 1.0, 1.0], "3 positive numbers within [1e-30, 1e+30]"),
+    ("scale_se", [1e308, 1.0, 1.0], "3 standard errors within [0, 1e+30]"),
+    ("scale_se", [1.0, -1.0, 1.0], "3 standard errors within [0, 1e+30]"),
+])
+def test_scale_out_of_range_is_one_line_naming_the_file(tmp_path, key, values, expected):
+    path, document = edited_calibration(tmp_path, **{key: values})
+    with pytest.raises(CalibrationError) as error:
+        read_calibration(path)
+    assert str(error.value) == f"{path}: '{key}' must be {expected}, got {values!r}"
     assert not schema().is_valid(document)
 
 
@@ -112,3 +156,10 @@ def test_reference_outside_the_table_is_refused(run):
     for mua, musp in (([0.03, 0.04], 1.0), (0.03, "one"), (0.03, [[1.0, 1.0, 1.0]] * 2)):  # numpy's words before
         with pytest.raises(CalibrationError, match=r"each be one number or one per channel \(3\), got"):
             calibrate(reference, mua, musp, photons=TEST_PHOTONS)
+
+
+def test_a_scan_whose_scale_is_out_of_range_writes_no_calibration(run):
+    # A rig reading 1e31 times the model's E: beyond the scales a calibration file may hold.
+    reference = model_dataset(run, 0.6, 0.03, 16, 6, scale=1e31)
+    with pytest.raises(CalibrationError, match=r"gives no scale within \[1e-30, 1e\+30\]"):
+        calibrate(reference, 0.03, 0.6, photons=TEST_PHOTONS)

@@ -36,13 +36,18 @@ from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import RinglightError
 from ..inversion.measured import measured_profile
 from ..validation import Validator, read_json
-from .maps import MODEL_FLOOR, profile_radii, sample_optics
+from .maps import CHANNELS, MODEL_FLOOR, profile_radii, sample_optics
 from .ring_sigma import ring_sigma
 from .table import DEFAULT_PHOTONS, table_for
 
 FORMAT = "ringlight-calibration"
 VERSION = 1
 UNITS = ("per_mm", "per_grid_step")
+SCALE_RANGE = (1e-30, 1e30)
+"""Bounds of a scale and of its standard error (camera units per unit of the model's E). E is a
+reflectance factor (below 1) and frames hold float32 readings (at most 3.4e38), so a real rig's
+scale lies far inside; within them the fits' float64 sums of (scale E / sigma)^2 and their inverses
+cannot overflow, where a scale of 1e308 makes them Inf and every map NaN."""
 
 
 class CalibrationError(RinglightError):
@@ -57,7 +62,7 @@ class Calibration:
     ----------
     scale, scale_se
         (C,) camera units per unit of the model's E (reflectance factor per unit beam power),
-        and its standard error.
+        within :data:`SCALE_RANGE`, and its standard error.
     reference_mua, reference_musp
         (C,) the reference's known properties, in ``units``.
     units
@@ -70,7 +75,7 @@ class Calibration:
         Where the calibration came from: ``dataset``, ``created`` (UTC, ISO 8601), ``software``,
         ``radii``, ``pitch_mm``.
     channels
-        Channel names.
+        Channel names: always :data:`~.maps.CHANNELS` (R, G, B), the order of the per-channel values.
     """
 
     scale: tuple[float, ...]
@@ -131,12 +136,14 @@ def calibrate(dataset: ImpulseDataset, reference_mua, reference_musp, *, n: floa
             raise CalibrationError(f"the reference's properties (mua {mua[c]:g}, musp {musp[c]:g}) lie outside the "
                                    f"model's table (musp {low / per_step:.3g} to {high / per_step:.3g})")
         used = np.isfinite(measured.mean[:, c]) & np.isfinite(sigma[:, c]) & (sigma[:, c] > 0)
-        weight = 1.0 / sigma[used, c] ** 2
+        weight = 1.0 / sigma[used, c].astype(np.float64) ** 2  # float32 squares of a bright rig's sigma overflow
         information = float((model[used] ** 2 * weight).sum())
         scale[c] = float((measured.mean[used, c] * model[used] * weight).sum()) / information
         scale_se[c] = 1.0 / math.sqrt(information)
-    if not (np.isfinite(scale).all() and (scale > 0).all()):
-        raise CalibrationError(f"{dataset.path}: the reference's scan gives no positive scale ({scale.tolist()})")
+    low, high = SCALE_RANGE
+    if not ((scale >= low) & (scale <= high)).all():  # NaN too: a file that read_calibration refuses is never made
+        raise CalibrationError(f"{dataset.path}: the reference's scan gives no scale within [{low:g}, {high:g}] "
+                               f"({scale.tolist()})")
     provenance = {"dataset": str(dataset.path), "created": _now(), "software": f"ringlight {_version()}",
                   "radii": radii.tolist(), "pitch_mm": pitch}
     return Calibration(tuple(scale.tolist()), tuple(scale_se.tolist()), tuple(mua.tolist()), tuple(musp.tolist()),
@@ -180,14 +187,11 @@ def parse_calibration(document: object, where: str = "calibration") -> Calibrati
         raise check.fail("format", f"the string {FORMAT!r}", doc["format"])
     if doc["version"] != VERSION or isinstance(doc["version"], bool):
         raise check.fail("version", f"{VERSION} (this ringlight reads version {VERSION})", doc["version"])
-    channels = tuple(check.string(c, "channels") for c in check.sequence(doc.get("channels", ["R", "G", "B"]),
-                                                                         "channels"))
-    if len(channels) != 3:
-        raise check.fail("channels", "a list of 3 channel names", doc.get("channels"))
-    scale = check.numbers(doc["scale"], "scale", 3)
-    if any(s <= 0 for s in scale):
-        raise check.fail("scale", "3 positive numbers", doc["scale"])
-    scale_se = check.numbers(doc["scale_se"], "scale_se", 3) if "scale_se" in doc else (math.nan,) * 3
+    channels = doc.get("channels", list(CHANNELS))
+    if channels != list(CHANNELS):  # the maps' channels; a monochrome (Y) dataset is read as R = G = B
+        raise check.fail("channels", f"{json.dumps(list(CHANNELS))} (scale and reference are in that order)",
+                         channels)
+    scale, scale_se = _scales(check, doc)
     reference = check.mapping(doc["reference"], "reference", {"mua", "musp", "units", "n", "g", "description"},
                               {"mua", "musp", "units", "n"})
     mua = check.numbers(reference["mua"], "reference.mua", 3)
@@ -205,7 +209,22 @@ def parse_calibration(document: object, where: str = "calibration") -> Calibrati
         raise check.fail("reference.g", "an anisotropy in (-1, 1)", reference["g"])
     description = check.string(reference.get("description", ""), "reference.description")
     provenance = check.mapping(doc.get("provenance", {}), "provenance", None, set())
-    return Calibration(scale, scale_se, mua, musp, units, n, g, description, dict(provenance), channels)
+    return Calibration(scale, scale_se, mua, musp, units, n, g, description, dict(provenance), tuple(channels))
+
+
+def _scales(check: Validator, doc: dict) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The document's (3,) ``scale`` within :data:`SCALE_RANGE` and (3,) ``scale_se`` within [0, its
+    top] (NaN when the file has none); CalibrationError naming the key otherwise."""
+    low, high = SCALE_RANGE
+    scale = check.numbers(doc["scale"], "scale", 3)
+    if not all(low <= s <= high for s in scale):
+        raise check.fail("scale", f"3 positive numbers within [{low:g}, {high:g}]", doc["scale"])
+    if "scale_se" not in doc:
+        return scale, (math.nan,) * 3
+    scale_se = check.numbers(doc["scale_se"], "scale_se", 3)
+    if not all(0.0 <= s <= high for s in scale_se):
+        raise check.fail("scale_se", f"3 standard errors within [0, {high:g}]", doc["scale_se"])
+    return scale, scale_se
 
 
 def _now() -> str:
