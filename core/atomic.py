@@ -94,6 +94,9 @@ def _check(target: _Target, owner: OwnerOf, kind: str, replace: bool) -> bool:
     real, shown = target.real, target.shown
     try:
         if not real.exists():
+            above = next((folder for folder in shown.parents if os.path.lexists(folder)), None)
+            if above is not None and not above.is_dir():  # refused before the work, not "File exists" after it
+                raise OutputError(f"{shown}: {above} is a file, not a folder; give another path")
             return False
         if not real.is_dir():
             raise OutputError(f"{shown}: exists and is not a folder; refusing to overwrite it")

@@ -262,6 +262,76 @@ def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys
     assert "already holds a finished dataset" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("under, expected", [
+    ("", "{file}: exists and is not a folder; refusing to write a scan into it"),
+    ("x", "{file}/x: {file} is a file, not a folder; give another path"),
+])
+def test_an_output_that_is_or_lies_under_a_file_is_refused_before_any_device_is_made(tmp_path, capsys, monkeypatch,
+                                                                                     under, expected):
+    """A user's walkthrough: ``--out afile`` (a regular file) ran the correspondence and the plan
+    before "afile: exists and is not a folder", and ``--out afile/x`` failed after them with
+    "cannot write here: File exists", which did not say that afile is a file. Both are refused
+    before a device is made (with a real rig: before anything is projected); nothing is written."""
+    from ringlight.app.cli import capture
+
+    def no_device(*args, **kwargs):
+        raise AssertionError("a device was made before the output was checked")
+
+    monkeypatch.setattr(capture, "make_device", no_device)
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    assert main([*SMALL_CAPTURE, "--out", str(afile / under)]) == 2
+    assert capsys.readouterr().err.splitlines() == ["ringlight: error: " + expected.format(file=afile)]
+    assert afile.read_text() == "mine" and list(tmp_path.iterdir()) == [afile]
+
+
+SIZE_RANGE = "must be HxW projector pixels, at least 2x2 and at most 1024x1024, e.g. 24x24"
+
+
+@pytest.mark.parametrize("flag, option, problem", [
+    ("--option", "photons=0", "must be an integer from 1 to 10,000,000"),
+    ("--camera-option", "photons=-5", "must be an integer from 1 to 10,000,000"),
+    ("--option", "seed=-1", "must be an integer from 0 to 4,294,967,295"),
+    ("--option", "fail_after=x", "must be an integer 0 or more"),
+    ("--option", "size=0x0", SIZE_RANGE),
+    ("--option", "size=1x8", SIZE_RANGE),  # OpenCV's Gray code decoding crashed the process (SIGSEGV)
+    ("--option", "size=400x400", "preset red-bead: simulating it would take 21 GiB (grid 400 x 400, max_radius 12, "
+                                 "path_length_bins.count 64), more than 16 GiB; make the grid, max_radius or "
+                                 "path_length_bins.count smaller"),
+    ("--option", "scene=nope", "must be colorchecker, a simulator preset (homogeneous, layers-mus, layers-reversed, "
+                               "layers-thick, layers2, layers3, marble, red-bead, skin1, star, wholemilk) or a scene "
+                               "JSON file"),
+])
+def test_a_simulated_rig_option_out_of_range_is_one_line_naming_it_before_anything_is_simulated(
+        tmp_path, capsys, monkeypatch, flag, option, problem):
+    """A user's walkthrough: ``--camera-option photons=-5`` and ``--option photons=0`` wrote a
+    dataset (0 photons fell back to the preset's 20000); ``--option size=0x0`` said "'shapes[0]'
+    centre [0, 0, 7] is outside the volume", which named no option. Each option is checked
+    against its range, before the simulator runs, and named as the user gave it."""
+    from ringlight.core.simulate import transport
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("the scene was simulated before the option was checked")
+
+    monkeypatch.setattr(transport, "simulate_transport", no_simulation)
+    assert main([*SMALL_CAPTURE, flag, option, "--out", str(tmp_path / "scan")]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"ringlight: error: {flag} {option}: {problem}"]
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "0", "-5", "3601", "abc"])
+def test_a_machine_vision_cameras_frame_timeout_must_be_a_positive_number_of_seconds(value):
+    """``frame_timeout=nan`` (or inf) was taken, and failed at the first capture, after the
+    projector had begun; 0 or less never sees a frame."""
+    from ringlight.core.capture.hardware import OptionError
+    from ringlight.core.capture.pylon_camera import PylonCamera
+
+    with pytest.raises(OptionError) as refused:
+        PylonCamera("0815-0000", frame_timeout=value)
+    assert str(refused.value) == (f"pylon camera 0815-0000 option frame_timeout={value}: "
+                                  "must be a number of seconds > 0 and at most 3600")
+
+
 def test_opening_a_simulated_rig_reports_its_progress_and_a_reopen_is_instant():
     """The simulated rig's making is most of an open (the simulator runs): its factory gets the
     progress callback; factories that do not name one never see it."""

@@ -409,3 +409,13 @@ def test_an_output_file_in_a_folder_that_cannot_be_written_is_refused_before_the
     assert len(error) == 1 and error[0].startswith("ringlight: error: /proc/version: cannot write here")
     check_output_file(tmp_path / "out.json", probe=True)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_output_under_a_file_is_refused_before_the_work(tmp_path, dataset, capsys, monkeypatch):
+    """``stack DATASET --out notes.txt/x`` computed the stack, then said "cannot write here: File
+    exists"; every folder output (stacks, datasets, scans) now names the file first."""
+    (tmp_path / "notes.txt").write_text("mine")
+    monkeypatch.chdir(tmp_path)
+    line = one_line(capsys, "stack", dataset, "--radii", "0:1:1", "--out", "notes.txt/x")
+    assert line == "ringlight: error: notes.txt/x: notes.txt is a file, not a folder; give another path"
+    assert (tmp_path / "notes.txt").read_text() == "mine" and not leftovers(tmp_path)

@@ -36,6 +36,20 @@ class HardwareError(RinglightError):
     """A device failed (not found, refused a setting, stopped answering)."""
 
 
+class OptionError(HardwareError):
+    """A device factory refused the value of one of its options (``key=value``, as typed).
+
+    The message names the device, the option and the allowed values; ``key``, ``value`` and
+    ``problem`` let a caller name the option as its user gave it (``--camera-option size=0x0``).
+    """
+
+    def __init__(self, device: str, key: str, value: str, problem: str):
+        super().__init__(f"{device} option {key}={value}: {problem}")
+        self.key = key
+        self.value = value
+        self.problem = problem
+
+
 @runtime_checkable
 class Camera(Protocol):
     """A linear camera."""

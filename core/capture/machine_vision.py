@@ -15,16 +15,21 @@ Frames are float32 raw counts of the pixel format (black level not subtracted).
 
 from __future__ import annotations
 
+import math
 import re
 
 import cv2
 import numpy as np
 
-from .hardware import HardwareError
+from .hardware import HardwareError, OptionError
 
 SUPPORTED_FORMATS = ("Mono12", "Mono16", "BayerRG12", "BayerGR12", "BayerGB12", "BayerBG12",
                      "BayerRG16", "BayerGR16", "BayerGB16", "BayerBG16", "RGB16", "RGB16Packed")
 """Linear formats of at least 12 bits, in the order a camera's first supported one is chosen."""
+MAX_FRAME_TIMEOUT = 3600.0
+"""Longest ``frame_timeout`` in seconds: an hour beyond the exposure. pylon and Spinnaker wait in
+integer milliseconds, which ``nan`` or ``inf`` made fail at the first capture, after the projector
+had begun; a wait of zero or less never sees a frame."""
 
 # OpenCV names Bayer patterns by the second row's first two pixels: a sensor whose first row
 # starts R G (SFNC "BayerRG") is OpenCV's "BG" pattern.
@@ -75,10 +80,7 @@ class SfncCamera:
     def __init__(self, pixel_format: str = "", frame_timeout: str = "5"):
         if pixel_format:
             format_bits(pixel_format)
-        try:
-            self.frame_timeout = float(frame_timeout)
-        except ValueError:
-            raise HardwareError(f"{self.name}: frame_timeout must be a number of seconds, got {frame_timeout!r}") from None
+        self.frame_timeout = self._parse_frame_timeout(frame_timeout)
         self.pixel_format = pixel_format
         self.description: dict[str, str] = {}
         self.is_open = False
@@ -86,6 +88,17 @@ class SfncCamera:
         self._black = 0.0
         self._gain_db = 0.0
         self._shape: tuple[int, ...] = (0, 0)
+
+    def _parse_frame_timeout(self, value: str) -> float:
+        """Option ``frame_timeout`` (a string, as typed) in seconds, > 0 and at most MAX_FRAME_TIMEOUT."""
+        try:
+            seconds = float(value)
+        except ValueError:
+            seconds = math.nan
+        if not 0 < seconds <= MAX_FRAME_TIMEOUT:  # also refuses nan
+            raise OptionError(self.name, "frame_timeout", value,
+                              f"must be a number of seconds > 0 and at most {MAX_FRAME_TIMEOUT:g}")
+        return seconds
 
     def open(self) -> None:
         self.description = self._connect()

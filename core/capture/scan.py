@@ -52,12 +52,13 @@ from ..dataset.exr import write_exr_channels, write_exr_rgb
 from ..dataset.manifest import parse_manifest
 from ..dataset.memory import format_bytes, memory_budget
 from ..errors import Cancelled, RinglightError
-from ..ownership import Owned, foreign_entry, temporary_of
+from ..ownership import Owned, temporary_of
 from ..staging_locks import sweep_abandoned
 from .hardware import Camera, HardwareError, Projector
 from .hdr import merge_brackets
 from .multiplex import block_bytes, coded_lit, demultiplex
 from .projector_check import CHECK_EVERY, CHECK_NAME, ProjectorCheck
+from .scan_folder import check_scan_folder
 from .scan_plan import (
     BYTES_PER_PIXEL,
     PLAN_NAME,
@@ -170,34 +171,19 @@ class Scan:
     def prepare(self, resume: bool) -> None:
         """Publish a new scan (plan, mapping, folders), or check that a resumed scan continues
         the same plan and take its camera description from the plan."""
-        if (self.out / "dataset.json").exists() and not resume:
-            raise ScanError(f"{self.out}: already holds a finished dataset; choose another folder")
-        if self.plan_path.exists():
-            if not resume:
-                raise ScanError(f"{self.out}: holds an unfinished scan; resume it or choose another folder")
+        if resume and self.plan_path.exists():
             stored, self.camera_notes, self.colorspace = read_plan(self.out)
             if stored != self.plan:
                 raise ScanError(f"{self.plan_path}: the unfinished scan has another plan; resume with its settings")
             self._clear_temporaries()
             self._repair_journal()
             return
+        check_scan_folder(self.out)
         try:
-            self._check_empty()
             sweep_abandoned(self.out, kinds=("partial",), holds=_PREPARATION)
             self._publish_scan()
         except OSError as error:  # OUT's folder read-only (OutputError says so itself)
             raise ScanError(f"{self.out}: cannot prepare the scan: {error.strerror or error}") from error
-
-    def _check_empty(self) -> None:
-        """Refuse an ``OUT`` that is not a folder, or holds anything: a new scan replaces nothing."""
-        if not self.out.is_dir():
-            if os.path.lexists(self.out):
-                raise ScanError(f"{self.out}: exists and is not a folder; refusing to write a scan into it")
-            return
-        foreign = foreign_entry(self.out, Owned())
-        if foreign is not None:
-            raise ScanError(f"{self.out}: exists and is not empty (it holds {foreign}); "
-                            "refusing to write a scan into it: choose another folder")
 
     def _publish_scan(self) -> None:
         """Build the preparation in a staging folder and rename it onto the absent or empty ``OUT``."""

@@ -17,6 +17,8 @@ a camera whose RGB -> XYZ matrix is :data:`CAMERA_RGB_TO_XYZ`: the colour step's
 from __future__ import annotations
 
 import math
+import os
+import re
 import threading
 import zlib
 from collections import OrderedDict
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .hardware import HardwareError, HardwarePlugin, ProgressCallback
+from .hardware import HardwareError, HardwarePlugin, OptionError, ProgressCallback
 
 
 @dataclass(frozen=True)
@@ -221,45 +223,105 @@ def colorchecker_windows(height: int, width: int) -> np.ndarray:
     return windows
 
 
+RIG = "simulated rig"
+"""How messages name the rig."""
+MIN_SIDE = 2
+"""Fewest projector pixels along each side: OpenCV's Gray code decoding crashed the process (a
+segmentation fault) for a projector one pixel high or wide."""
+MAX_SIDE = 1024
+"""Most projector pixels along each side: one capture of a 1024 x 1024 ``colorchecker`` rig takes
+about 5 s (a preset's simulation is refused well below it by the simulator's memory check)."""
+MAX_PHOTONS = 10_000_000
+"""Most photons per lit point and channel, as ``ringlight simulate --photons``: ten million
+already take hours on a 24 x 24 grid."""
+MAX_SEED = 2**32 - 1
+"""Largest seed, as ``ringlight simulate --seed``."""
+
 _RIGS: OrderedDict[tuple, SimulatedRig] = OrderedDict()
 _KEPT_RIGS = 4
 _RIGS_LOCK = threading.Lock()
 
 
-def _preset_rig(scene: str, size: str, photons: int, seed: int, fail_after: int | None,
-                progress: ProgressCallback | None) -> SimulatedRig:
-    from ..simulate.presets import load_scene
+def _integer(key: str, value: str, low: int, high: int | None = None) -> int:
+    """Option ``key``'s ``value`` (a string, as typed) as an integer in [low, high] (high None:
+    no limit); OptionError naming the range otherwise."""
+    try:
+        number = int(value)
+    except ValueError:
+        number = None
+    if number is None or number < low or (high is not None and number > high):
+        allowed = f"from {low:,} to {high:,}" if high is not None else f"{low:,} or more"
+        raise OptionError(RIG, key, value, f"must be an integer {allowed}")
+    return number
+
+
+def _grid_size(value: str) -> tuple[int, int]:
+    """Option ``size`` ``"HxW"`` -> (height, width) in projector pixels, each side from
+    MIN_SIDE to MAX_SIDE; OptionError otherwise."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
+    if match is None or not all(MIN_SIDE <= int(side) <= MAX_SIDE for side in match.groups()):
+        raise OptionError(RIG, "size", value, f"must be HxW projector pixels, at least {MIN_SIDE}x{MIN_SIDE} and "
+                                              f"at most {MAX_SIDE}x{MAX_SIDE}, e.g. 24x24")
+    return int(match[1]), int(match[2])
+
+
+def _scene(value: str) -> str:
+    """Option ``scene``: ``colorchecker``, a simulator preset or a scene JSON file; OptionError otherwise."""
+    from ..simulate.presets import preset_names
+
+    if value != "colorchecker" and value not in preset_names() and not os.path.exists(value):
+        raise OptionError(RIG, "scene", value, f"must be colorchecker, a simulator preset "
+                                               f"({', '.join(preset_names())}) or a scene JSON file")
+    return value
+
+
+def _load_scene(scene: str, size: tuple[int, int]):
+    """The simulator's scene ``scene`` on a ``size`` grid. A preset is valid at its own size, so its
+    refusal (a volume too large, a shape outside a small grid) is the ``size`` option's."""
+    from ..simulate.presets import load_scene, preset_names
+    from ..simulate.scene import SceneError
+
+    try:
+        return load_scene(scene, size=size)
+    except SceneError as error:
+        if scene not in preset_names():
+            raise  # a scene file's own problem, which its message names
+        raise OptionError(RIG, "size", f"{size[0]}x{size[1]}", str(error)) from None
+
+
+def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int, fail_after: int | None,
+              progress: ProgressCallback | None) -> SimulatedRig:
+    """A new rig over ``scene`` on a ``size`` (height, width) grid (the simulator runs for a preset)."""
     from ..simulate.transport import simulate_transport
 
-    key = (scene, size, photons, seed, fail_after)
-    with _RIGS_LOCK:
-        if key in _RIGS:
-            _RIGS.move_to_end(key)
-            return _RIGS[key]
-    height, width = (int(part) for part in size.lower().split("x"))
     if scene == "colorchecker":
-        rig = SimulatedRig(colorchecker_windows(height, width), seed=seed, fail_after=fail_after)
+        windows = colorchecker_windows(*size)
     else:
-        transport = simulate_transport(load_scene(scene, size=(height, width)), photons=photons, seed=seed,
-                                       progress=progress)
-        rig = SimulatedRig(transport.windows, seed=seed, fail_after=fail_after)
-    with _RIGS_LOCK:
-        _RIGS[key] = rig
-        while len(_RIGS) > _KEPT_RIGS:
-            _RIGS.popitem(last=False)
-    return rig
+        windows = simulate_transport(_load_scene(scene, size), photons=photons, seed=seed, progress=progress).windows
+    return SimulatedRig(windows, seed=seed, fail_after=fail_after)
 
 
 def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
                fail_after: str = "", progress: ProgressCallback | None = None) -> SimulatedRig:
     """The rig over a simulator preset (made once per option set, the last four kept, and shared
-    by the camera and projector factories). Options are strings, as typed by a user. Making one
-    runs the simulator (about 10 s for the default 24 x 24 at 600 photons on 2 cores): ``progress``
-    gets the fraction done and may raise Cancelled."""
-    try:
-        return _preset_rig(scene, size, int(photons), int(seed), int(fail_after) if fail_after else None, progress)
-    except ValueError as error:
-        raise HardwareError(f"simulated rig: bad option ({error}); size is HxW, photons and seed integers") from None
+    by the camera and projector factories). Options are strings, as typed by a user: ``size`` HxW
+    projector pixels (MIN_SIDE to MAX_SIDE each), ``photons`` per lit point and channel (1 to
+    MAX_PHOTONS), ``seed`` (0 to MAX_SEED), ``fail_after`` captures (0 or more; empty: never);
+    a value out of range raises OptionError before anything is simulated. Making one runs the
+    simulator (about 10 s for the default 24 x 24 at 600 photons on 2 cores): ``progress`` gets
+    the fraction done and may raise Cancelled."""
+    key = (_scene(scene), _grid_size(size), _integer("photons", photons, 1, MAX_PHOTONS),
+           _integer("seed", seed, 0, MAX_SEED), _integer("fail_after", fail_after, 0) if fail_after else None)
+    with _RIGS_LOCK:
+        if key in _RIGS:
+            _RIGS.move_to_end(key)
+            return _RIGS[key]
+    rig = _make_rig(*key, progress)
+    with _RIGS_LOCK:
+        _RIGS[key] = rig
+        while len(_RIGS) > _KEPT_RIGS:
+            _RIGS.popitem(last=False)
+    return rig
 
 
 PLUGIN = HardwarePlugin(
