@@ -298,6 +298,7 @@ SIZE_RANGE = "must be HxW projector pixels, at least 2x2 and at most 1024x1024, 
     ("--option", "size=400x400", "preset red-bead: simulating it would take 21 GiB (grid 400 x 400, max_radius 12, "
                                  "path_length_bins.count 64), more than 16 GiB; make the grid, max_radius or "
                                  "path_length_bins.count smaller"),
+    ("--option", "foo=1", "no such option of the simulated rig (its options: scene, size, photons, seed, fail_after)"),
     ("--option", "scene=nope", "must be colorchecker, a simulator preset (homogeneous, layers-mus, layers-reversed, "
                                "layers-thick, layers2, layers3, marble, red-bead, skin1, star, wholemilk) or a scene "
                                "JSON file"),

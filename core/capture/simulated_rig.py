@@ -302,14 +302,18 @@ def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int, fail_a
 
 
 def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
-               fail_after: str = "", progress: ProgressCallback | None = None) -> SimulatedRig:
+               fail_after: str = "", progress: ProgressCallback | None = None, **unknown: str) -> SimulatedRig:
     """The rig over a simulator preset (made once per option set, the last four kept, and shared
     by the camera and projector factories). Options are strings, as typed by a user: ``size`` HxW
     projector pixels (MIN_SIDE to MAX_SIDE each), ``photons`` per lit point and channel (1 to
     MAX_PHOTONS), ``seed`` (0 to MAX_SEED), ``fail_after`` captures (0 or more; empty: never);
-    a value out of range raises OptionError before anything is simulated. Making one runs the
-    simulator (about 10 s for the default 24 x 24 at 600 photons on 2 cores): ``progress`` gets
-    the fraction done and may raise Cancelled."""
+    a value out of range, or an option of another name, raises OptionError before anything is
+    simulated. Making one runs the simulator (about 10 s for the default 24 x 24 at 600 photons on
+    2 cores): ``progress`` gets the fraction done and may raise Cancelled."""
+    if unknown:
+        name, value = next(iter(unknown.items()))
+        raise OptionError(RIG, name, value, "no such option of the simulated rig (its options: scene, size, photons, "
+                          "seed, fail_after)")
     key = (_scene(scene), _grid_size(size), _integer("photons", photons, 1, MAX_PHOTONS),
            _integer("seed", seed, 0, MAX_SEED), _integer("fail_after", fail_after, 0) if fail_after else None)
     with _RIGS_LOCK:
