@@ -266,9 +266,11 @@ def test_the_optics_outputs_are_checked_together_before_the_work(tmp_path, datas
     line = one_line(capsys, "optics", dataset, "--out", same, "--json", same, "--force")
     assert line == f"ringlight: error: {same}, {same}: two outputs name the same file; give each its own"
     line = one_line(capsys, "optics", dataset, "--out", tmp_path / "maps.png")
-    assert line == f"ringlight: error: {tmp_path / 'maps.png'}: the maps are written as OpenEXR: give a name ending in .exr"
-    line = one_line(capsys, "optics", dataset, "--out", dataset / "dataset.json", "--force")
-    assert "is a file of the dataset" not in line  # the extension is refused first, as cheaply
+    assert line == (f"ringlight: error: {tmp_path / 'maps.png'}: the maps are written as OpenEXR: "
+                    "give a name ending in .exr")
+    line = one_line(capsys, "optics", dataset, "--json", dataset / "dataset.json", "--force")
+    assert line == (f"ringlight: error: {dataset / 'dataset.json'}: is a file of the dataset {dataset} that this "
+                    "command reads; refusing to replace it; write elsewhere")
     assert not same.exists() and sorted(path.name for path in tmp_path.iterdir()) == ["ds"]
 
 

@@ -37,7 +37,8 @@ def radius_range(start: float, stop: float, step: float) -> np.ndarray:
     if start < 0 or stop < start:
         raise StackError(f"radii need 0 <= start <= stop, got {start}:{stop}")
     if stop > MAX_RING_REACH:  # before the arithmetic: 1e308 overflowed in the rounding
-        raise StackError(f"ring radius {stop:g} reaches beyond {MAX_RING_REACH:g} grid steps, more than any dataset holds")
+        raise StackError(f"ring radius {stop:g} reaches beyond {MAX_RING_REACH:g} grid steps, "
+                         "more than any dataset holds")
     span = (stop - start) / step
     if not span < MAX_RADII:  # infinity too
         raise StackError(f"radii {start:g}:{stop:g}:{step:g} are more than {MAX_RADII}: use a larger step "
