@@ -94,9 +94,7 @@ def _check(target: _Target, owner: OwnerOf, kind: str, replace: bool) -> bool:
     real, shown = target.real, target.shown
     try:
         if not real.exists():
-            above = next((folder for folder in shown.parents if os.path.lexists(folder)), None)
-            if above is not None and not above.is_dir():  # refused before the work, not "File exists" after it
-                raise OutputError(f"{shown}: {above} is a file, not a folder; give another path")
+            _refuse_file_above(shown)  # before the work, not "File exists" after it
             return False
         if not real.is_dir():
             raise OutputError(f"{shown}: exists and is not a folder; refusing to overwrite it")
@@ -305,15 +303,21 @@ def check_output_file(final: str | os.PathLike, overwrite: bool = False, probe: 
         if os.path.lexists(final) and not overwrite:
             raise OutputError(f"{final}: already exists; refusing to overwrite it "
                               f"(choose another name, or allow overwriting: {overwrite_option} on the command line)")
-        above = next((folder for folder in final.parents if os.path.lexists(folder)), None)
-        if above is not None and not above.is_dir():
-            raise OutputError(f"{final}: {above} is a file, not a folder; give another path")
+        _refuse_file_above(final)
         if probe and final.parent.is_dir():
             temporary = _temporary_file(final)
             os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
             os.unlink(temporary)
     except OSError as error:  # a name too long, a folder not searchable
         raise _named(error, final) from error
+
+
+def _refuse_file_above(path: Path) -> None:
+    """Raise :class:`OutputError` when the nearest existing entry above ``path`` is not a folder
+    (``notes.txt/out``), which making ``path`` would fail at with "File exists"."""
+    above = next((folder for folder in path.parents if os.path.lexists(folder)), None)
+    if above is not None and not above.is_dir():
+        raise OutputError(f"{path}: {above} is a file, not a folder; give another path")
 
 
 NAME_MAX = 255

@@ -41,6 +41,13 @@ class Owned:
         """True when ``relative`` is a folder on the way to one of :attr:`files`."""
         return any(name.startswith(relative + "/") for name in self.files)
 
+    def contains(self, relative: str) -> bool:
+        """True when the file ``relative`` is one of :attr:`files` or lies inside one of
+        :attr:`trees` (at any depth)."""
+        parts = relative.split("/")
+        return relative in self.files or any(fnmatch.fnmatchcase("/".join(parts[:end]), tree)
+                                             for end in range(1, len(parts) + 1) for tree in self.trees)
+
     def holds(self, relative: str) -> bool:
         """True when the entry ``relative`` is one of :attr:`files`, inside one of :attr:`trees`,
         or on the way to one of the files."""

@@ -12,7 +12,6 @@ ringlight wrote there (the rule of :mod:`ringlight.core.atomic`).
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import os
 from contextlib import ExitStack
@@ -77,10 +76,7 @@ def refuse_dataset_file(output, folder) -> None:
         relative = Path(os.path.realpath(output)).relative_to(os.path.realpath(folder)).as_posix()
     except ValueError:  # outside the dataset's folder
         return
-    parts = relative.split("/")
-    in_subfolder = any(fnmatch.fnmatchcase("/".join(parts[:end]), tree)
-                       for end in range(1, len(parts) + 1) for tree in owned.trees)
-    if relative in owned.files or in_subfolder:
+    if owned.contains(relative):
         raise OutputError(f"{output}: is a file of the dataset {folder} that this command reads; "
                           "refusing to replace it; write elsewhere")
 
