@@ -12,7 +12,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QThreadPool, Signal
 from ringlight.core.capture.calibration import calibrate_colour, capture_white, measure_dark
-from ringlight.core.capture.hardware import discover_plugins, make_device, parse_options
+from ringlight.core.capture.hardware import HardwareError, discover_plugins, make_device, pair_problem, parse_options
 from ringlight.core.capture.live_view import LIVE_FPS, summarise_frame
 from ringlight.core.capture.scan import Scan, capture_with_timeout
 from ringlight.core.capture.scan_plan import ScanError, estimate_disk
@@ -105,6 +105,9 @@ class CaptureTab(QObject):
             # The camera first: a simulated rig is made (and its progress shown) then, and shared.
             camera = make_device(self.discovery.cameras(), camera_name, camera_options, progress)
             projector = make_device(self.discovery.projectors(), projector_name, options, progress)
+            problem = pair_problem(camera, projector)
+            if problem is not None:
+                raise HardwareError(problem)
             camera.open()
             projector.open()
             return camera, projector

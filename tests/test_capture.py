@@ -254,7 +254,7 @@ def uninterrupted_capture(tmp_path_factory):
 
 def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys, uninterrupted_capture):
     base = [*SMALL_CAPTURE, "--out", str(tmp_path / "scan")]
-    assert main([*base, "--camera-option", "fail_after=60", "--projector-option", "fail_after=60"]) == 2
+    assert main([*base, "--camera-option", "fail_after=60"]) == 2  # the camera's own option: one rig still
     assert "scan paused after" in capsys.readouterr().err
     assert main([*base, "--resume"]) == 0
     assert frame_files(tmp_path / "scan") == frame_files(uninterrupted_capture)
@@ -283,6 +283,44 @@ def test_an_output_that_is_or_lies_under_a_file_is_refused_before_any_device_is_
     assert main([*SMALL_CAPTURE, "--out", str(afile / under)]) == 2
     assert capsys.readouterr().err.splitlines() == ["ringlight: error: " + expected.format(file=afile)]
     assert afile.read_text() == "mine" and list(tmp_path.iterdir()) == [afile]
+
+
+@pytest.mark.parametrize("flag, seeds", [("--camera-option", "1 and 0"), ("--projector-option", "0 and 1")])
+def test_a_camera_and_projector_given_different_rigs_are_refused_before_anything_is_projected(tmp_path, capsys, flag,
+                                                                                              seeds):
+    """A user's walkthrough: ``--camera-option seed=1`` made the camera a rig of its own, which
+    never saw the projector's patterns: the Gray code correspondence failed as junk after both
+    rigs were simulated. The pair is refused in one line naming what differs; nothing is written."""
+    assert main([*SMALL_CAPTURE, flag, "seed=1", "--out", str(tmp_path / "scan")]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"ringlight: error: the simulated camera and projector were given different rigs (seed {seeds}): give scene, "
+        "size, photons and seed the same for both devices"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_simulated_device_with_a_real_one_is_refused_and_the_same_options_make_one_rig():
+    """``pair_problem``: a simulated camera films only its rig's projector, a simulated projector
+    lights only its rig's scene; devices without a rig are not checked. The camera's own
+    ``fail_after`` (given to the projector too, as ``--option`` does) leaves the two one rig."""
+    from ringlight.core.capture.hardware import pair_problem
+    from ringlight.core.capture.simulated_rig import simulated_camera, simulated_projector
+
+    camera = simulated_camera(size="4x4", photons="10", fail_after="3")
+    projector = simulated_projector(size="4x4", photons="10", fail_after="3")
+    assert camera.rig is projector.rig and pair_problem(camera, projector) is None
+    real = object()
+    assert pair_problem(real, projector) == ("the simulated projector lights only its simulated scene, which a real "
+                                             "camera does not see: use the simulated camera with it")
+    assert pair_problem(camera, real) == ("the simulated camera sees only the simulated projector's scene: use the "
+                                          "simulated projector with it")
+    assert pair_problem(real, object()) is None
+    # fail_after counts this camera's captures only: a camera made afresh over the same rig starts at 0.
+    projector.show_white()
+    for _ in range(3):
+        camera.capture(0.01)
+    with pytest.raises(HardwareError, match="fail_after reached"):
+        camera.capture(0.01)
+    assert simulated_camera(size="4x4", photons="10").capture(0.01).shape == camera.frame_shape
 
 
 SIZE_RANGE = "must be HxW projector pixels, at least 2x2 and at most 1024x1024, e.g. 24x24"

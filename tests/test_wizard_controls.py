@@ -82,3 +82,26 @@ def test_multiplexing_choice_gives_the_code_order(qtbot):
         wizard.multiplex_box.setCurrentIndex(index)
         orders.append(wizard.multiplex_order())
     assert orders == [0, 7, 15, 31]
+
+
+def test_opening_a_camera_and_projector_of_different_rigs_is_an_error_and_opens_neither(qtbot):
+    """The wizard's "Camera options" field is the camera's alone: ``seed=1`` there made the camera a
+    rig of its own, which never saw the projector's patterns. Opening says so and holds no device."""
+    from PySide6.QtCore import QThreadPool
+    from ringlight.app.capture_tab import CaptureTab
+
+    wizard = CaptureWizard()
+    qtbot.addWidget(wizard)
+    pool = QThreadPool()
+    tab = CaptureTab(wizard, pool, wizard)
+    errors = []
+    tab.error.connect(lambda title, message: errors.append(message))
+    wizard.options_edit.setText("size=4x4 photons=10")
+    wizard.camera_options_edit.setText("seed=1")
+    with qtbot.waitSignal(tab.jobs.failed, timeout=60000):
+        wizard.open_button.click()
+    pool.waitForDone()
+    assert errors == ["the simulated camera and projector were given different rigs (seed 1 and 0): give scene, size, "
+                      "photons and seed the same for both devices"]
+    assert tab.camera is None and tab.projector is None
+    tab.shutdown()

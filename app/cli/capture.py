@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 
-from ringlight.core.capture.hardware import OptionError, discover_plugins, make_device, parse_options
+from ringlight.core.capture.hardware import OptionError, discover_plugins, make_device, pair_problem, parse_options
 from ringlight.core.capture.scan import Scan
 from ringlight.core.capture.scan_folder import check_scan_folder
 from ringlight.core.capture.multiplex import s_matrix
@@ -115,6 +115,9 @@ def make_devices(args, discovery):
         camera = make_named(discovery.cameras(), args.camera, shared, "--camera-option", camera_options, progress)
         projector = make_named(discovery.projectors(), args.projector, shared, "--projector-option",
                                projector_options, progress)
+    problem = pair_problem(camera, projector)
+    if problem is not None:
+        raise ScanError(problem)
     return camera, projector
 
 

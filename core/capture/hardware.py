@@ -174,6 +174,29 @@ def make_device(factories: dict[str, Factory], name: str, options: dict[str, str
         raise HardwareError(f"device {name!r}: bad options {options}: {error}") from None
 
 
+def pair_problem(camera, projector) -> str | None:
+    """Why ``camera`` cannot film what ``projector`` shows, or None.
+
+    A simulated device (one with a ``simulated_rig`` that is not None: the ``simulated`` plugin's,
+    a pylon camera with ``feed=simulated``) sees or lights only the scene of its rig, so the two
+    devices must name the same rig: one made from the same options. Two rigs (a camera given
+    ``seed=1``, its projector not), or a simulated device with a real one, would scan a dark
+    frame's noise into a dataset. Other devices are not checked."""
+    seen = getattr(camera, "simulated_rig", None)
+    lit = getattr(projector, "simulated_rig", None)
+    if seen is lit:
+        return None
+    if seen is None:
+        return "the simulated projector lights only its simulated scene, which a real camera does not see: " \
+               "use the simulated camera with it"
+    if lit is None:
+        return "the simulated camera sees only the simulated projector's scene: use the simulated projector with it"
+    differ = [f"{key} {seen.options.get(key, '?')} and {lit.options.get(key, '?')}"
+              for key in sorted(set(seen.options) | set(lit.options)) if seen.options.get(key) != lit.options.get(key)]
+    return (f"the simulated camera and projector were given different rigs ({'; '.join(differ) or 'two rigs'}): "
+            f"give scene, size, photons and seed the same for both devices")
+
+
 def _names_progress(factory: Factory) -> bool:
     try:
         parameter = inspect.signature(factory).parameters.get("progress")

@@ -65,8 +65,10 @@ class SimulatedFeed:
     formats get the RGB file, which the emulator mosaics.
     """
 
-    def __init__(self, rig):
-        self.rig = rig
+    def __init__(self, camera):
+        self.camera = camera
+        """The simulated camera whose frames it delivers (:class:`.simulated_rig.SimulatedCamera`)."""
+        self.rig = camera.rig
         self.folder: Path | None = None  # made at the first write, removed by close
 
     @property
@@ -74,7 +76,7 @@ class SimulatedFeed:
         return self.folder / "frame.tiff"
 
     def write(self, exposure: float, pixel_format: str) -> Path:
-        counts = self.rig.capture(exposure)  # (rows, cols, 3) 12-bit counts as float32
+        counts = self.camera.capture(exposure)  # (rows, cols, 3) 12-bit counts as float32
         if not is_colour_format(pixel_format):
             counts = np.round(counts.mean(axis=-1))
         image = counts.astype(np.uint16) << 4
@@ -106,6 +108,11 @@ class PylonCamera(SfncCamera):
         self.feed = feed
         self.camera = None
 
+    @property
+    def simulated_rig(self):
+        """The simulated rig whose scene the feed shows, or None (:func:`.hardware.pair_problem`)."""
+        return None if self.feed is None else self.feed.rig
+
     def _connect(self) -> dict[str, str]:
         pylon, genicam = _pylon()
         factory = pylon.TlFactory.GetInstance()
@@ -128,7 +135,7 @@ class PylonCamera(SfncCamera):
                 self._set_feature("ImageFileMode", "On")
                 self._set_feature("ImageFilename", str(self.feed.write(self.feed.rig.sensor.exposure_range[0],
                                                                        self.pixel_format)))
-                rows, cols = self.feed.rig.camera.frame_shape[:2]
+                rows, cols = self.feed.camera.frame_shape[:2]
                 self._set_feature("Width", cols)
                 self._set_feature("Height", rows)
                 self._set_feature("BlackLevel", self.feed.rig.sensor.black_level)
@@ -242,9 +249,9 @@ def make_pylon_camera(serial: str = "", pixel_format: str = "", frame_timeout: s
                             "(serial, pixel_format, frame_timeout, feed)")
     source = None
     if feed:
-        from .simulated_rig import preset_rig
+        from .simulated_rig import simulated_camera
 
-        source = SimulatedFeed(preset_rig(**rig_options))
+        source = SimulatedFeed(simulated_camera(**rig_options))
     return PylonCamera(serial, pixel_format, frame_timeout, source)
 
 

@@ -72,26 +72,27 @@ class SensorModel:
 class SimulatedRig:
     """A projector and a camera sharing one scene; ``windows`` as in ``Transport.windows``.
 
-    ``fail_after``: the camera raises HardwareError after that many captures (to rehearse a
-    camera that stops answering).
+    ``fail_after``: :attr:`camera` raises HardwareError after that many captures (to rehearse a
+    camera that stops answering). ``options``: the ``simulated`` plugin's options it was made
+    from (``scene``, ``size``, ``photons``, ``seed``, as :func:`preset_rig` took them), which name
+    a rig in messages; empty for a rig made otherwise.
     """
 
     def __init__(self, windows: np.ndarray, sampling: CameraSampling = CameraSampling(),
                  sensor: SensorModel = SensorModel(), seed: int = 0, fail_after: int | None = None,
-                 settle_time: float = 0.0):
+                 settle_time: float = 0.0, options: dict[str, str] | None = None):
         self.windows = np.asarray(windows, np.float32)
         self.size = self.windows.shape[:2]
         self.radius = (self.windows.shape[2] - 1) // 2
         self.sampling = sampling
         self.sensor = sensor
         self.seed = seed
-        self.fail_after = fail_after
-        self.captures = 0
+        self.options = dict(options or {})
         self.pattern = np.zeros(self.size, np.float32)
         self.repeats: dict[float, int] = {}
         """Frames taken per exposure since the pattern was shown (a noise seed)."""
         self.projector = SimulatedProjector(self, settle_time)
-        self.camera = SimulatedCamera(self)
+        self.camera = SimulatedCamera(self, fail_after)
         rows, cols = np.mgrid[:sampling.camera_shape(self.size)[0], :sampling.camera_shape(self.size)[1]]
         y, x = sampling.projector_position(rows, cols)
         self.seen_y, self.seen_x = np.floor(y).astype(np.int64), np.floor(x).astype(np.int64)
@@ -116,9 +117,6 @@ class SimulatedRig:
         low, high = self.sensor.exposure_range
         if not low <= exposure <= high:
             raise HardwareError(f"simulated camera: exposure {exposure:g} s outside {low:g}..{high:g} s")
-        if self.fail_after is not None and self.captures >= self.fail_after:
-            raise HardwareError("simulated camera stopped answering (fail_after reached)")
-        self.captures += 1
         radiance = self.scene_radiance(self.pattern)
         seen = np.zeros((*self.seen_y.shape, 3))
         seen[self.sees_scene] = radiance[self.seen_y[self.sees_scene], self.seen_x[self.sees_scene]]
@@ -134,10 +132,18 @@ class SimulatedRig:
 
 
 class SimulatedCamera:
-    """The rig's camera (see :class:`SimulatedRig`)."""
+    """A camera of the rig (see :class:`SimulatedRig`): it sees what the rig's projector shows.
+    ``fail_after``: it raises HardwareError after that many captures (None: never)."""
 
-    def __init__(self, rig: SimulatedRig):
+    def __init__(self, rig: SimulatedRig, fail_after: int | None = None):
         self.rig = rig
+        self.fail_after = fail_after
+        self.captures = 0
+
+    @property
+    def simulated_rig(self) -> SimulatedRig:
+        """The rig whose scene it sees (:func:`.hardware.pair_problem`)."""
+        return self.rig
 
     def open(self) -> None:
         pass
@@ -168,6 +174,9 @@ class SimulatedCamera:
                             f"offset {sampling.offset[0]:g},{sampling.offset[1]:g}"}
 
     def capture(self, exposure: float) -> np.ndarray:
+        if self.fail_after is not None and self.captures >= self.fail_after:
+            raise HardwareError("simulated camera stopped answering (fail_after reached)")
+        self.captures += 1
         return self.rig.capture(exposure)
 
 
@@ -177,6 +186,11 @@ class SimulatedProjector:
     def __init__(self, rig: SimulatedRig, settle_time: float):
         self.rig = rig
         self.settle_time = settle_time
+
+    @property
+    def simulated_rig(self) -> SimulatedRig:
+        """The rig whose scene it lights (:func:`.hardware.pair_problem`)."""
+        return self.rig
 
     def open(self) -> None:
         pass
@@ -289,7 +303,7 @@ def _load_scene(scene: str, size: tuple[int, int]):
         raise OptionError(RIG, "size", f"{size[0]}x{size[1]}", str(error)) from None
 
 
-def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int, fail_after: int | None,
+def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int,
               progress: ProgressCallback | None) -> SimulatedRig:
     """A new rig over ``scene`` on a ``size`` (height, width) grid (the simulator runs for a preset)."""
     from ..simulate.transport import simulate_transport
@@ -298,24 +312,24 @@ def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int, fail_a
         windows = colorchecker_windows(*size)
     else:
         windows = simulate_transport(_load_scene(scene, size), photons=photons, seed=seed, progress=progress).windows
-    return SimulatedRig(windows, seed=seed, fail_after=fail_after)
+    options = {"scene": scene, "size": f"{size[0]}x{size[1]}", "photons": str(photons), "seed": str(seed)}
+    return SimulatedRig(windows, seed=seed, options=options)
 
 
 def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
-               fail_after: str = "", progress: ProgressCallback | None = None, **unknown: str) -> SimulatedRig:
+               progress: ProgressCallback | None = None, **unknown: str) -> SimulatedRig:
     """The rig over a simulator preset (made once per option set, the last four kept, and shared
     by the camera and projector factories). Options are strings, as typed by a user: ``size`` HxW
     projector pixels (MIN_SIDE to MAX_SIDE each), ``photons`` per lit point and channel (1 to
-    MAX_PHOTONS), ``seed`` (0 to MAX_SEED), ``fail_after`` captures (0 or more; empty: never);
-    a value out of range, or an option of another name, raises OptionError before anything is
-    simulated. Making one runs the simulator (about 10 s for the default 24 x 24 at 600 photons on
-    2 cores): ``progress`` gets the fraction done and may raise Cancelled."""
+    MAX_PHOTONS), ``seed`` (0 to MAX_SEED); a value out of range, or an option of another name,
+    raises OptionError before anything is simulated. Making one runs the simulator (about 10 s for
+    the default 24 x 24 at 600 photons on 2 cores): ``progress`` gets the fraction done and may
+    raise Cancelled."""
     if unknown:
         name, value = next(iter(unknown.items()))
-        raise OptionError(RIG, name, value, "no such option of the simulated rig (its options: scene, size, photons, "
-                          "seed, fail_after)")
+        raise OptionError(RIG, name, value, f"no such option of the simulated rig (its options: {OPTIONS})")
     key = (_scene(scene), _grid_size(size), _integer("photons", photons, 1, MAX_PHOTONS),
-           _integer("seed", seed, 0, MAX_SEED), _integer("fail_after", fail_after, 0) if fail_after else None)
+           _integer("seed", seed, 0, MAX_SEED))
     with _RIGS_LOCK:
         if key in _RIGS:
             _RIGS.move_to_end(key)
@@ -328,9 +342,33 @@ def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600
     return rig
 
 
+def simulated_camera(fail_after: str = "", progress: ProgressCallback | None = None,
+                     **options: str) -> SimulatedCamera:
+    """The ``simulated`` camera: a camera of :func:`preset_rig`'s rig over ``options``, which fails
+    after ``fail_after`` captures (0 or more; empty: never; counted from this camera's making)."""
+    after = _fail_after(fail_after)
+    return SimulatedCamera(preset_rig(progress=progress, **options), after)
+
+
+def simulated_projector(fail_after: str = "", progress: ProgressCallback | None = None,
+                        **options: str) -> SimulatedProjector:
+    """The ``simulated`` projector: :func:`preset_rig`'s over ``options`` (``fail_after``, the
+    camera's, is checked and otherwise ignored: ``--option`` gives it to both devices)."""
+    _fail_after(fail_after)
+    return preset_rig(progress=progress, **options).projector
+
+
+def _fail_after(value: str) -> int | None:
+    """Option ``fail_after``: captures before the camera fails (0 or more), None when empty."""
+    return _integer("fail_after", value, 0) if value else None
+
+
+OPTIONS = "scene, size, photons, seed, fail_after"
+"""The simulated devices' options, as messages list them."""
+
 PLUGIN = HardwarePlugin(
     name="simulated",
-    cameras={"simulated": lambda progress=None, **options: preset_rig(progress=progress, **options).camera},
-    projectors={"simulated": lambda progress=None, **options: preset_rig(progress=progress, **options).projector},
-    description="a virtual rig over a simulator preset (options: scene, size, photons, seed, fail_after)",
+    cameras={"simulated": simulated_camera},
+    projectors={"simulated": simulated_projector},
+    description=f"a virtual rig over a simulator preset (options: {OPTIONS})",
 )
