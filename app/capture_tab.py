@@ -102,14 +102,17 @@ class CaptureTab(QObject):
         def work(progress):
             options = parse_options(options_text.split())
             camera_options = {**options, **parse_options(camera_options_text.split())}
-            # The camera first: a simulated rig is made (and its progress shown) then, and shared.
             camera = make_device(self.discovery.cameras(), camera_name, camera_options, progress)
             projector = make_device(self.discovery.projectors(), projector_name, options, progress)
-            problem = pair_problem(camera, projector)
+            problem = pair_problem(camera, projector)  # before a simulated rig is made: its options are compared
             if problem is not None:
                 raise HardwareError(problem)
-            camera.open()
-            projector.open()
+            camera.open()  # a simulated rig is made here (its progress shown), and shared by the projector
+            try:
+                projector.open()
+            except BaseException:
+                camera.close()
+                raise
             return camera, projector
         self._start("devices", f"Opening {camera_name} and {projector_name}", work)
 

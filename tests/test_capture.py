@@ -285,16 +285,34 @@ def test_an_output_that_is_or_lies_under_a_file_is_refused_before_any_device_is_
     assert afile.read_text() == "mine" and list(tmp_path.iterdir()) == [afile]
 
 
-@pytest.mark.parametrize("flag, seeds", [("--camera-option", "1 and 0"), ("--projector-option", "0 and 1")])
-def test_a_camera_and_projector_given_different_rigs_are_refused_before_anything_is_projected(tmp_path, capsys, flag,
-                                                                                              seeds):
+GIVE_ONCE = "give scene, size, photons and seed once, as options for both devices"
+
+
+@pytest.mark.parametrize("options, problem", [
+    (["--camera-option", "seed=1"],
+     f"the camera and the projector were given different simulated rigs (seed: camera 1, projector 0): {GIVE_ONCE}"),
+    (["--projector-option", "size=12x10", "--projector-option", "seed=2"],
+     "the camera and the projector were given different simulated rigs (seed: camera 0, projector 2; size: camera "
+     f"10x10, projector 12x10): {GIVE_ONCE}"),
+    (["--projector-option", "fail_after=3"],
+     "fail_after=3 was given to the projector alone: it is the simulated camera's option; give it to the camera, "
+     "or as an option for both devices"),
+])
+def test_a_camera_and_projector_given_different_rigs_are_refused_before_anything_is_simulated(
+        tmp_path, capsys, monkeypatch, options, problem):
     """A user's walkthrough: ``--camera-option seed=1`` made the camera a rig of its own, which
     never saw the projector's patterns: the Gray code correspondence failed as junk after both
-    rigs were simulated. The pair is refused in one line naming what differs; nothing is written."""
-    assert main([*SMALL_CAPTURE, flag, "seed=1", "--out", str(tmp_path / "scan")]) == 2
-    assert capsys.readouterr().err.splitlines() == [
-        f"ringlight: error: the simulated camera and projector were given different rigs (seed {seeds}): give scene, "
-        "size, photons and seed the same for both devices"]
+    rigs were simulated. The pair is refused in one line naming what differs, before the
+    simulator runs; nothing is written. So is ``fail_after`` given to the projector alone, where
+    the scan ran whole and rehearsed no failure."""
+    from ringlight.core.simulate import transport
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("a rig was simulated before the pair was checked")
+
+    monkeypatch.setattr(transport, "simulate_transport", no_simulation)
+    assert main([*SMALL_CAPTURE, *options, "--out", str(tmp_path / "scan")]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"ringlight: error: {problem}"]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -307,10 +325,10 @@ def test_a_simulated_device_with_a_real_one_is_refused_and_the_same_options_make
 
     camera = simulated_camera(size="4x4", photons="10", fail_after="3")
     projector = simulated_projector(size="4x4", photons="10", fail_after="3")
-    assert camera.rig is projector.rig and pair_problem(camera, projector) is None
+    assert pair_problem(camera, projector) is None and camera.rig is projector.rig
     real = object()
     assert pair_problem(real, projector) == ("the simulated projector lights only its simulated scene, which a real "
-                                             "camera does not see: use the simulated camera with it")
+                                             "camera does not see: use a simulated camera with it")
     assert pair_problem(camera, real) == ("the simulated camera sees only the simulated projector's scene: use the "
                                           "simulated projector with it")
     assert pair_problem(real, object()) is None
@@ -373,14 +391,20 @@ def test_a_machine_vision_cameras_frame_timeout_must_be_a_positive_number_of_sec
 
 def test_opening_a_simulated_rig_reports_its_progress_and_a_reopen_is_instant():
     """The simulated rig's making is most of an open (the simulator runs): its factory gets the
-    progress callback; factories that do not name one never see it."""
-    cameras = discover_plugins().cameras()
+    progress callback, which the rig's making reports to when the device opens (the factory itself
+    only checks the options); factories that do not name one never see it."""
+    cameras, projectors = discover_plugins().cameras(), discover_plugins().projectors()
     fractions = []
     options = {"size": "6x5", "photons": "40", "seed": "11"}
     camera = make_device(cameras, "simulated", options, fractions.append)
+    assert fractions == [] and camera.simulated_scene == {"scene": "red-bead", "size": "6x5", "photons": "40",
+                                                          "seed": "11"}
+    camera.open()
     assert fractions and fractions[-1] == pytest.approx(1.0) and fractions == sorted(fractions)
     again = []
-    assert make_device(cameras, "simulated", options, again.append).rig is camera.rig and again == []
+    projector = make_device(projectors, "simulated", {**options, "seed": "011"}, again.append)
+    projector.open()
+    assert projector.rig is camera.rig and again == []
     seen = {}
     plain = make_device({"plain": lambda **kwargs: seen.update(kwargs) or "device"}, "plain", {"a": "1"},
                         fractions.append)

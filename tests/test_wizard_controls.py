@@ -101,7 +101,7 @@ def test_opening_a_camera_and_projector_of_different_rigs_is_an_error_and_opens_
     with qtbot.waitSignal(tab.jobs.failed, timeout=60000):
         wizard.open_button.click()
     pool.waitForDone()
-    assert errors == ["the simulated camera and projector were given different rigs (seed 1 and 0): give scene, size, "
-                      "photons and seed the same for both devices"]
+    assert errors == ["the camera and the projector were given different simulated rigs (seed: camera 1, projector 0): "
+                      "give scene, size, photons and seed once, as options for both devices"]
     assert tab.camera is None and tab.projector is None
     tab.shutdown()

@@ -53,9 +53,7 @@ def run_capture(args) -> int:
     scan = resume_scan(args.out) if args.resume else None
     if not args.resume:
         check_scan_folder(args.out)
-    camera, projector = make_devices(args, discovery)
-    camera.open()
-    projector.open()
+    camera, projector = open_devices(args, discovery)
     try:
         if scan is None:
             scan = plan_new_scan(args, camera, projector, roi)
@@ -106,8 +104,10 @@ def check_arguments(args, discovery) -> None:
                         f"got {args.max_radius:g}")
 
 
-def make_devices(args, discovery):
-    """The camera and the projector, unopened, each with --option under its own options."""
+def open_devices(args, discovery):
+    """The camera and the projector, each made with --option under its own options, checked as a
+    pair (:func:`~ringlight.core.capture.hardware.pair_problem`) before either opens, then opened
+    (a simulated rig is simulated then, its progress shown)."""
     shared = parse_options(args.option)
     camera_options = parse_options(args.camera_option)
     projector_options = parse_options(args.projector_option)
@@ -115,9 +115,15 @@ def make_devices(args, discovery):
         camera = make_named(discovery.cameras(), args.camera, shared, "--camera-option", camera_options, progress)
         projector = make_named(discovery.projectors(), args.projector, shared, "--projector-option",
                                projector_options, progress)
-    problem = pair_problem(camera, projector)
-    if problem is not None:
-        raise ScanError(problem)
+        problem = pair_problem(camera, projector)
+        if problem is not None:
+            raise ScanError(problem)
+        camera.open()
+        try:
+            projector.open()
+        except BaseException:
+            camera.close()
+            raise
     return camera, projector
 
 

@@ -6,10 +6,11 @@ A plugin is any installed package that declares, in its ``pyproject.toml``::
     mylab = "mylab_rig.ringlight_plugin:PLUGIN"
 
 where ``PLUGIN`` is a :class:`HardwarePlugin`: a name and factories for the cameras and projectors
-it offers. A factory takes keyword options (strings, from the wizard or ``--device-option
-key=value``) and returns an unopened device. Devices follow the :class:`Camera` and
-:class:`Projector` protocols below; nothing here imports Qt (a Qt projector window lives in
-``ringlight.widgets``). A plugin that fails to import or is malformed is reported by
+it offers. A factory takes keyword options (strings, from the wizard or ``ringlight capture
+--option``, ``--camera-option``, ``--projector-option KEY=VALUE``) and returns an unopened
+device; a device may say why it cannot work with the other (:func:`pair_problem`). Devices follow
+the :class:`Camera` and :class:`Projector` protocols below; nothing here imports Qt (a Qt
+projector window lives in ``ringlight.widgets``). A plugin that fails to import or is malformed is reported by
 :func:`discover_plugins` and skipped; it never stops ringlight.
 
 Units: exposures in seconds; frames are float32 linear raw values in camera counts (black level
@@ -175,26 +176,15 @@ def make_device(factories: dict[str, Factory], name: str, options: dict[str, str
 
 
 def pair_problem(camera, projector) -> str | None:
-    """Why ``camera`` cannot film what ``projector`` shows, or None.
-
-    A simulated device (one with a ``simulated_rig`` that is not None: the ``simulated`` plugin's,
-    a pylon camera with ``feed=simulated``) sees or lights only the scene of its rig, so the two
-    devices must name the same rig: one made from the same options. Two rigs (a camera given
-    ``seed=1``, its projector not), or a simulated device with a real one, would scan a dark
-    frame's noise into a dataset. Other devices are not checked."""
-    seen = getattr(camera, "simulated_rig", None)
-    lit = getattr(projector, "simulated_rig", None)
-    if seen is lit:
-        return None
-    if seen is None:
-        return "the simulated projector lights only its simulated scene, which a real camera does not see: " \
-               "use the simulated camera with it"
-    if lit is None:
-        return "the simulated camera sees only the simulated projector's scene: use the simulated projector with it"
-    differ = [f"{key} {seen.options.get(key, '?')} and {lit.options.get(key, '?')}"
-              for key in sorted(set(seen.options) | set(lit.options)) if seen.options.get(key) != lit.options.get(key)]
-    return (f"the simulated camera and projector were given different rigs ({'; '.join(differ) or 'two rigs'}): "
-            f"give scene, size, photons and seed the same for both devices")
+    """Why ``camera`` cannot film what ``projector`` shows, or None: each device may say so of the
+    other through a ``pair_problem(other)`` method of its own (the simulated devices do:
+    :func:`.simulated_rig.pair_problem`). Asked after both are made and before either opens."""
+    for device, other in ((camera, projector), (projector, camera)):
+        ask = getattr(device, "pair_problem", None)
+        problem = ask(other) if callable(ask) else None
+        if problem:
+            return problem
+    return None
 
 
 def _names_progress(factory: Factory) -> bool:

@@ -68,7 +68,6 @@ class SimulatedFeed:
     def __init__(self, camera):
         self.camera = camera
         """The simulated camera whose frames it delivers (:class:`.simulated_rig.SimulatedCamera`)."""
-        self.rig = camera.rig
         self.folder: Path | None = None  # made at the first write, removed by close
 
     @property
@@ -101,17 +100,21 @@ class PylonCamera(SfncCamera):
                  feed: SimulatedFeed | None = None):
         self.serial = serial
         self.name = f"pylon camera {serial}".strip()
-        if feed is not None and pixel_format and format_bits(pixel_format) != feed.rig.sensor.bits:
-            raise HardwareError(f"{self.name}: the simulated feed is {feed.rig.sensor.bits}-bit; "
-                                f"choose a {feed.rig.sensor.bits}-bit pixel format, not {pixel_format}")
+        if feed is not None and pixel_format and format_bits(pixel_format) != feed.camera.sensor.bits:
+            raise HardwareError(f"{self.name}: the simulated feed is {feed.camera.sensor.bits}-bit; "
+                                f"choose a {feed.camera.sensor.bits}-bit pixel format, not {pixel_format}")
         super().__init__(pixel_format or ("Mono12" if feed is not None else ""), frame_timeout)
         self.feed = feed
         self.camera = None
 
     @property
-    def simulated_rig(self):
-        """The simulated rig whose scene the feed shows, or None (:func:`.hardware.pair_problem`)."""
-        return None if self.feed is None else self.feed.rig
+    def simulated_scene(self) -> dict[str, str] | None:
+        """The options of the simulated rig the feed shows, or None (:func:`.simulated_rig.pair_problem`)."""
+        return None if self.feed is None else self.feed.camera.simulated_scene
+
+    def pair_problem(self, projector) -> str | None:
+        """Why a fed camera cannot film what ``projector`` shows (the feed's camera's answer), or None."""
+        return None if self.feed is None else self.feed.camera.pair_problem(projector)
 
     def _connect(self) -> dict[str, str]:
         pylon, genicam = _pylon()
@@ -133,12 +136,12 @@ class PylonCamera(SfncCamera):
             if self.feed is not None:
                 self._set_feature("TestImageSelector", "Off")
                 self._set_feature("ImageFileMode", "On")
-                self._set_feature("ImageFilename", str(self.feed.write(self.feed.rig.sensor.exposure_range[0],
+                self._set_feature("ImageFilename", str(self.feed.write(self.feed.camera.sensor.exposure_range[0],
                                                                        self.pixel_format)))
                 rows, cols = self.feed.camera.frame_shape[:2]
                 self._set_feature("Width", cols)
                 self._set_feature("Height", rows)
-                self._set_feature("BlackLevel", self.feed.rig.sensor.black_level)
+                self._set_feature("BlackLevel", self.feed.camera.sensor.black_level)
             for name, value in (("TriggerSelector", "FrameStart"), ("TriggerMode", "On"), ("TriggerSource", "Software")):
                 if self._feature_range(name) is not None:
                     self._set_feature(name, value)
@@ -152,7 +155,7 @@ class PylonCamera(SfncCamera):
         super()._configure()
         if self.feed is not None:
             low, high = self._exposure_range
-            sim_low, sim_high = self.feed.rig.sensor.exposure_range
+            sim_low, sim_high = self.feed.camera.sensor.exposure_range
             self._exposure_range = (max(low, sim_low), min(high, sim_high))
 
     def _disconnect(self) -> None:

@@ -20,6 +20,7 @@ import math
 import os
 import re
 import threading
+import weakref
 import zlib
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -74,8 +75,8 @@ class SimulatedRig:
 
     ``fail_after``: :attr:`camera` raises HardwareError after that many captures (to rehearse a
     camera that stops answering). ``options``: the ``simulated`` plugin's options it was made
-    from (``scene``, ``size``, ``photons``, ``seed``, as :func:`preset_rig` took them), which name
-    a rig in messages; empty for a rig made otherwise.
+    from (``scene``, ``size``, ``photons``, ``seed``, normalised: :func:`key_options`), which tell
+    rigs apart (:func:`pair_problem`); empty for a rig made otherwise.
     """
 
     def __init__(self, windows: np.ndarray, sampling: CameraSampling = CameraSampling(),
@@ -131,25 +132,70 @@ class SimulatedRig:
         return np.clip(np.round(raw), 0, self.sensor.saturation_level).astype(np.float32)
 
 
-class SimulatedCamera:
-    """A camera of the rig (see :class:`SimulatedRig`): it sees what the rig's projector shows.
-    ``fail_after``: it raises HardwareError after that many captures (None: never)."""
+class RigRequest:
+    """A preset rig asked for by its options (:func:`rig_key`) and made when a device first needs
+    it (:func:`preset_rig`), with ``progress``: the simulated devices' factories validate their
+    options and compare them (:func:`pair_problem`) before anything is simulated."""
 
-    def __init__(self, rig: SimulatedRig, fail_after: int | None = None):
-        self.rig = rig
-        self.fail_after = fail_after
-        self.captures = 0
+    sensor = SensorModel()
+    """Every preset rig's sensor (:func:`_make_rig`), known before the rig is made."""
+
+    def __init__(self, key: tuple, progress: ProgressCallback | None = None):
+        self.key = key
+        self.progress = progress
 
     @property
-    def simulated_rig(self) -> SimulatedRig:
-        """The rig whose scene it sees (:func:`.hardware.pair_problem`)."""
-        return self.rig
+    def options(self) -> dict[str, str]:
+        """The rig's options, normalised (``seed=01`` is seed 1)."""
+        return key_options(self.key)
+
+    def make(self) -> SimulatedRig:
+        return _rig_for(self.key, self.progress)
+
+
+class _RigDevice:
+    """A device of a rig, given the rig or a :class:`RigRequest` for it (made at first need)."""
+
+    def __init__(self, rig: SimulatedRig | RigRequest):
+        self._rig = rig
+
+    @property
+    def rig(self) -> SimulatedRig:
+        self.open()
+        return self._rig
+
+    @property
+    def sensor(self) -> SensorModel:
+        """The rig's sensor, known before the rig is made."""
+        return self._rig.sensor
+
+    @property
+    def simulated_scene(self) -> dict[str, str]:
+        """The options of the rig whose scene it sees or lights (empty for a rig made otherwise
+        than by :func:`preset_rig`), known before the rig is made."""
+        return self._rig.options
 
     def open(self) -> None:
-        pass
+        """Make the rig (the simulator runs) when the factory only asked for it."""
+        if isinstance(self._rig, RigRequest):
+            self._rig = self._rig.make()
 
     def close(self) -> None:
         pass
+
+
+class SimulatedCamera(_RigDevice):
+    """A camera of the rig (see :class:`SimulatedRig`): it sees what the rig's projector shows.
+    ``fail_after``: it raises HardwareError after that many captures (None: never)."""
+
+    def __init__(self, rig: SimulatedRig | RigRequest, fail_after: int | None = None):
+        super().__init__(rig)
+        self.fail_after = fail_after
+        self.captures = 0
+
+    def pair_problem(self, projector) -> str | None:
+        """Why this camera cannot film what ``projector`` shows (:func:`pair_problem`), or None."""
+        return pair_problem(self, projector)
 
     @property
     def frame_shape(self) -> tuple[int, ...]:
@@ -157,15 +203,15 @@ class SimulatedCamera:
 
     @property
     def exposure_range(self) -> tuple[float, float]:
-        return self.rig.sensor.exposure_range
+        return self.sensor.exposure_range
 
     @property
     def saturation_level(self) -> float:
-        return self.rig.sensor.saturation_level
+        return self.sensor.saturation_level
 
     @property
     def black_level(self) -> float:
-        return self.rig.sensor.black_level
+        return self.sensor.black_level
 
     def properties(self) -> dict[str, str]:
         sampling = self.rig.sampling
@@ -180,23 +226,18 @@ class SimulatedCamera:
         return self.rig.capture(exposure)
 
 
-class SimulatedProjector:
-    """The rig's projector: one projector pixel per grid point of the scene."""
+class SimulatedProjector(_RigDevice):
+    """The rig's projector: one projector pixel per grid point of the scene. ``fail_after``: the
+    option as it was given to the projector (:func:`simulated_projector`), which it does not use."""
 
-    def __init__(self, rig: SimulatedRig, settle_time: float):
-        self.rig = rig
+    def __init__(self, rig: SimulatedRig | RigRequest, settle_time: float, fail_after: int | None = None):
+        super().__init__(rig)
         self.settle_time = settle_time
+        self.fail_after = fail_after
 
-    @property
-    def simulated_rig(self) -> SimulatedRig:
-        """The rig whose scene it lights (:func:`.hardware.pair_problem`)."""
-        return self.rig
-
-    def open(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
+    def pair_problem(self, camera) -> str | None:
+        """Why ``camera`` cannot film what this projector shows (:func:`pair_problem`), or None."""
+        return pair_problem(camera, self)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -214,6 +255,36 @@ class SimulatedProjector:
 
     def show_white(self) -> None:
         self.show(np.ones(self.rig.size, np.float32))
+
+
+def pair_problem(camera, projector) -> str | None:
+    """Why ``camera`` cannot film what ``projector`` shows, when either is simulated, or None.
+
+    A simulated device (one with a ``simulated_scene``: this module's, a pylon camera with
+    ``feed=simulated``) sees or lights only its rig's scene, so both must be of one rig: made from
+    the same options, which are compared before the rig is made. Two rigs (a camera given
+    ``seed=1``, its projector not), or a simulated device with a real one, would scan a dark
+    frame's noise into a dataset. ``fail_after`` is the camera's: given to the projector alone, it
+    would rehearse nothing."""
+    seen = getattr(camera, "simulated_scene", None)
+    lit = getattr(projector, "simulated_scene", None)
+    if seen is None and lit is None:
+        return None
+    if seen is None:
+        return ("the simulated projector lights only its simulated scene, which a real camera does not see: "
+                "use a simulated camera with it")
+    if lit is None:
+        return "the simulated camera sees only the simulated projector's scene: use the simulated projector with it"
+    differ = [f"{key}: camera {seen.get(key, '-')}, projector {lit.get(key, '-')}"
+              for key in sorted(set(seen) | set(lit)) if seen.get(key) != lit.get(key)]
+    if differ:
+        return (f"the camera and the projector were given different simulated rigs ({'; '.join(differ)}): give "
+                "scene, size, photons and seed once, as options for both devices")
+    given = getattr(projector, "fail_after", None)
+    if given is not None and getattr(camera, "fail_after", None) != given:
+        return (f"fail_after={given} was given to the projector alone: it is the simulated camera's option; "
+                "give it to the camera, or as an option for both devices")
+    return None
 
 
 CAMERA_RGB_TO_XYZ = np.array([[0.7977, 0.1352, 0.0313], [0.2880, 0.7119, 0.0001], [0.0, 0.0, 0.8249]])
@@ -252,7 +323,11 @@ MAX_SEED = 2**32 - 1
 """Largest seed, as ``ringlight simulate --seed``."""
 
 _RIGS: OrderedDict[tuple, SimulatedRig] = OrderedDict()
+"""The last :data:`_KEPT_RIGS` rigs asked for, by :func:`rig_key`."""
 _KEPT_RIGS = 4
+_LIVE_RIGS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+"""Every rig still held (by a device or :data:`_RIGS`), by key: a camera and a projector of one
+key always share one rig, however many others were made between their openings."""
 _RIGS_LOCK = threading.Lock()
 
 
@@ -312,30 +387,51 @@ def _make_rig(scene: str, size: tuple[int, int], photons: int, seed: int,
         windows = colorchecker_windows(*size)
     else:
         windows = simulate_transport(_load_scene(scene, size), photons=photons, seed=seed, progress=progress).windows
-    options = {"scene": scene, "size": f"{size[0]}x{size[1]}", "photons": str(photons), "seed": str(seed)}
-    return SimulatedRig(windows, seed=seed, options=options)
+    return SimulatedRig(windows, seed=seed, options=key_options((scene, size, photons, seed)))
 
 
-def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
-               progress: ProgressCallback | None = None, **unknown: str) -> SimulatedRig:
-    """The rig over a simulator preset (made once per option set, the last four kept, and shared
-    by the camera and projector factories). Options are strings, as typed by a user: ``size`` HxW
-    projector pixels (MIN_SIDE to MAX_SIDE each), ``photons`` per lit point and channel (1 to
-    MAX_PHOTONS), ``seed`` (0 to MAX_SEED); a value out of range, or an option of another name,
-    raises OptionError before anything is simulated. Making one runs the simulator (about 10 s for
-    the default 24 x 24 at 600 photons on 2 cores): ``progress`` gets the fraction done and may
-    raise Cancelled."""
+def rig_key(scene: str = "red-bead", size: str = "24x24", photons: str = "600", seed: str = "0",
+            **unknown: str) -> tuple:
+    """The key of a preset rig from its options, strings as typed by a user: ``scene``, ``size``
+    HxW projector pixels (MIN_SIDE to MAX_SIDE each), ``photons`` per lit point and channel (1 to
+    MAX_PHOTONS), ``seed`` (0 to MAX_SEED); a value out of range, an option of another name, or a
+    scene the simulator refuses at that size (a volume too large) raises OptionError. Nothing is
+    simulated: the scene is only loaded (about a millisecond)."""
     if unknown:
         name, value = next(iter(unknown.items()))
         raise OptionError(RIG, name, value, f"no such option of the simulated rig (its options: {OPTIONS})")
     key = (_scene(scene), _grid_size(size), _integer("photons", photons, 1, MAX_PHOTONS),
            _integer("seed", seed, 0, MAX_SEED))
+    if key[0] != "colorchecker":
+        _load_scene(key[0], key[1])
+    return key
+
+
+def key_options(key: tuple) -> dict[str, str]:
+    """A :func:`rig_key`'s options, normalised, as :attr:`SimulatedRig.options` holds them."""
+    scene, size, photons, seed = key
+    return {"scene": scene, "size": f"{size[0]}x{size[1]}", "photons": str(photons), "seed": str(seed)}
+
+
+def preset_rig(progress: ProgressCallback | None = None, **options: str) -> SimulatedRig:
+    """The rig over a simulator preset with ``options`` (:func:`rig_key`; made once per key, the
+    last four kept, and shared by the camera and projector). Making one runs the simulator (about
+    10 s for the default 24 x 24 at 600 photons on 2 cores): ``progress`` gets the fraction done
+    and may raise Cancelled."""
+    return _rig_for(rig_key(**options), progress)
+
+
+def _rig_for(key: tuple, progress: ProgressCallback | None) -> SimulatedRig:
+    """The rig of ``key``: the one a device still holds or one of the last four made, else a new one."""
     with _RIGS_LOCK:
-        if key in _RIGS:
+        rig = _LIVE_RIGS.get(key)
+        if rig is not None:
+            _RIGS[key] = rig
             _RIGS.move_to_end(key)
-            return _RIGS[key]
+            return rig
     rig = _make_rig(*key, progress)
     with _RIGS_LOCK:
+        rig = _LIVE_RIGS.setdefault(key, rig)  # one made meanwhile by another thread is the one
         _RIGS[key] = rig
         while len(_RIGS) > _KEPT_RIGS:
             _RIGS.popitem(last=False)
@@ -344,18 +440,19 @@ def preset_rig(scene: str = "red-bead", size: str = "24x24", photons: str = "600
 
 def simulated_camera(fail_after: str = "", progress: ProgressCallback | None = None,
                      **options: str) -> SimulatedCamera:
-    """The ``simulated`` camera: a camera of :func:`preset_rig`'s rig over ``options``, which fails
-    after ``fail_after`` captures (0 or more; empty: never; counted from this camera's making)."""
+    """The ``simulated`` camera: a camera of the preset rig of ``options`` (:func:`rig_key`, made
+    when it opens), which fails after ``fail_after`` captures (0 or more; empty: never; counted
+    from this camera's making)."""
     after = _fail_after(fail_after)
-    return SimulatedCamera(preset_rig(progress=progress, **options), after)
+    return SimulatedCamera(RigRequest(rig_key(**options), progress), after)
 
 
 def simulated_projector(fail_after: str = "", progress: ProgressCallback | None = None,
                         **options: str) -> SimulatedProjector:
-    """The ``simulated`` projector: :func:`preset_rig`'s over ``options`` (``fail_after``, the
-    camera's, is checked and otherwise ignored: ``--option`` gives it to both devices)."""
-    _fail_after(fail_after)
-    return preset_rig(progress=progress, **options).projector
+    """The ``simulated`` projector of the preset rig of ``options`` (:func:`rig_key`, made when it
+    opens). ``fail_after``, the camera's option, is checked and kept for :func:`pair_problem`: an
+    option for both devices gives it to both."""
+    return SimulatedProjector(RigRequest(rig_key(**options), progress), 0.0, _fail_after(fail_after))
 
 
 def _fail_after(value: str) -> int | None:
