@@ -112,6 +112,14 @@ class PylonCamera(SfncCamera):
         """The options of the simulated rig the feed shows, or None (:func:`.simulated_rig.pair_problem`)."""
         return None if self.feed is None else self.feed.camera.simulated_scene
 
+    def properties(self) -> dict[str, str]:
+        """The camera's description (:class:`.machine_vision.SfncCamera`), and the simulated rig it is fed."""
+        if self.feed is None:
+            return super().properties()
+        from .simulated_rig import describe_rig
+
+        return {**super().properties(), "feed": describe_rig(self.feed.camera.simulated_scene)}
+
     def pair_problem(self, projector) -> str | None:
         """Why a fed camera cannot film what ``projector`` shows (the feed's camera's answer), or None."""
         return None if self.feed is None else self.feed.camera.pair_problem(projector)

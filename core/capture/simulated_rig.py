@@ -214,10 +214,13 @@ class SimulatedCamera(_RigDevice):
         return self.sensor.black_level
 
     def properties(self) -> dict[str, str]:
+        """Its description for the dataset's notes; a preset rig's options with it (``rig``), so
+        that a scan resumed on another rig is told apart (:func:`.workflow.check_same_camera`)."""
         sampling = self.rig.sampling
+        rig = {"rig": describe_rig(self.rig.options)} if self.rig.options else {}
         return {"backend": "simulated", "bits": str(self.rig.sensor.bits),
                 "sampling": f"scale {sampling.scale:g}, rotation {sampling.rotation_deg:g} deg, "
-                            f"offset {sampling.offset[0]:g},{sampling.offset[1]:g}"}
+                            f"offset {sampling.offset[0]:g},{sampling.offset[1]:g}", **rig}
 
     def capture(self, exposure: float) -> np.ndarray:
         if self.fail_after is not None and self.captures >= self.fail_after:
@@ -411,6 +414,11 @@ def key_options(key: tuple) -> dict[str, str]:
     """A :func:`rig_key`'s options, normalised, as :attr:`SimulatedRig.options` holds them."""
     scene, size, photons, seed = key
     return {"scene": scene, "size": f"{size[0]}x{size[1]}", "photons": str(photons), "seed": str(seed)}
+
+
+def describe_rig(options: dict[str, str]) -> str:
+    """A preset rig's options as the notes hold them: ``scene red-bead; size 24x24; ...``."""
+    return "; ".join(f"{key} {value}" for key, value in options.items())
 
 
 def preset_rig(progress: ProgressCallback | None = None, **options: str) -> SimulatedRig:

@@ -94,8 +94,21 @@ def camera_notes(camera: Camera) -> str:
     return "camera: " + ", ".join(f"{key} {value}" for key, value in camera.properties().items())
 
 
+def check_same_camera(scan: Scan, camera: Camera) -> None:
+    """Refuse to resume ``scan`` with a camera other than the one it began with: one whose
+    description (:func:`camera_notes`: model, serial, pixel format, gain, black level; a simulated
+    rig's options) differs from the one its plan keeps. A resume on another simulated rig wrote
+    frames of two scenes into one dataset, told only by a drift note."""
+    current = camera_notes(camera)
+    if scan.camera_notes and current != scan.camera_notes:
+        raise ScanError(f"{scan.out}: the scan began with another camera or other settings ({scan.camera_notes}); "
+                        f"this one is {current.removeprefix('camera: ')}: resume with those")
+
+
 def run_scan(scan: Scan, camera: Camera, projector: Projector, resume: bool,
              progress: Callable[[ScanProgress], None] | None = None,
              should_stop: Callable[[], bool] | None = None) -> Path:
+    if resume:
+        check_same_camera(scan, camera)
     scan.prepare(resume)
     return scan.run(camera, projector, progress, should_stop)
