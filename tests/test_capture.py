@@ -260,8 +260,8 @@ def test_capture_command_pauses_on_a_failing_camera_and_resumes(tmp_path, capsys
     # A resume on another rig wrote frames of two scenes into one dataset: refused, nothing written.
     assert main([*base, "--option", "seed=5", "--resume"]) == 2
     error = capsys.readouterr().err.splitlines()
-    assert len(error) == 1 and error[0].startswith(f"ringlight: error: {tmp_path / 'scan'}: the scan began with another "
-                                                   "camera or other settings (camera: backend simulated, bits 12, ")
+    began = f"ringlight: error: {tmp_path / 'scan'}: the scan began with another camera or other settings"
+    assert len(error) == 1 and error[0].startswith(f"{began} (camera: backend simulated, bits 12, ")
     assert error[0].endswith("rig scene red-bead; size 10x10; photons 200; seed 5: resume with those")
     assert frame_files(tmp_path / "scan") == paused
     assert main([*base, "--resume"]) == 0
