@@ -12,7 +12,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QThreadPool, Signal
 from ringlight.core.capture.calibration import calibrate_colour, capture_white, measure_dark
-from ringlight.core.capture.hardware import HardwareError, discover_plugins, make_device, pair_problem, parse_options
+from ringlight.core.capture.hardware import discover_plugins, make_device, open_pair, parse_options
 from ringlight.core.capture.live_view import LIVE_FPS, summarise_frame
 from ringlight.core.capture.scan import Scan, capture_with_timeout
 from ringlight.core.capture.scan_plan import ScanError, estimate_disk
@@ -104,15 +104,7 @@ class CaptureTab(QObject):
             camera_options = {**options, **parse_options(camera_options_text.split())}
             camera = make_device(self.discovery.cameras(), camera_name, camera_options, progress)
             projector = make_device(self.discovery.projectors(), projector_name, options, progress)
-            problem = pair_problem(camera, projector)  # before a simulated rig is made: its options are compared
-            if problem is not None:
-                raise HardwareError(problem)
-            camera.open()  # a simulated rig is made here (its progress shown), and shared by the projector
-            try:
-                projector.open()
-            except BaseException:
-                camera.close()
-                raise
+            open_pair(camera, projector)  # a simulated rig is made here, its progress shown
             return camera, projector
         self._start("devices", f"Opening {camera_name} and {projector_name}", work)
 

@@ -22,7 +22,8 @@ import zlib
 import numpy as np
 from ringlight.core.capture.multiplex import coded_lit, demultiplex
 from ringlight.core.capture.scan_plan import ScanPlan
-from ringlight.core.capture.simulated_rig import CameraSampling, SensorModel, SimulatedRig, preset_rig
+from ringlight.core.capture.simulated_presets import preset_rig
+from ringlight.core.capture.simulated_rig import CameraSampling, SensorModel, SimulatedRig
 
 
 def cached_radiance(rig: SimulatedRig) -> None:

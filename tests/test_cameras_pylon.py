@@ -11,7 +11,7 @@ from ringlight.app.main import main
 from ringlight.core import open_dataset
 from ringlight.core.capture.hardware import HardwareError
 from ringlight.core.capture.pylon_camera import PylonCamera, list_cameras, make_pylon_camera
-from ringlight.core.capture.simulated_rig import preset_rig
+from ringlight.core.capture.simulated_presets import preset_rig
 
 # Not importorskip: pypylon is imported by the plugin only, which silences its import warnings.
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("pypylon") is None, reason="pypylon is not installed")

@@ -16,11 +16,8 @@ from ringlight.core.capture.hardware import HardwareError, discover_plugins, mak
 from ringlight.core.capture.hdr import bracket_exposures, merge_brackets
 from ringlight.core.capture.scan import Scan
 from ringlight.core.capture.scan_plan import ScanError, ScanPaused, ScanPlan
-from ringlight.core.capture.simulated_rig import (
-    CameraSampling,
-    SimulatedRig,
-    preset_rig,
-)
+from ringlight.core.capture.simulated_presets import preset_rig
+from ringlight.core.capture.simulated_rig import CameraSampling, SimulatedRig
 from ringlight.core.capture.workflow import measure_correspondence
 
 SIZE, RADIUS = 16, 5
@@ -329,7 +326,7 @@ def test_a_simulated_device_with_a_real_one_is_refused_and_the_same_options_make
     lights only its rig's scene; devices without a rig are not checked. The camera's own
     ``fail_after`` (given to the projector too, as ``--option`` does) leaves the two one rig."""
     from ringlight.core.capture.hardware import pair_problem
-    from ringlight.core.capture.simulated_rig import simulated_camera, simulated_projector
+    from ringlight.core.capture.simulated_presets import simulated_camera, simulated_projector
 
     camera = simulated_camera(size="4x4", photons="10", fail_after="3")
     projector = simulated_projector(size="4x4", photons="10", fail_after="3")

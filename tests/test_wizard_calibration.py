@@ -11,7 +11,8 @@ pytest.importorskip("PySide6")
 from PySide6.QtCore import QThreadPool  # noqa: E402
 from ringlight.app.capture_tab import CaptureTab  # noqa: E402
 from ringlight.core import open_dataset  # noqa: E402
-from ringlight.core.capture.simulated_rig import CAMERA_RGB_TO_XYZ, preset_rig  # noqa: E402
+from ringlight.core.capture.simulated_presets import preset_rig  # noqa: E402
+from ringlight.core.capture.simulated_rig import CAMERA_RGB_TO_XYZ  # noqa: E402
 from ringlight.widgets.capture_wizard import CaptureWizard  # noqa: E402
 from test_cameras_calibration import camera_pixel  # noqa: E402
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 
-from ringlight.core.capture.hardware import OptionError, discover_plugins, make_device, pair_problem, parse_options
+from ringlight.core.capture.hardware import OptionError, discover_plugins, make_device, open_pair, parse_options
 from ringlight.core.capture.scan import Scan
 from ringlight.core.capture.scan_folder import check_scan_folder
 from ringlight.core.capture.multiplex import s_matrix
@@ -105,9 +105,9 @@ def check_arguments(args, discovery) -> None:
 
 
 def open_devices(args, discovery):
-    """The camera and the projector, each made with --option under its own options, checked as a
-    pair (:func:`~ringlight.core.capture.hardware.pair_problem`) before either opens, then opened
-    (a simulated rig is simulated then, its progress shown)."""
+    """The camera and the projector, each made with --option under its own options, then opened as a
+    pair (:func:`~ringlight.core.capture.hardware.open_pair`: a simulated rig is simulated then, its
+    progress shown)."""
     shared = parse_options(args.option)
     camera_options = parse_options(args.camera_option)
     projector_options = parse_options(args.projector_option)
@@ -115,15 +115,7 @@ def open_devices(args, discovery):
         camera = make_named(discovery.cameras(), args.camera, shared, "--camera-option", camera_options, progress)
         projector = make_named(discovery.projectors(), args.projector, shared, "--projector-option",
                                projector_options, progress)
-        problem = pair_problem(camera, projector)
-        if problem is not None:
-            raise ScanError(problem)
-        camera.open()
-        try:
-            projector.open()
-        except BaseException:
-            camera.close()
-            raise
+        open_pair(camera, projector)
     return camera, projector
 
 

@@ -187,6 +187,21 @@ def pair_problem(camera, projector) -> str | None:
     return None
 
 
+def open_pair(camera, projector) -> None:
+    """Open ``camera``, then ``projector``, once :func:`pair_problem` finds none (HardwareError
+    naming it otherwise, before either opens: a simulated rig is made at its camera's opening); the
+    camera is closed again when the projector fails to open."""
+    problem = pair_problem(camera, projector)
+    if problem is not None:
+        raise HardwareError(problem)
+    camera.open()
+    try:
+        projector.open()
+    except BaseException:
+        camera.close()
+        raise
+
+
 def _names_progress(factory: Factory) -> bool:
     try:
         parameter = inspect.signature(factory).parameters.get("progress")

@@ -260,7 +260,7 @@ def make_pylon_camera(serial: str = "", pixel_format: str = "", frame_timeout: s
                             "(serial, pixel_format, frame_timeout, feed)")
     source = None
     if feed:
-        from .simulated_rig import simulated_camera
+        from .simulated_presets import simulated_camera
 
         source = SimulatedFeed(simulated_camera(**rig_options))
     return PylonCamera(serial, pixel_format, frame_timeout, source)
