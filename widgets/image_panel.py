@@ -253,6 +253,9 @@ class ImagePanel(pg.GraphicsView):
                                               interactive=False, width=14)
             # Room above and below for the end ticks' labels, which the panel's edge cut in half.
             self.colour_bar.setContentsMargins(0, 10, 0, 10)
+            # The labels' own width: in the 45 px pyqtgraph fixes, labels such as 0.03215 (a nearly
+            # uniform map of mu_a) did not fit, and pyqtgraph drew none of them.
+            self.colour_bar.axis.setWidth(None)
             self.layout_item.addItem(self.colour_bar, 0, 1)
 
     def show_ring(self, center: tuple[int, int], positions: np.ndarray, weights: np.ndarray,
