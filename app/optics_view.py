@@ -205,7 +205,7 @@ class OpticsView:
         calibrated = "calibrated" if self.optics_calibration is not None else "no calibration"
         panel.set_map(getattr(maps, key)[..., channel], getattr(maps, f"{key}_determined")[..., channel],
                       f"{name} ({unit})", f"{name} {maps.channels[channel]}  n {maps.n:g}  g {maps.g:g}  {calibrated}\n"
-                      f"dim: not determined; grey: no fit")
+                      f"dim: not determined, or rings cut by the edge; grey: no fit", whole=maps.complete)
         if self.picked is not None:
             panel.show_point(*self.picked)
         self._on_optics_hover(*self._optics_hovered)  # the other channel's numbers under the mouse

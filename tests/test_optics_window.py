@@ -8,6 +8,7 @@ import re
 import threading
 
 import numpy as np
+import pyqtgraph as pg
 import pytest
 from PySide6.QtCore import QRunnable
 from optics_helpers import TEST_PHOTONS, model_kernel
@@ -151,6 +152,25 @@ def test_region_statistics_are_mean_and_its_standard_error(direct):
     assert se == pytest.approx(values.std(ddof=1) / np.sqrt(len(values)), rel=0.05)
     assert abs(mean - values.mean()) <= 0.051 * se
     assert abs(mean - MUSP) < 0.02 * MUSP  # the truth the dataset was made of
+
+
+def test_the_map_takes_its_colours_from_whole_rings_and_dims_the_cut_ones(qtbot, window, direct):
+    compute(qtbot, window)
+    values = direct.mua[..., 0]
+    determined = direct.mua_determined[..., 0] & np.isfinite(values)
+    trusted = determined & direct.complete
+    assert trusted.sum() >= 30 and (determined & ~direct.complete).sum() >= 30
+    low, high = np.percentile(values[trusted], (1.0, 99.0))
+    assert window.optics_panel.levels == pytest.approx((low, high), rel=1e-12)
+    # Each pixel's colour is viridis at its place in those levels, a cut or undetermined one at 0.45 of it.
+    viridis = pg.colormap.get("viridis")
+    expected = viridis.map(np.clip((values - low) / (high - low), 0.0, 1.0).ravel(), mode="float")[:, :3] * 255
+    expected = expected.reshape(values.shape + (3,))
+    expected[~trusted] *= 0.45
+    shown_pixels = window.optics_panel.image_panel.pixels().astype(np.float64)
+    finite = np.isfinite(values)
+    assert np.abs(shown_pixels[finite] - expected[finite]).max() <= 3.0  # the 256-entry table's rounding
+    assert "rings cut by the edge" in window.optics_panel.image_panel.title.textItem.toPlainText()
 
 
 def test_cancel_stops_the_maps(qtbot, window, homogeneous):

@@ -191,9 +191,11 @@ class OpticsPanel(QWidget):
         self.calibration_label.setText(f"Calibration: {text}")
 
     def set_map(self, values: np.ndarray | None, determined: np.ndarray | None = None, label: str = "",
-                title: str = "") -> None:
-        """Show the (H, W) map ``values`` (pixels not ``determined`` dimmed) with a colour bar
-        titled ``label``; None: no map, ``title`` says why."""
+                title: str = "", whole: np.ndarray | None = None) -> None:
+        """Show the (H, W) map ``values`` with a colour bar titled ``label``; None: no map, ``title``
+        says why. Pixels not ``determined``, or not ``whole`` (H, W) (their rings cut by the grid's
+        edge: biased fits), are dimmed, and the levels are those of the others where there are any
+        (an edge's biased pixels would otherwise set the colours of a nearly uniform map)."""
         if values is None:
             self.image_panel.clear_image()
             self.image_panel.set_colour_bar(None)
@@ -201,8 +203,9 @@ class OpticsPanel(QWidget):
             self.levels = None
             return
         keep = np.ones(values.shape, bool) if determined is None else determined
-        self.levels = map_levels(values, keep)
-        self.image_panel.set_pixels(map_pixels(values, self.levels, keep))
+        trusted = keep if whole is None else keep & whole
+        self.levels = map_levels(values, trusted if (trusted & np.isfinite(values)).any() else keep)
+        self.image_panel.set_pixels(map_pixels(values, self.levels, trusted))
         self.image_panel.set_colour_bar(self.levels, pg.colormap.get(MAP_COLORMAP), label)
         self.image_panel.set_title(title)
 
