@@ -2,6 +2,7 @@
 2 % noise per response value, pitch 0.1 mm): maps as named EXR channels, the region's JSON,
 calibration, and one-line refusals."""
 
+import dataclasses
 import json
 import re
 
@@ -59,7 +60,33 @@ def test_optics_writes_maps_and_the_regions_values(homogeneous, tmp_path, capsys
     np.testing.assert_allclose(result["musp"], MUSP, rtol=0.02)
     rd = np.array(list(result["R_d"].values()))
     assert (np.diff(rd, axis=0) < 0).all()  # R_d falls with frequency in every channel
-    assert "wrote" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "wrote" in printed
+    # The printed line gives the JSON's values with their standard errors (two significant digits).
+    line = next(line for line in printed.splitlines() if line.startswith("region: "))
+    assert line.endswith(" per mm (R / G / B, ±1 SE)"), line
+    pairs = [(float(value), float(error)) for value, error in re.findall(r"([0-9.]+)±([0-9.]+)", line)]
+    assert len(pairs) == 6, line
+    for (value, error), expected, expected_error in zip(pairs, result["mua"] + result["musp"],
+                                                        result["mua_se"] + result["musp_se"]):
+        assert error == pytest.approx(expected_error, rel=0.05)
+        assert abs(value - expected) <= 0.051 * expected_error
+
+
+def test_the_printed_region_names_the_channels_not_determined(homogeneous, tmp_path, monkeypatch, capsys):
+    from ringlight.app.cli import optics as command
+
+    fit = command.region_optics
+
+    def blue_undetermined(*args, **kwargs):
+        result = fit(*args, **kwargs)
+        assert result.determined.all()  # the homogeneous dataset is determined in every channel
+        return dataclasses.replace(result, determined=np.array([True, True, False]))
+
+    monkeypatch.setattr(command, "region_optics", blue_undetermined)
+    assert main(["optics", homogeneous, "--json", str(tmp_path / "region.json"), *PHOTONS]) == 0
+    line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("region: "))
+    assert line.endswith("(R / G / B, ±1 SE); not determined in B"), line
 
 
 def test_the_white_run_of_a_regions_fit_is_traced_once_with_its_progress(homogeneous, tmp_path, monkeypatch,

@@ -22,6 +22,7 @@ from ringlight.core.optics.maps import OpticalMaps, optical_maps, sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.region import RegionOptics, region_optics
 from ringlight.core.optics.table import DEFAULT_PHOTONS, PHOTON_RANGE, check_photons
+from ringlight.core.uncertainty_text import with_error
 
 from .progress import progress_bar
 
@@ -141,7 +142,8 @@ def run_optics(args) -> int:
         write_text(args.json, json.dumps(region_document(result, frequencies_text, args.roi), indent=1) + "\n",
                    overwrite=args.force)
         units = result.units.replace("_", " ")
-        print(f"region: mua {_triple(result.mua)}, musp {_triple(result.musp)} {units}")
+        print(f"region: mua {_with_errors(result.mua, result.mua_se)}, musp "
+              f"{_with_errors(result.musp, result.musp_se)} {units} (R / G / B, ±1 SE){_undetermined(result)}")
         print(f"wrote {args.json}")
     return 0
 
@@ -182,5 +184,12 @@ def _number(value: float):
     return value if math.isfinite(value) else None
 
 
-def _triple(values) -> str:
-    return " / ".join(f"{v:.4g}" for v in values)
+def _with_errors(values, errors) -> str:
+    """``0.03228±0.00017 / 0.1709±0.0003 / ...``: each channel's value with its standard error."""
+    return " / ".join(with_error(float(v), float(e)) for v, e in zip(values, errors))
+
+
+def _undetermined(result: RegionOptics) -> str:
+    """``"; not determined in B"`` naming the channels whose fit is not determined, else ``""``."""
+    names = [name for name, determined in zip(result.channels, result.determined) if not determined]
+    return f"; not determined in {', '.join(names)}" if names else ""
