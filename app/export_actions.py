@@ -56,6 +56,19 @@ class ExportActions:
         if path := self._save_path(f"Export layers as {kind.upper()}", name, patterns[kind]):
             self.layer_tab.export(kind, path)
 
+    def choose_optics_export(self) -> None:
+        """File > Export optical maps: the Optics tab's maps as one EXR file."""
+        if self.optics is None:
+            self.show_error("Export optical maps", "Compute the maps first (Analysis > Optics, Compute maps).")
+            return
+        if path := self._save_path("Export optical maps as EXR", "optics-maps.exr", "EXR (*.exr)"):
+            self.export_optics(path)
+
+    def export_optics(self, path: Path) -> None:
+        """Write the maps on the Optics tab, their standard errors and flags (as ``ringlight optics
+        --out``) to ``path`` in a worker."""
+        self.export_jobs.start(f"Writing {path.name}", exports.optics_work(self.optics, path))
+
     def export_stack(self, folder: Path) -> None:
         """Write the shown stack (E_r or T_r) to ``folder`` in a worker."""
         self.export_jobs.start(f"Exporting stack to {folder.name}", exports.stack_work(self._shown_stack(), folder))

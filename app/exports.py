@@ -15,6 +15,8 @@ from ringlight.core.colour.image_export import (
     write_png,
     write_text,
 )
+from ringlight.core.optics import OpticalMaps
+from ringlight.core.optics.map_file import write_maps
 from ringlight.core.rings.profiles import PixelProfile, profile_csv
 
 
@@ -84,6 +86,15 @@ def csv_work(profile: PixelProfile, path: Path):
     """Write the picked pixel's profiles as CSV."""
     def work(progress):
         write_text(path, profile_csv(profile), overwrite=True)
+        progress(1.0)
+        return path
+    return work
+
+
+def optics_work(maps: OpticalMaps, path: Path):
+    """Write the optical-property maps as one EXR file (the channels of ``ringlight optics --out``)."""
+    def work(progress):
+        write_maps(maps, path, overwrite=True)  # the save dialog asked the user
         progress(1.0)
         return path
     return work

@@ -109,6 +109,7 @@ class OpticsView:
         self.statusBar().addPermanentWidget(JobIndicator(self.optics_jobs))
         panel = self.optics_panel
         panel.compute_requested.connect(self.compute_optics)
+        panel.export_requested.connect(self.choose_optics_export)
         panel.cancel_requested.connect(self.cancel_optics)
         panel.calibration_requested.connect(self.choose_calibration)
         panel.calibration_cleared.connect(lambda: self.set_calibration(None))

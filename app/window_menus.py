@@ -46,6 +46,9 @@ class WindowMenus:
             self._action(file_menu, "Export profiles as &CSV…", self.choose_csv_export, "Ctrl+Shift+C"),
             self._action(file_menu, "Export &line profile as CSV…", self.choose_line_profile_export,
                          tip="Distances and values along the line of View > Line profile"),
+            self._action(file_menu, "Export optical m&aps as EXR…", self.choose_optics_export,
+                         tip="The Optics tab's mu_a and mu_s' maps, their standard errors and flags (as ringlight "
+                             "optics --out)"),
         ]
         file_menu.addSeparator()
         self._action(file_menu, "&Quit", self.close, QKeySequence.StandardKey.Quit)

@@ -53,6 +53,13 @@ def test_optics_writes_maps_and_the_regions_values(homogeneous, tmp_path, capsys
     np.testing.assert_allclose(centre[1, :, 0], MUSP, rtol=4 * centre[1, :, 1].max() / MUSP)
     assert (centre[..., 1] > 0).all() and (centre[..., 1] < 0.1 * centre[..., 0]).all()
     assert read_exr_channels(out, ("determined.R",))[13, 13, 0] == 1.0
+    # complete: 1 exactly where every ring lies whole on the grid (all points are lit). The rings
+    # are 0 .. 5 (max_radius 6 less half a ring), one grid step thick: the last holds the offsets
+    # closer than 6, as far as 5 steps along each axis, so a pixel 5 steps or more from every edge.
+    complete = read_exr_channels(out, ("complete",))[..., 0]
+    inner = np.zeros(complete.shape, bool)
+    inner[5:-5, 5:-5] = True
+    np.testing.assert_array_equal(complete, inner.astype(np.float32))
     result = json.loads(document.read_text())
     assert result["units"] == "per_mm" and result["n"] == 1.4 and result["g"] == 0.0
     assert list(result["R_d"]) == ["0", "0.5", "1."]  # keyed as written, cycles per mm

@@ -17,6 +17,7 @@ from reference import write_dataset
 from ringlight.app.optics_view import OpticsRequest, describe_optics, region_text
 from ringlight.app.window import MainWindow
 from ringlight.core import Cancelled, open_dataset
+from ringlight.core.dataset.exr import read_exr_channels
 from ringlight.core.optics import model_profile, optical_maps, radial
 
 MUA, MUSP = 0.2, 5.0  # per mm: 0.02 and 0.5 per grid step of 0.1 mm
@@ -171,6 +172,31 @@ def test_the_map_takes_its_colours_from_whole_rings_and_dims_the_cut_ones(qtbot,
     finite = np.isfinite(values)
     assert np.abs(shown_pixels[finite] - expected[finite]).max() <= 3.0  # the 256-entry table's rounding
     assert "rings cut by the edge" in window.optics_panel.image_panel.title.textItem.toPlainText()
+
+
+def test_the_maps_are_exported_as_the_command_writes_them(qtbot, window, direct, tmp_path, monkeypatch):
+    # Before any maps: one line saying what to do, and the panel's button is off.
+    assert not window.optics_panel.export_button.isEnabled()
+    window.choose_optics_export()
+    assert window.last_error == "Compute the maps first (Analysis > Optics, Compute maps)."
+    compute(qtbot, window)
+    assert window.optics_panel.export_button.isEnabled()
+    path = tmp_path / "maps.exr"
+    monkeypatch.setattr("ringlight.app.export_actions.QFileDialog.getSaveFileName", lambda *args: (str(path), ""))
+    with qtbot.waitSignal(window.export_jobs.finished, timeout=TIMEOUT_MS):
+        window.optics_panel.export_button.click()
+    names = [f"{p}.{c}{s}" for p in ("mua", "musp") for c in "RGB" for s in ("", "_se")]
+    names += [f"determined.{c}" for c in "RGB"] + ["complete"]
+    written = read_exr_channels(path, tuple(names))
+    for index, name in enumerate(names):
+        key, _, channel = name.partition(".")
+        if key == "complete":
+            expected = direct.complete.astype(np.float32)
+        else:
+            suffix = "_se" if channel.endswith("_se") else ""
+            plane = getattr(direct, key + suffix)[..., "RGB".index(channel[0])]
+            expected = plane.astype(np.float32)
+        np.testing.assert_array_equal(written[..., index], expected, err_msg=name)
 
 
 def test_cancel_stops_the_maps(qtbot, window, homogeneous):

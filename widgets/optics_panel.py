@@ -67,6 +67,8 @@ class OpticsPanel(QWidget):
     -------
     compute_requested()
         Compute the maps of the dataset on screen.
+    export_requested()
+        Write the maps shown to a file.
     cancel_requested()
         Stop the computation.
     calibration_requested()
@@ -80,6 +82,7 @@ class OpticsPanel(QWidget):
     """
 
     compute_requested = Signal()
+    export_requested = Signal()
     cancel_requested = Signal()
     calibration_requested = Signal()
     calibration_cleared = Signal()
@@ -94,6 +97,9 @@ class OpticsPanel(QWidget):
                                        "(rings 0, 1, ... up to the dataset's max_radius)")
         self.cancel_button = QPushButton("Cancel")
         self.cancel_button.setEnabled(False)
+        self.export_button = QPushButton("Export…")
+        self.export_button.setToolTip("The maps, their standard errors and flags as one EXR file (File > Export "
+                                      "optical maps as EXR)")
         self.progress_bar = QProgressBar()
         self.progress_bar.setRange(0, 1000)
         self.progress_bar.setTextVisible(False)
@@ -126,6 +132,7 @@ class OpticsPanel(QWidget):
         buttons = QHBoxLayout()
         buttons.addWidget(self.compute_button)
         buttons.addWidget(self.cancel_button)
+        buttons.addWidget(self.export_button)
         buttons.addWidget(self.progress_bar, 1)
         choices = QGridLayout()
         choices.addWidget(QLabel("Quantity"), 0, 0)
@@ -151,6 +158,7 @@ class OpticsPanel(QWidget):
 
         self.compute_button.clicked.connect(self.compute_requested)
         self.cancel_button.clicked.connect(self.cancel_requested)
+        self.export_button.clicked.connect(self.export_requested)
         self.calibration_button.clicked.connect(self.calibration_requested)
         self.clear_calibration_button.clicked.connect(self.calibration_cleared)
         self.quantity_box.currentIndexChanged.connect(lambda _: self.choice_changed.emit())
@@ -196,6 +204,7 @@ class OpticsPanel(QWidget):
         says why. Pixels not ``determined``, or not ``whole`` (H, W) (their rings cut by the grid's
         edge: biased fits), are dimmed, and the levels are those of the others where there are any
         (an edge's biased pixels would otherwise set the colours of a nearly uniform map)."""
+        self.export_button.setEnabled(values is not None)
         if values is None:
             self.image_panel.clear_image()
             self.image_panel.set_colour_bar(None)

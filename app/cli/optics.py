@@ -11,14 +11,14 @@ import os
 import numpy as np
 
 from ringlight.core import RinglightError, load_manifest, open_dataset
-from ringlight.core.atomic import atomic_file, check_output_file
+from ringlight.core.atomic import check_output_file
 from ringlight.core.colour.image_export import write_text
 from ringlight.core.colour.regions import parse_rectangle, rectangle_region
-from ringlight.core.dataset.exr import write_exr_channels
 from ringlight.core.dataset.writer import refuse_dataset_file
 from ringlight.core.optics.calibration import calibrate, read_calibration, write_calibration
 from ringlight.core.device import CHOICES, choose_device
-from ringlight.core.optics.maps import OpticalMaps, optical_maps, sample_optics
+from ringlight.core.optics.map_file import write_maps
+from ringlight.core.optics.maps import optical_maps, sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.region import RegionOptics, region_optics
 from ringlight.core.optics.table import DEFAULT_PHOTONS, PHOTON_RANGE, check_photons
@@ -31,7 +31,8 @@ def add_arguments(optics) -> None:
     """Add the arguments of ``ringlight optics`` to its parser, with its handler."""
     optics.add_argument("dataset", help="dataset folder or its dataset.json")
     optics.add_argument("--out", metavar="MAPS.exr",
-                        help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se")
+                        help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se, "
+                             "determined.R ... and complete (1 where every ring lies whole on the grid)")
     optics.add_argument("--json", metavar="OUT",
                         help="write the region's values (--roi, default the whole grid) and R_d as JSON")
     optics.add_argument("--mtf", metavar="F1,F2,...", default=None,
@@ -130,11 +131,11 @@ def run_optics(args) -> int:
         with progress_bar("fitting every pixel") as progress:
             maps = optical_maps(dataset, n=args.n, g=args.g, calibration=calibration, progress=progress,
                                 photons=args.photons)
-        with atomic_file(args.out, overwrite=args.force) as temporary:
-            write_exr_channels(temporary, map_channels(maps))
-        determined = maps.determined.mean() * 100
+        write_maps(maps, args.out, overwrite=args.force)
+        determined, complete = maps.determined.mean() * 100, maps.complete.mean() * 100
         print(f"{dataset.path}: maps in {maps.units.replace('_', ' ')}, n {maps.n:g}, g {maps.g:g}, noise from the "
-              f"{maps.noise_source}; {determined:.1f} % of pixel channels determined")
+              f"{maps.noise_source}; {determined:.1f} % of pixel channels determined, {complete:.1f} % of pixels with "
+              f"whole rings (channel complete; the others' fits are biased)")
         print(f"wrote {args.out}")
     if args.json:
         result = region_optics(dataset, region, n=args.n, g=args.g, calibration=calibration, layers=args.layers,
@@ -146,19 +147,6 @@ def run_optics(args) -> int:
               f"{_with_errors(result.musp, result.musp_se)} {units} (R / G / B, ±1 SE){_undetermined(result)}")
         print(f"wrote {args.json}")
     return 0
-
-
-def map_channels(maps: OpticalMaps) -> dict[str, np.ndarray]:
-    """The maps as named EXR channels: ``mua.R``, ..., ``mua.R_se``, ..., ``musp.B_se``, and
-    ``determined.R`` ... (1 where determined, else 0)."""
-    channels = {}
-    for name, values, errors in (("mua", maps.mua, maps.mua_se), ("musp", maps.musp, maps.musp_se)):
-        for c, channel in enumerate(maps.channels):
-            channels[f"{name}.{channel}"] = values[..., c]
-            channels[f"{name}.{channel}_se"] = errors[..., c]
-    for c, channel in enumerate(maps.channels):
-        channels[f"determined.{channel}"] = maps.determined[..., c].astype(np.float32)
-    return channels
 
 
 def region_document(result: RegionOptics, frequencies_text: list[str], roi: str | None) -> dict:
