@@ -74,7 +74,11 @@ def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
 def region_text(maps: OpticalMaps, key: str, channel: int, region: np.ndarray | None, where: str) -> str:
     """Mean ± standard error of the mean (std / sqrt N) of property ``key`` in ``channel`` over the
     pixels of the (H, W) ``region`` (None: the whole grid) whose value is determined and whose
-    rings lie whole on the grid (a cut ring's fit is biased, :attr:`OpticalMaps.complete`)."""
+    rings lie whole on the grid (a cut ring's fit is biased, :attr:`OpticalMaps.complete`), their
+    standard deviation, and the median of those pixels' own standard errors: neighbouring pixels'
+    fits share ring members, so std / sqrt N understates the mean's error, down to 0 where every
+    pixel is alike (a laterally uniform simulation), while each pixel's error says what its data
+    allow."""
     values = getattr(maps, key)[..., channel]
     inside = np.ones(values.shape, bool) if region is None else region
     determined = inside & getattr(maps, f"{key}_determined")[..., channel] & np.isfinite(values)
@@ -86,10 +90,11 @@ def region_text(maps: OpticalMaps, key: str, channel: int, region: np.ndarray | 
         return f"{where}: no pixel of {total} has a determined {name} from whole rings{left_out}"
     chosen = values[used].astype(np.float64)
     std = float(chosen.std(ddof=1)) if count > 1 else float("nan")
-    # Neighbouring pixels' fits share ring members, so std / sqrt N understates the mean's error.
     se = std / np.sqrt(count) if count > 1 else None
+    pixel_se = float(np.median(getattr(maps, f"{key}_se")[..., channel][used]))
     return (f"{where}: {count} of {total} px{left_out}; {name} {maps.channels[channel]} mean "
-            f"{with_error(float(chosen.mean()), se)} {unit} (SE of the mean), std {std:.3g}")
+            f"{with_error(float(chosen.mean()), se)} {unit} (std / √N), std {std:.3g}, each pixel's SE "
+            f"{pixel_se:.2g} (median)")
 
 
 class OpticsView:

@@ -152,6 +152,9 @@ def test_region_statistics_are_mean_and_its_standard_error(direct):
     assert f"{used.sum()} of 64 px ({cut} more with rings cut by the edge left out)" in text
     assert se == pytest.approx(values.std(ddof=1) / np.sqrt(len(values)), rel=0.05)
     assert abs(mean - values.mean()) <= 0.051 * se
+    # Beside it, what one pixel's data allow: the median of those pixels' own standard errors.
+    pixel_se = float(re.search(r"each pixel's SE ([0-9.e-]+) \(median\)", text).group(1))
+    assert pixel_se == pytest.approx(np.median(direct.musp_se[..., 2][used]), rel=0.05)  # two digits
     assert abs(mean - MUSP) < 0.02 * MUSP  # the truth the dataset was made of
 
 
