@@ -16,7 +16,8 @@ import numpy as np
 from PySide6.QtWidgets import QFileDialog
 from ringlight.core import ImpulseDataset
 from ringlight.core.device import Device
-from ringlight.core.optics import Calibration, CalibrationError, OpticalMaps, model_profile, optical_maps, read_calibration
+from ringlight.core.optics import (Calibration, CalibrationError, OpticalMaps, RegionOptics, model_profile, optical_maps,
+                                   read_calibration, region_optics)
 from ringlight.core.optics.maps import sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.table import DEFAULT_PHOTONS
@@ -50,6 +51,36 @@ class OpticsRequest:
                        device=self.device)
         return optical_maps(self.dataset, n=self.n, g=self.g, calibration=self.calibration, progress=progress,
                             cancelled=self.stop.is_set, photons=self.photons)
+
+
+@dataclass(frozen=True, eq=False)
+class RegionRequest:
+    """One fit of the mean E(r) of ``mask`` ((H, W) bool; None: the whole grid) of ``dataset``, as
+    ``ringlight optics --json`` fits it (:func:`ringlight.core.optics.region_optics`)."""
+
+    dataset: ImpulseDataset
+    mask: np.ndarray | None
+    calibration: Calibration | None
+    photons: int
+    n: float | None = None
+    g: float | None = None
+
+    def run(self, progress) -> RegionOptics:
+        return region_optics(self.dataset, self.mask, n=self.n, g=self.g, calibration=self.calibration,
+                             photons=self.photons, progress=progress)
+
+
+def region_fit_text(result: RegionOptics, where: str) -> str:
+    """The region fit's values with their standard errors, per channel, its chi-square and the
+    channels it did not determine."""
+    unit = UNITS[result.units]
+    mua, musp = (" / ".join(with_error(float(v), float(e)) for v, e in zip(value, error))
+                 for value, error in ((result.mua, result.mua_se), (result.musp, result.musp_se)))
+    chi2 = " / ".join(f"{c:.3g}" for c in result.chi2)
+    missing = [name for name, determined in zip(result.channels, result.determined) if not determined]
+    undetermined = f"; not determined in {', '.join(missing)}" if missing else ""
+    return (f"{where}, fit of its mean E(r) over {result.points} lit points: mu_a {mua}, mu_s' {musp} {unit} "
+            f"(R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of freedom{undetermined}")
 
 
 def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
@@ -129,6 +160,16 @@ class OpticsView:
         self.optics_jobs.cancelled.connect(lambda: panel.set_map(None, title="Cancelled: Compute maps to start again"))
         self.dataset_loaded.connect(self._forget_optics)
         self.layer_tab.region_changed.connect(self._refresh_optics_region)
+        # The region fit: a slot of its own, so that it neither cancels nor is cancelled by the maps.
+        self.optics_region_jobs = JobSlot(self.pool, self)
+        panel.fit_region_requested.connect(self.fit_optics_region)
+        self.optics_region_jobs.started.connect(lambda _: panel.cancel_button.setEnabled(True))
+        self.optics_region_jobs.idle.connect(lambda: panel.cancel_button.setEnabled(self.optics_jobs.busy))
+        self.optics_region_jobs.progress.connect(panel.set_progress)
+        self.optics_region_jobs.finished.connect(lambda result: panel.set_region_fit(region_fit_text(*result)))
+        self.optics_region_jobs.failed.connect(self._on_region_fit_failed)
+        self.optics_region_jobs.cancelled.connect(lambda: panel.set_region_fit(""))
+        self.layer_tab.region_changed.connect(self._forget_region_fit)
 
     def _show_optics(self) -> None:
         self.analysis_tabs.setCurrentWidget(self.optics_panel)
@@ -151,9 +192,38 @@ class OpticsView:
         self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
         self.optics_jobs.start("Optical maps", lambda progress: (request, request.run(progress)))
 
+    def fit_optics_region(self) -> None:
+        """Fit the mean E(r) of the Layers tab's region (the whole grid when it holds every pixel)
+        in a worker; the result replaces the panel's region-fit line."""
+        if self.loaded is None:
+            self.optics_panel.set_region_fit("Open a dataset first")
+            return
+        try:
+            n, g = self.optics_panel.sample()
+        except ValueError as error:
+            self.show_error("Could not fit the region", str(error))
+            return
+        region = self.layer_tab.region
+        whole = region.shape != self.loaded.dataset.grid_shape or region.all()
+        where = "whole grid" if whole else "Layers region"
+        request = RegionRequest(self.loaded.dataset, None if whole else region.copy(), self.optics_calibration,
+                                self.optics_photons, n, g)
+        self.optics_panel.set_region_fit(f"{where}: fitting its mean E(r) ...")
+        self.optics_region_jobs.start("Region fit", lambda progress: (request.run(progress), where))
+
+    def _on_region_fit_failed(self, message: str) -> None:
+        self.optics_panel.set_region_fit("")
+        self.show_error("Could not fit the region", message)
+
+    def _forget_region_fit(self) -> None:
+        """A region fit of another region, dataset or calibration is no longer shown."""
+        self.optics_region_jobs.cancel()
+        self.optics_panel.set_region_fit("")
+
     def cancel_optics(self) -> None:
         self._optics_stop.set()
         self.optics_jobs.cancel()
+        self.optics_region_jobs.cancel()
 
     def choose_calibration(self) -> None:
         start = self.settings.value("last_calibration_folder", str(Path.home()))
@@ -185,6 +255,7 @@ class OpticsView:
 
     def _forget_optics(self) -> None:
         self.cancel_optics()
+        self.optics_panel.set_region_fit("")
         self.optics = None
         self._refresh_optics()
         self.profile_plot.set_model(None)

@@ -284,7 +284,7 @@ class MainWindow(DatasetOpening, ExploreView, ViewLevels, NoiseView, OpticsView,
         """Cancel all work, start no more, and wait for the workers (so no job outlives the window)."""
         self.cancel_all()
         for slot in (self.load_jobs, self.stack_jobs, self.noise_jobs, self.fit_jobs, self.export_jobs,
-                     self.impulse_jobs, self.optics_jobs):
+                     self.impulse_jobs, self.optics_jobs, self.optics_region_jobs):
             slot.close()
         self._optics_stop.set()
         self.capture_tab.shutdown()

@@ -14,11 +14,11 @@ from PySide6.QtCore import QRunnable
 from optics_helpers import TEST_PHOTONS, model_kernel
 from plain_view import plain_settings
 from reference import write_dataset
-from ringlight.app.optics_view import OpticsRequest, describe_optics, region_text
+from ringlight.app.optics_view import OpticsRequest, describe_optics, region_fit_text, region_text
 from ringlight.app.window import MainWindow
 from ringlight.core import Cancelled, open_dataset
 from ringlight.core.dataset.exr import read_exr_channels
-from ringlight.core.optics import model_profile, optical_maps, radial
+from ringlight.core.optics import model_profile, optical_maps, radial, region_optics
 
 MUA, MUSP = 0.2, 5.0  # per mm: 0.02 and 0.5 per grid step of 0.1 mm
 SIZE, MAX_RADIUS = 16, 5
@@ -200,6 +200,39 @@ def test_the_maps_are_exported_as_the_command_writes_them(qtbot, window, direct,
             plane = getattr(direct, key + suffix)[..., "RGB".index(channel[0])]
             expected = plane.astype(np.float32)
         np.testing.assert_array_equal(written[..., index], expected, err_msg=name)
+
+
+def test_a_region_is_fitted_as_the_command_fits_it_and_forgotten_when_the_region_changes(qtbot, window, homogeneous):
+    panel = window.optics_panel
+    with qtbot.waitSignal(window.optics_region_jobs.finished, timeout=TIMEOUT_MS):
+        panel.fit_region_button.click()
+    dataset = window.loaded.dataset
+    whole = region_optics(dataset, None, photons=TEST_PHOTONS)
+    text = panel.region_fit_label.text()
+    assert text == region_fit_text(whole, "whole grid")
+    assert text.startswith(f"whole grid, fit of its mean E(r) over {SIZE * SIZE} lit points: mu_a ")
+    # Its numbers are the core's fit, each to the digits its standard error allows, and the truth lies within.
+    for name, values, errors, truth in (("mu_a", whole.mua, whole.mua_se, MUA), ("mu_s'", whole.musp, whole.musp_se,
+                                                                                MUSP)):
+        shown_values = re.search(re.escape(name) + r" ([0-9.±/ ]+?)(?:,| /mm)", text).group(1).split(" / ")
+        for shown_text, value, error in zip(shown_values, values, errors):
+            number, shown_error = (float(part) for part in shown_text.split("±"))
+            assert shown_error == pytest.approx(error, rel=0.05)
+            assert abs(number - value) <= 0.051 * error
+            assert abs(value - truth) < 4 * error
+    # A rectangle drawn on the Layers tab: the old fit is gone, and the next fit is the rectangle's.
+    layers = window.layer_panel
+    layers.region_box.setCurrentIndex(layers.region_box.findData("rectangle"))
+    assert panel.region_fit_label.text() == ""
+    y0, x0, y1, x1 = window.image_panel.region_geometry()[1]
+    mask = np.zeros((SIZE, SIZE), bool)
+    mask[y0:y1, x0:x1] = True
+    np.testing.assert_array_equal(window.layer_tab.region, mask)
+    with qtbot.waitSignal(window.optics_region_jobs.finished, timeout=TIMEOUT_MS):
+        panel.fit_region_button.click()
+    assert panel.region_fit_label.text() == region_fit_text(region_optics(dataset, mask, photons=TEST_PHOTONS),
+                                                            "Layers region")
+    assert f"over {mask.sum()} lit points" in panel.region_fit_label.text()
 
 
 def test_cancel_stops_the_maps(qtbot, window, homogeneous):

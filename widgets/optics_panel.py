@@ -69,6 +69,8 @@ class OpticsPanel(QWidget):
         Compute the maps of the dataset on screen.
     export_requested()
         Write the maps shown to a file.
+    fit_region_requested()
+        Fit the mean E(r) of the region (the Layers tab's, else the whole grid).
     cancel_requested()
         Stop the computation.
     calibration_requested()
@@ -83,6 +85,7 @@ class OpticsPanel(QWidget):
 
     compute_requested = Signal()
     export_requested = Signal()
+    fit_region_requested = Signal()
     cancel_requested = Signal()
     calibration_requested = Signal()
     calibration_cleared = Signal()
@@ -97,6 +100,9 @@ class OpticsPanel(QWidget):
                                        "(rings 0, 1, ... up to the dataset's max_radius)")
         self.cancel_button = QPushButton("Cancel")
         self.cancel_button.setEnabled(False)
+        self.fit_region_button = QPushButton("Fit region")
+        self.fit_region_button.setToolTip("Fit mu_a and mu_s' to the mean E(r) of the Layers tab's region (else the "
+                                          "whole grid): one fit, its standard errors those of the region's profile")
         self.export_button = QPushButton("Export…")
         self.export_button.setToolTip("The maps, their standard errors and flags as one EXR file (File > Export "
                                       "optical maps as EXR)")
@@ -128,12 +134,19 @@ class OpticsPanel(QWidget):
         self.region_label = QLabel()
         self.region_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.region_label.setWordWrap(True)
+        self.region_fit_label = QLabel()
+        self.region_fit_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.region_fit_label.setWordWrap(True)
 
+        # Two rows: in one, the four buttons and the progress bar made the dock wider than a
+        # 1366-pixel screen leaves it.
         buttons = QHBoxLayout()
         buttons.addWidget(self.compute_button)
-        buttons.addWidget(self.cancel_button)
+        buttons.addWidget(self.fit_region_button)
         buttons.addWidget(self.export_button)
-        buttons.addWidget(self.progress_bar, 1)
+        working = QHBoxLayout()
+        working.addWidget(self.cancel_button)
+        working.addWidget(self.progress_bar, 1)
         choices = QGridLayout()
         choices.addWidget(QLabel("Quantity"), 0, 0)
         choices.addWidget(self.quantity_box, 0, 1)
@@ -150,15 +163,18 @@ class OpticsPanel(QWidget):
         layout = QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addLayout(buttons)
+        layout.addLayout(working)
         layout.addLayout(choices)
         layout.addLayout(calibration)
         layout.addWidget(self.image_panel, 1)
         layout.addWidget(self.hover_label)
         layout.addWidget(self.region_label)
+        layout.addWidget(self.region_fit_label)
 
         self.compute_button.clicked.connect(self.compute_requested)
         self.cancel_button.clicked.connect(self.cancel_requested)
         self.export_button.clicked.connect(self.export_requested)
+        self.fit_region_button.clicked.connect(self.fit_region_requested)
         self.calibration_button.clicked.connect(self.calibration_requested)
         self.clear_calibration_button.clicked.connect(self.calibration_cleared)
         self.quantity_box.currentIndexChanged.connect(lambda _: self.choice_changed.emit())
@@ -223,6 +239,10 @@ class OpticsPanel(QWidget):
 
     def set_region(self, text: str) -> None:
         self.region_label.setText(text)
+
+    def set_region_fit(self, text: str) -> None:
+        """The region fit's result (or what it is doing); empty: none."""
+        self.region_fit_label.setText(text)
 
     def show_point(self, y: int, x: int) -> None:
         """Mark the picked grid point on the map."""
