@@ -153,7 +153,7 @@ class OpticsView:
         panel.pixel_picked.connect(self.pick)
         panel.pixel_hovered.connect(self._on_optics_hover)
         self.optics_jobs.started.connect(lambda _: panel.set_busy(True))
-        self.optics_jobs.idle.connect(lambda: panel.set_busy(False))
+        self.optics_jobs.idle.connect(lambda: panel.set_busy(False, self.optics_region_jobs.busy))
         self.optics_jobs.progress.connect(panel.set_progress)
         self.optics_jobs.finished.connect(self._on_optics_ready)
         self.optics_jobs.failed.connect(lambda message: self.show_error("Could not compute the optical maps", message))

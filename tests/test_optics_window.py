@@ -257,6 +257,24 @@ def test_cancel_stops_the_maps(qtbot, window, homogeneous):
         OpticsRequest(open_dataset(homogeneous), None, TEST_PHOTONS, stop).run(lambda fraction: None)
 
 
+def test_cancel_stops_a_region_fit_and_the_maps_job_does_not_hide_it(qtbot, window):
+    release = threading.Event()
+    blocker = QRunnable.create(lambda: release.wait(60))
+    window.pool.start(blocker)  # both jobs wait, queued, behind it (as in test_cancel_stops_the_maps)
+    panel = window.optics_panel
+    panel.fit_region_button.click()
+    panel.compute_button.click()
+    assert window.optics_region_jobs.busy and window.optics_jobs.busy  # neither cancelled the other
+    assert panel.region_fit_label.text() == "whole grid: fitting its mean E(r) ..."
+    panel.cancel_button.click()
+    assert not window.optics_region_jobs.busy and not window.optics_jobs.busy
+    assert not panel.cancel_button.isEnabled() and panel.region_fit_label.text() == ""
+    release.set()
+    window.pool.waitForDone()
+    qtbot.wait(50)
+    assert panel.region_fit_label.text() == "" and window.optics is None  # no result arrives after the cancel
+
+
 @pytest.mark.parametrize("content", ["{not json", '{"format": "ringlight-impulse", "version": 1}'])
 def test_a_bad_calibration_file_gives_one_line_naming_it(qtbot, window, tmp_path, content):
     path = tmp_path / "rig-calibration.json"

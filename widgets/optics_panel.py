@@ -203,9 +203,10 @@ class OpticsPanel(QWidget):
                 raise ValueError(f"{name} must be a number, got {text!r}") from None
         return values[0], values[1]
 
-    def set_busy(self, busy: bool) -> None:
-        """A computation runs (cancel offered) or not."""
-        self.cancel_button.setEnabled(busy)
+    def set_busy(self, busy: bool, other_busy: bool = False) -> None:
+        """The maps' computation runs or not; Cancel is offered while it or ``other_busy`` (the
+        region fit) runs."""
+        self.cancel_button.setEnabled(busy or other_busy)
         self.progress_bar.setValue(0)
 
     def set_progress(self, fraction: float) -> None:
