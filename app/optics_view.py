@@ -16,8 +16,8 @@ import numpy as np
 from PySide6.QtWidgets import QFileDialog
 from ringlight.core import ImpulseDataset
 from ringlight.core.device import Device
-from ringlight.core.optics import (Calibration, CalibrationError, OpticalMaps, RegionOptics, model_profile, optical_maps,
-                                   read_calibration, region_optics)
+from ringlight.core.optics import (Calibration, CalibrationError, OpticalMaps, RegionOptics, model_profile,
+                                   optical_maps, read_calibration, region_optics)
 from ringlight.core.optics.maps import sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.table import DEFAULT_PHOTONS

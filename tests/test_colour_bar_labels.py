@@ -4,8 +4,8 @@ mu_a (levels 0.03191 .. 0.03238 /mm, labels such as 0.03215) had a bar without a
 
 import numpy as np
 import pytest
+from axis_labels import drawn_text_specs
 from PySide6.QtCore import QRectF
-from PySide6.QtGui import QImage, QPainter
 from ringlight.widgets.optics_panel import OpticsPanel
 
 
@@ -13,14 +13,9 @@ def drawn_labels(panel) -> list[tuple[QRectF, str]]:
     """The colour bar's tick labels as its axis draws them, each with its rectangle in the
     panel's widget coordinates."""
     axis = panel.image_panel.colour_bar.axis
-    image = QImage(10, 10, QImage.Format.Format_RGB32)
-    painter = QPainter(image)
-    try:
-        _, _, texts = axis.generateDrawSpecs(painter)
-    finally:
-        painter.end()
     view = panel.image_panel
-    return [(view.mapFromScene(axis.mapRectToScene(rect)).boundingRect(), text) for rect, _, text in texts]
+    return [(view.mapFromScene(axis.mapRectToScene(rect)).boundingRect(), text)
+            for rect, _, text in drawn_text_specs(axis)]
 
 
 @pytest.mark.parametrize("low, high", [(0.0319062, 0.0323781), (0.01, 0.05), (3.19, 3.24), (1.234e-4, 1.236e-4)])

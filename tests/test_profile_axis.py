@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("PySide6")
-from PySide6.QtGui import QImage, QPainter  # noqa: E402
+from axis_labels import drawn_text_specs  # noqa: E402
 from PySide6.QtWidgets import QApplication  # noqa: E402
 from qt_paints import PaintCounter  # noqa: E402
 from reference import random_impulses, write_dataset  # noqa: E402
@@ -38,12 +38,7 @@ RING = np.repeat((0.12 * 10.0 ** (-0.4 * RADII))[:, None], 3, axis=1)
 def drawn_labels(axis) -> list[tuple[float, str]]:
     """(value at the tick, label) of every tick label ``axis`` draws now, the value read from the
     tick's place on the linked view (10 ** it on a log axis)."""
-    image = QImage(16, 16, QImage.Format.Format_ARGB32)
-    painter = QPainter(image)
-    try:
-        _, _, texts = axis.generateDrawSpecs(painter)
-    finally:
-        painter.end()
+    texts = drawn_text_specs(axis)
     view = axis.linkedView()
     vertical = axis.orientation in ("left", "right")
     labels = []
