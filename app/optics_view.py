@@ -180,11 +180,9 @@ class OpticsView:
         if self.loaded is None:
             self.optics_panel.set_map(None, title="Open a dataset first")
             return
-        try:
-            n, g = self.optics_panel.sample()
-        except ValueError as error:
-            self.show_error("Could not compute the optical maps", str(error))
+        if (sample := self._typed_sample("Could not compute the optical maps")) is None:
             return
+        n, g = sample
         self._optics_stop.set()  # a job still running stops at its next question
         self._optics_stop = threading.Event()
         request = OpticsRequest(self.loaded.dataset, self.optics_calibration, self.optics_photons, self._optics_stop,
@@ -192,17 +190,24 @@ class OpticsView:
         self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
         self.optics_jobs.start("Optical maps", lambda progress: (request, request.run(progress)))
 
+    def _typed_sample(self, title: str) -> tuple[float | None, float | None] | None:
+        """The n and g typed on the tab (None where empty); None after a dialog titled ``title``
+        naming the one that is not a number."""
+        try:
+            return self.optics_panel.sample()
+        except ValueError as error:
+            self.show_error(title, str(error))
+            return None
+
     def fit_optics_region(self) -> None:
         """Fit the mean E(r) of the Layers tab's region (the whole grid when it holds every pixel)
         in a worker; the result replaces the panel's region-fit line."""
         if self.loaded is None:
             self.optics_panel.set_region_fit("Open a dataset first")
             return
-        try:
-            n, g = self.optics_panel.sample()
-        except ValueError as error:
-            self.show_error("Could not fit the region", str(error))
+        if (sample := self._typed_sample("Could not fit the region")) is None:
             return
+        n, g = sample
         region = self.layer_tab.region
         whole = region.shape != self.loaded.dataset.grid_shape or region.all()
         where = "whole grid" if whole else "Layers region"
