@@ -67,7 +67,8 @@ class ExportActions:
     def export_optics(self, path: Path) -> None:
         """Write the maps on the Optics tab, their standard errors and flags (as ``ringlight optics
         --out``) to ``path`` in a worker."""
-        self.export_jobs.start(f"Writing {path.name}", exports.optics_work(self.optics, path))
+        self.export_jobs.start(f"Writing {path.name}",
+                               exports.optics_work(self.optics, path, self._optics_dataset.manifest.folder))
 
     def export_stack(self, folder: Path) -> None:
         """Write the shown stack (E_r or T_r) to ``folder`` in a worker."""

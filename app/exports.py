@@ -15,6 +15,7 @@ from ringlight.core.colour.image_export import (
     write_png,
     write_text,
 )
+from ringlight.core.dataset.writer import refuse_dataset_file
 from ringlight.core.optics import OpticalMaps
 from ringlight.core.optics.map_file import write_maps
 from ringlight.core.rings.profiles import PixelProfile, profile_csv
@@ -91,9 +92,12 @@ def csv_work(profile: PixelProfile, path: Path):
     return work
 
 
-def optics_work(maps: OpticalMaps, path: Path):
-    """Write the optical-property maps as one EXR file (the channels of ``ringlight optics --out``)."""
+def optics_work(maps: OpticalMaps, path: Path, dataset_folder: Path):
+    """Write the optical-property maps as one EXR file (the channels of ``ringlight optics --out``);
+    never over a file of the dataset in ``dataset_folder`` they were computed from (a frame is an
+    EXR file too), which the save dialog does not know."""
     def work(progress):
+        refuse_dataset_file(path, dataset_folder)
         write_maps(maps, path, overwrite=True)  # the save dialog asked the user
         progress(1.0)
         return path

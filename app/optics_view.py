@@ -1,7 +1,9 @@
 """Optical-property maps in the explorer: the Optics tab computes mu_a and mu_s' of every pixel
 and channel in a worker (:func:`ringlight.core.optics.optical_maps`), shows one map with its
 colour bar, the hovered pixel's values with their standard errors and the region's statistics,
-and draws the fitted model's E(r) over the measured profile of the picked pixel.
+and draws the fitted model's E(r) over the measured profile of the picked pixel; Fit region fits
+the mean E(r) of the Layers tab's region in a worker of its own
+(:func:`ringlight.core.optics.region_optics`), and Cancel stops both.
 
 A mixin of :class:`ringlight.app.window.MainWindow`.
 """
@@ -56,7 +58,8 @@ class OpticsRequest:
 @dataclass(frozen=True, eq=False)
 class RegionRequest:
     """One fit of the mean E(r) of ``mask`` ((H, W) bool; None: the whole grid) of ``dataset``, as
-    ``ringlight optics --json`` fits it (:func:`ringlight.core.optics.region_optics`)."""
+    ``ringlight optics --json`` fits it (:func:`ringlight.core.optics.region_optics`); on a CUDA
+    ``device`` the table's white run is traced there first, as :class:`OpticsRequest` does."""
 
     dataset: ImpulseDataset
     mask: np.ndarray | None
@@ -64,8 +67,12 @@ class RegionRequest:
     photons: int
     n: float | None = None
     g: float | None = None
+    device: Device | None = None
 
     def run(self, progress) -> RegionOptics:
+        if self.device is not None and self.device.is_cuda:  # the white run traced there, as for the maps
+            radial_run(*sample_optics(self.dataset, self.n, self.g), self.photons, progress=progress,
+                       device=self.device)
         return region_optics(self.dataset, self.mask, n=self.n, g=self.g, calibration=self.calibration,
                              photons=self.photons, progress=progress)
 
@@ -79,8 +86,9 @@ def region_fit_text(result: RegionOptics, where: str) -> str:
     chi2 = " / ".join(f"{c:.3g}" for c in result.chi2)
     missing = [name for name, determined in zip(result.channels, result.determined) if not determined]
     undetermined = f"; not determined in {', '.join(missing)}" if missing else ""
-    return (f"{where}, fit of its mean E(r) over {result.points} lit points: mu_a {mua}, mu_s' {musp} {unit} "
-            f"(R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of freedom{undetermined}")
+    return (f"{where}, fit of its mean E(r) over {result.points} lit points (n {result.n:g}, g {result.g:g}): mu_a "
+            f"{mua}, mu_s' {musp} {unit} (R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of "
+            f"freedom{undetermined}")
 
 
 def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
@@ -98,7 +106,7 @@ def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
         if not getattr(maps, f"{key}_determined")[y, x, channel]:
             text += " (not determined)"
         parts.append(text)
-    edge = "" if maps.complete[y, x] else "   rings cut by the grid's edge (biased)"
+    edge = "" if maps.complete[y, x] else "   rings cut by the grid's edge or unlit points (biased)"
     return f"y {y}  x {x}  {maps.channels[channel]}:  " + ",  ".join(parts) + " (±1 SE)" + edge
 
 
@@ -164,7 +172,7 @@ class OpticsView:
         self.optics_region_jobs = JobSlot(self.pool, self)
         panel.fit_region_requested.connect(self.fit_optics_region)
         self.optics_region_jobs.started.connect(lambda _: panel.cancel_button.setEnabled(True))
-        self.optics_region_jobs.idle.connect(lambda: panel.cancel_button.setEnabled(self.optics_jobs.busy))
+        self.optics_region_jobs.idle.connect(lambda: panel.set_busy(self.optics_jobs.busy))
         self.optics_region_jobs.progress.connect(panel.set_progress)
         self.optics_region_jobs.finished.connect(lambda result: panel.set_region_fit(region_fit_text(*result)))
         self.optics_region_jobs.failed.connect(self._on_region_fit_failed)
@@ -187,8 +195,12 @@ class OpticsView:
         self._optics_stop = threading.Event()
         request = OpticsRequest(self.loaded.dataset, self.optics_calibration, self.optics_photons, self._optics_stop,
                                 n, g, self.compute_device())
-        self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
+        # Started first: starting cancels a job running there, whose cancel would replace the title.
         self.optics_jobs.start("Optical maps", lambda progress: (request, request.run(progress)))
+        self.optics = None  # maps of other settings are neither shown, read on hover nor exported
+        self._refresh_optics()
+        self.profile_plot.set_model(None)
+        self.optics_panel.set_map(None, title="Fitting mu_a and mu_s' of every pixel ...")
 
     def _typed_sample(self, title: str) -> tuple[float | None, float | None] | None:
         """The n and g typed on the tab (None where empty); None after a dialog titled ``title``
@@ -212,9 +224,10 @@ class OpticsView:
         whole = region.shape != self.loaded.dataset.grid_shape or region.all()
         where = "whole grid" if whole else "Layers region"
         request = RegionRequest(self.loaded.dataset, None if whole else region.copy(), self.optics_calibration,
-                                self.optics_photons, n, g)
-        self.optics_panel.set_region_fit(f"{where}: fitting its mean E(r) ...")
+                                self.optics_photons, n, g, self.compute_device())
+        # Started first: starting cancels a fit running there, whose cancel clears the line.
         self.optics_region_jobs.start("Region fit", lambda progress: (request.run(progress), where))
+        self.optics_panel.set_region_fit(f"{where}: fitting its mean E(r) ...")
 
     def _on_region_fit_failed(self, message: str) -> None:
         self.optics_panel.set_region_fit("")
@@ -287,7 +300,7 @@ class OpticsView:
         calibrated = "calibrated" if self.optics_calibration is not None else "no calibration"
         panel.set_map(getattr(maps, key)[..., channel], getattr(maps, f"{key}_determined")[..., channel],
                       f"{name} ({unit})", f"{name} {maps.channels[channel]}  n {maps.n:g}  g {maps.g:g}  {calibrated}\n"
-                      f"dim: not determined, or rings cut by the edge; grey: no fit", whole=maps.complete)
+                      f"dim: not determined, or rings cut (edge, unlit points); grey: no fit", whole=maps.complete)
         if self.picked is not None:
             panel.show_point(*self.picked)
         self._on_optics_hover(*self._optics_hovered)  # the other channel's numbers under the mouse

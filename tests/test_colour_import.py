@@ -4,8 +4,7 @@ colour-science's own, number for number, and is used only with the colour-scienc
 
 The luminance row is not data but derived by colour-science through numpy's linear algebra, whose last bits
 vary between numpy releases (up to 6 units in the last place with numpy 2.4.6, against the table made with an
-earlier one): it is compared within LUMINANCE_ULP units in the last place, the primaries and white points bit
-for bit."""
+earlier one): it is compared within LUMINANCE_TOLERANCE, the primaries and white points bit for bit."""
 
 import json
 import re
@@ -20,14 +19,16 @@ from ringlight.core.colourspace_table import COLOUR_VERSION, COLOURSPACES
 from ringlight.core.colourspaces import (CUSTOM_PREFIX, colour_module, colourspace_chromaticities,
                                          colourspace_luminance, is_known_colourspace, parse_colourspace)
 
-LUMINANCE_ULP = 32
-"""Units in the last place the table's luminance rows may differ from colour-science's own (module docstring)."""
+LUMINANCE_TOLERANCE = 1e-14
+"""How far (relative, and absolute for an entry near 0) the table's luminance rows may lie from
+colour-science's own (module docstring): 6 units in the last place are 7e-16 at 1."""
 
 
 def assert_same_luminance(found, name: str) -> None:
-    """``found`` is colour-science's luminance row of colourspace ``name``, within :data:`LUMINANCE_ULP`."""
+    """``found`` is colour-science's luminance row of colourspace ``name``, within :data:`LUMINANCE_TOLERANCE`."""
     expected = np.asarray(colour_module().RGB_COLOURSPACES[name].matrix_RGB_to_XYZ[1], np.float64)
-    np.testing.assert_array_max_ulp(np.asarray(found, np.float64), expected, maxulp=LUMINANCE_ULP)
+    np.testing.assert_allclose(np.asarray(found, np.float64), expected, rtol=LUMINANCE_TOLERANCE,
+                               atol=LUMINANCE_TOLERANCE)
 
 
 def table_in_use() -> None:

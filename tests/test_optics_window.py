@@ -174,10 +174,10 @@ def test_the_map_takes_its_colours_from_whole_rings_and_dims_the_cut_ones(qtbot,
     shown_pixels = window.optics_panel.image_panel.pixels().astype(np.float64)
     finite = np.isfinite(values)
     assert np.abs(shown_pixels[finite] - expected[finite]).max() <= 3.0  # the 256-entry table's rounding
-    assert "rings cut by the edge" in window.optics_panel.image_panel.title.textItem.toPlainText()
+    assert "rings cut (edge, unlit points)" in window.optics_panel.image_panel.title.textItem.toPlainText()
 
 
-def test_the_maps_are_exported_as_the_command_writes_them(qtbot, window, direct, tmp_path, monkeypatch):
+def test_the_maps_are_exported_as_the_command_writes_them(qtbot, window, direct, homogeneous, tmp_path, monkeypatch):
     # Before any maps: one line saying what to do, and the panel's button is off.
     assert not window.optics_panel.export_button.isEnabled()
     window.choose_optics_export()
@@ -200,6 +200,17 @@ def test_the_maps_are_exported_as_the_command_writes_them(qtbot, window, direct,
             plane = getattr(direct, key + suffix)[..., "RGB".index(channel[0])]
             expected = plane.astype(np.float32)
         np.testing.assert_array_equal(written[..., index], expected, err_msg=name)
+    # Computing again (other n, say) drops the maps at once: neither shown, hovered nor exported.
+    window.compute_optics()
+    assert window.optics is None and not window.optics_panel.export_button.isEnabled()
+    window.cancel_optics()
+    compute(qtbot, window)
+    # Never over a file of the dataset the maps came from, which the save dialog cannot know.
+    manifest = homogeneous / "dataset.json"
+    before = manifest.read_bytes()
+    with qtbot.waitSignal(window.export_jobs.failed, timeout=TIMEOUT_MS):
+        window.export_optics(manifest)
+    assert window.last_error.startswith(f"{manifest}: is a file of the dataset") and manifest.read_bytes() == before
 
 
 def test_a_region_is_fitted_as_the_command_fits_it_and_forgotten_when_the_region_changes(qtbot, window, homogeneous):
@@ -210,7 +221,7 @@ def test_a_region_is_fitted_as_the_command_fits_it_and_forgotten_when_the_region
     whole = region_optics(dataset, None, photons=TEST_PHOTONS)
     text = panel.region_fit_label.text()
     assert text == region_fit_text(whole, "whole grid")
-    assert text.startswith(f"whole grid, fit of its mean E(r) over {SIZE * SIZE} lit points: mu_a ")
+    assert text.startswith(f"whole grid, fit of its mean E(r) over {SIZE * SIZE} lit points (n 1.4, g 0): mu_a ")
     # Its numbers are the core's fit, each to the digits its standard error allows, and the truth lies within.
     for name, values, errors, truth in (("mu_a", whole.mua, whole.mua_se, MUA), ("mu_s'", whole.musp, whole.musp_se,
                                                                                 MUSP)):
@@ -263,9 +274,12 @@ def test_cancel_stops_a_region_fit_and_the_maps_job_does_not_hide_it(qtbot, wind
     window.pool.start(blocker)  # both jobs wait, queued, behind it (as in test_cancel_stops_the_maps)
     panel = window.optics_panel
     panel.fit_region_button.click()
+    panel.fit_region_button.click()  # the second supersedes the first, and says so too
+    panel.compute_button.click()
     panel.compute_button.click()
     assert window.optics_region_jobs.busy and window.optics_jobs.busy  # neither cancelled the other
     assert panel.region_fit_label.text() == "whole grid: fitting its mean E(r) ..."
+    assert panel.image_panel.title.toPlainText() == "Fitting mu_a and mu_s' of every pixel ..."
     panel.cancel_button.click()
     assert not window.optics_region_jobs.busy and not window.optics_jobs.busy
     assert not panel.cancel_button.isEnabled() and panel.region_fit_label.text() == ""

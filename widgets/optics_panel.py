@@ -72,7 +72,7 @@ class OpticsPanel(QWidget):
     fit_region_requested()
         Fit the mean E(r) of the region (the Layers tab's, else the whole grid).
     cancel_requested()
-        Stop the computation.
+        Stop the maps' computation and the region fit.
     calibration_requested()
         Choose a calibration file.
     calibration_cleared()

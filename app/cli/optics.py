@@ -32,7 +32,7 @@ def add_arguments(optics) -> None:
     optics.add_argument("dataset", help="dataset folder or its dataset.json")
     optics.add_argument("--out", metavar="MAPS.exr",
                         help="write the maps and their standard errors as EXR channels mua.R ... musp.B_se, "
-                             "determined.R ... and complete (1 where every ring lies whole on the grid)")
+                             "determined.R ... and complete (1 where every ring lies whole on the grid and lit)")
     optics.add_argument("--json", metavar="OUT",
                         help="write the region's values (--roi, default the whole grid) and R_d as JSON")
     optics.add_argument("--mtf", metavar="F1,F2,...", default=None,

@@ -16,7 +16,7 @@ def map_channels(maps: OpticalMaps) -> dict[str, np.ndarray]:
     """The maps as named (H, W) channels: ``mua.R``, ..., ``mua.R_se``, ..., ``musp.B_se`` (per mm
     or per grid step, :attr:`OpticalMaps.units`), ``determined.R`` ... (1 where determined, else
     0) and ``complete`` (1 where every ring lies whole on the grid and lit, 0 where the grid's edge
-    cuts one: a biased fit)."""
+    or an unlit point cuts one: a biased fit)."""
     channels = {}
     for name, values, errors in (("mua", maps.mua, maps.mua_se), ("musp", maps.musp, maps.musp_se)):
         for c, channel in enumerate(maps.channels):
