@@ -47,7 +47,8 @@ class ExportActions:
             self.export_movie(path)
 
     def choose_csv_export(self) -> None:
-        if self.profile is not None and (path := self._save_path("Export profiles as CSV", "profile.csv", "CSV (*.csv)")):
+        if self.profile is not None and (path := self._save_path("Export profiles as CSV", "profile.csv",
+                                                                 "CSV (*.csv)")):
             self.export_csv(path)
 
     def choose_layer_export(self, kind: str) -> None:

@@ -324,7 +324,8 @@ class OpticsView:
         """The fitted model's E(r) at the picked pixel over its measured profile (each channel
         with its own mu_a, mu_s' and scale); nothing without maps or where the fit failed."""
         maps = self.optics
-        if maps is None or self.picked is None or self.loaded is None or self._optics_dataset is not self.loaded.dataset:
+        loaded = self.loaded
+        if maps is None or self.picked is None or loaded is None or self._optics_dataset is not loaded.dataset:
             self.profile_plot.set_model(None)
             return
         y, x = self.picked

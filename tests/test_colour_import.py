@@ -91,7 +91,8 @@ def test_the_table_is_used_only_with_the_colour_science_it_was_made_from(version
     monkeypatch.setattr(colourspaces, "COLOUR_VERSION", installed + ".other")
     colourspaces._table_applies.cache_clear()
     assert not is_known_colourspace("Not colour-science's")  # colour-science asked
-    assert is_known_colourspace("ACEScg") and colourspace_luminance("ACEScg").tolist() == list(COLOURSPACES["ACEScg"][2])
+    assert is_known_colourspace("ACEScg")
+    assert colourspace_luminance("ACEScg").tolist() == list(COLOURSPACES["ACEScg"][2])
 
 
 def test_a_dataset_is_described_stacked_and_weighed_without_importing_colour_science(tmp_path):

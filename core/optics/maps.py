@@ -179,8 +179,8 @@ def ring_errors(dataset: ImpulseDataset, radii: np.ndarray, progress=None) -> tu
     max_radius)."""
     if len(dataset.manifest.replicates) > 1:
         every = np.arange(len(radii))
-        ring, _, _, _ = replicate_spread(dataset, radii, every, every, 1.0, False, luminance_weights(dataset.colorspace),
-                                         progress)
+        ring, _, _, _ = replicate_spread(dataset, radii, every, every, 1.0, False,
+                                         luminance_weights(dataset.colorspace), progress)
         return ring, "replicates"
     noise = stack_noise(dataset, radii[:-1], 1.0, progress=progress)
     last = np.sqrt(np.maximum(noise.transient[-1] ** 2 - noise.ring[-1] ** 2, 0.0))
