@@ -7,6 +7,7 @@ import json
 import re
 
 import numpy as np
+import OpenEXR
 import pytest
 from optics_helpers import TEST_PHOTONS, model_kernel
 from reference import write_dataset
@@ -60,6 +61,12 @@ def test_optics_writes_maps_and_the_regions_values(homogeneous, tmp_path, capsys
     inner = np.zeros(complete.shape, bool)
     inner[5:-5, 5:-5] = True
     np.testing.assert_array_equal(complete, inner.astype(np.float32))
+    # The header says what the numbers mean: units, pitch, n, g, the errors' source and the rig's scale.
+    with OpenEXR.File(str(out)) as exr:
+        header = dict(exr.header())  # the file's own dict is emptied when it closes
+    assert header["ringlight.units"] == "per_mm" and header["ringlight.noise"] == "ring spread"
+    assert header["ringlight.pitch_mm"] == pytest.approx(0.1) and header["ringlight.n"] == pytest.approx(1.4)
+    assert header["ringlight.g"] == 0.0 and header["ringlight.scale"] == "1 1 1"
     result = json.loads(document.read_text())
     assert result["units"] == "per_mm" and result["n"] == 1.4 and result["g"] == 0.0
     assert list(result["R_d"]) == ["0", "0.5", "1."]  # keyed as written, cycles per mm

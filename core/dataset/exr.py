@@ -291,9 +291,11 @@ def read_exr_rgb(path: str | os.PathLike, expected_shape: tuple[int, int] | None
 
 
 def write_exr_channels(
-    path: str | os.PathLike, channels: dict[str, np.ndarray], *, half: bool = False
+    path: str | os.PathLike, channels: dict[str, np.ndarray], *, half: bool = False,
+    attributes: dict[str, str | float] | None = None,
 ) -> None:
-    """Write 2-D arrays as the named channels of a ZIP-compressed scanline EXR.
+    """Write 2-D arrays as the named channels of a ZIP-compressed scanline EXR, with
+    ``attributes`` (str or float values) added to its header.
 
     The file is written in place; callers that need atomicity write into a temporary folder.
     The file is read back and must hold the pixels written: the library reports no failed write
@@ -303,6 +305,7 @@ def write_exr_channels(
     dtype = np.float16 if half else np.float32
     pixels = {name: np.ascontiguousarray(plane, dtype=dtype) for name, plane in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update(attributes or {})
     with OpenEXR.File(header, dict(pixels)) as exr:  # the library turns the dict's arrays into Channels
         exr.write(str(path))
     if not _holds(path, pixels):

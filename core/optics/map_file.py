@@ -28,8 +28,23 @@ def map_channels(maps: OpticalMaps) -> dict[str, np.ndarray]:
     return channels
 
 
+def map_attributes(maps: OpticalMaps) -> dict[str, str | float]:
+    """What the numbers of :func:`map_channels` mean, as EXR header attributes:
+    ``ringlight.units`` (``"per_mm"`` or ``"per_grid_step"``), ``ringlight.pitch_mm`` (with
+    per-mm units), ``ringlight.n``, ``ringlight.g``, ``ringlight.noise`` (where the standard
+    errors of E_r came from) and ``ringlight.scale`` (the rig's scale per channel, ``"R G B"``:
+    1 1 1 without a calibration)."""
+    attributes = {"ringlight.units": maps.units, "ringlight.n": float(maps.n), "ringlight.g": float(maps.g),
+                  "ringlight.noise": maps.noise_source,
+                  "ringlight.scale": " ".join(f"{float(s):.9g}" for s in maps.scale)}
+    if maps.pitch_mm is not None:
+        attributes["ringlight.pitch_mm"] = float(maps.pitch_mm)
+    return attributes
+
+
 def write_maps(maps: OpticalMaps, path: str | os.PathLike, *, overwrite: bool = False) -> None:
-    """Write :func:`map_channels` of ``maps`` to the EXR file ``path`` atomically (an existing
-    ``path`` is replaced only with ``overwrite``: :func:`ringlight.core.atomic.atomic_file`)."""
+    """Write :func:`map_channels` of ``maps`` with :func:`map_attributes` to the EXR file ``path``
+    atomically (an existing ``path`` is replaced only with ``overwrite``:
+    :func:`ringlight.core.atomic.atomic_file`)."""
     with atomic_file(path, overwrite=overwrite) as temporary:
-        write_exr_channels(temporary, map_channels(maps))
+        write_exr_channels(temporary, map_channels(maps), attributes=map_attributes(maps))
