@@ -23,12 +23,21 @@ from ringlight.core.optics import (Calibration, CalibrationError, OpticalMaps, R
 from ringlight.core.optics.maps import sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.table import DEFAULT_PHOTONS
-from ringlight.core.uncertainty_text import with_error
+from ringlight.core.uncertainty_text import with_error, with_errors
 from ringlight.widgets.job_indicator import JobIndicator
 from ringlight.widgets.jobs import JobSlot
 from ringlight.widgets.optics_panel import QUANTITIES, OpticsPanel
 
 UNITS = {"per_mm": "/mm", "per_grid_step": "/grid step"}
+
+
+def trace_on_device(dataset: ImpulseDataset, n: float | None, g: float | None, photons: int, device: Device | None,
+                    progress) -> None:
+    """On a CUDA ``device``, trace the table's white run for ``dataset``'s n and g (or those given)
+    there, into the user cache where the fits find it (as ``ringlight optics --device``); nothing
+    on the CPU, where the fits trace it themselves."""
+    if device is not None and device.is_cuda:
+        radial_run(*sample_optics(dataset, n, g), photons, progress=progress, device=device)
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,9 +57,7 @@ class OpticsRequest:
     device: Device | None = None
 
     def run(self, progress) -> OpticalMaps:
-        if self.device is not None and self.device.is_cuda:
-            radial_run(*sample_optics(self.dataset, self.n, self.g), self.photons, progress=progress,
-                       device=self.device)
+        trace_on_device(self.dataset, self.n, self.g, self.photons, self.device, progress)
         return optical_maps(self.dataset, n=self.n, g=self.g, calibration=self.calibration, progress=progress,
                             cancelled=self.stop.is_set, photons=self.photons)
 
@@ -70,9 +77,7 @@ class RegionRequest:
     device: Device | None = None
 
     def run(self, progress) -> RegionOptics:
-        if self.device is not None and self.device.is_cuda:  # the white run traced there, as for the maps
-            radial_run(*sample_optics(self.dataset, self.n, self.g), self.photons, progress=progress,
-                       device=self.device)
+        trace_on_device(self.dataset, self.n, self.g, self.photons, self.device, progress)
         return region_optics(self.dataset, self.mask, n=self.n, g=self.g, calibration=self.calibration,
                              photons=self.photons, progress=progress)
 
@@ -80,15 +85,12 @@ class RegionRequest:
 def region_fit_text(result: RegionOptics, where: str) -> str:
     """The region fit's values with their standard errors, per channel, its chi-square and the
     channels it did not determine."""
-    unit = UNITS[result.units]
-    mua, musp = (" / ".join(with_error(float(v), float(e)) for v, e in zip(value, error))
-                 for value, error in ((result.mua, result.mua_se), (result.musp, result.musp_se)))
     chi2 = " / ".join(f"{c:.3g}" for c in result.chi2)
-    missing = [name for name, determined in zip(result.channels, result.determined) if not determined]
-    undetermined = f"; not determined in {', '.join(missing)}" if missing else ""
+    missing = f"; not determined in {', '.join(result.undetermined())}" if result.undetermined() else ""
     return (f"{where}, fit of its mean E(r) over {result.points} lit points (n {result.n:g}, g {result.g:g}): mu_a "
-            f"{mua}, mu_s' {musp} {unit} (R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of "
-            f"freedom{undetermined}")
+            f"{with_errors(result.mua, result.mua_se)}, mu_s' {with_errors(result.musp, result.musp_se)} "
+            f"{UNITS[result.units]} (R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of "
+            f"freedom{missing}")
 
 
 def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:
@@ -160,24 +162,27 @@ class OpticsView:
         panel.choice_changed.connect(self._refresh_optics)
         panel.pixel_picked.connect(self.pick)
         panel.pixel_hovered.connect(self._on_optics_hover)
-        self.optics_jobs.started.connect(lambda _: panel.set_busy(True))
-        self.optics_jobs.idle.connect(lambda: panel.set_busy(False, self.optics_region_jobs.busy))
-        self.optics_jobs.progress.connect(panel.set_progress)
+        # The region fit: a slot of its own, so that it neither cancels nor is cancelled by the maps.
+        self.optics_region_jobs = JobSlot(self.pool, self)
+        self.statusBar().addPermanentWidget(JobIndicator(self.optics_region_jobs))
+        for slot in (self.optics_jobs, self.optics_region_jobs):
+            slot.started.connect(lambda _: self._show_optics_busy())
+            slot.idle.connect(self._show_optics_busy)
+            slot.progress.connect(panel.set_progress)
         self.optics_jobs.finished.connect(self._on_optics_ready)
         self.optics_jobs.failed.connect(lambda message: self.show_error("Could not compute the optical maps", message))
         self.optics_jobs.cancelled.connect(lambda: panel.set_map(None, title="Cancelled: Compute maps to start again"))
         self.dataset_loaded.connect(self._forget_optics)
         self.layer_tab.region_changed.connect(self._refresh_optics_region)
-        # The region fit: a slot of its own, so that it neither cancels nor is cancelled by the maps.
-        self.optics_region_jobs = JobSlot(self.pool, self)
         panel.fit_region_requested.connect(self.fit_optics_region)
-        self.optics_region_jobs.started.connect(lambda _: panel.cancel_button.setEnabled(True))
-        self.optics_region_jobs.idle.connect(lambda: panel.set_busy(self.optics_jobs.busy))
-        self.optics_region_jobs.progress.connect(panel.set_progress)
         self.optics_region_jobs.finished.connect(lambda result: panel.set_region_fit(region_fit_text(*result)))
         self.optics_region_jobs.failed.connect(self._on_region_fit_failed)
         self.optics_region_jobs.cancelled.connect(lambda: panel.set_region_fit(""))
         self.layer_tab.region_changed.connect(self._forget_region_fit)
+
+    def _show_optics_busy(self) -> None:
+        """Cancel offered while the maps or the region fit run; the progress bar from 0."""
+        self.optics_panel.set_busy(self.optics_jobs.busy or self.optics_region_jobs.busy)
 
     def _show_optics(self) -> None:
         self.analysis_tabs.setCurrentWidget(self.optics_panel)
@@ -220,10 +225,8 @@ class OpticsView:
         if (sample := self._typed_sample("Could not fit the region")) is None:
             return
         n, g = sample
-        region = self.layer_tab.region
-        whole = region.shape != self.loaded.dataset.grid_shape or region.all()
-        where = "whole grid" if whole else "Layers region"
-        request = RegionRequest(self.loaded.dataset, None if whole else region.copy(), self.optics_calibration,
+        mask, where = self._optics_region(self.loaded.dataset.grid_shape)
+        request = RegionRequest(self.loaded.dataset, None if mask is None else mask.copy(), self.optics_calibration,
                                 self.optics_photons, n, g, self.compute_device())
         # Started first: starting cancels a fit running there, whose cancel clears the line.
         self.optics_region_jobs.start("Region fit", lambda progress: (request.run(progress), where))
@@ -309,11 +312,17 @@ class OpticsView:
     def _refresh_optics_region(self) -> None:
         if self.optics is None:
             return
-        region = self.layer_tab.region
-        whole = region.shape != self.optics.mua.shape[:2] or region.all()
+        mask, where = self._optics_region(self.optics.mua.shape[:2])
         self.optics_panel.set_region(region_text(self.optics, self.optics_panel.quantity(),
-                                                 self.optics_panel.channel(), None if whole else region,
-                                                 "whole grid" if whole else "Layers region"))
+                                                 self.optics_panel.channel(), mask, where))
+
+    def _optics_region(self, shape: tuple[int, int]) -> tuple[np.ndarray | None, str]:
+        """The Layers tab's region as a (H, W) mask of a grid of ``shape`` and its name; (None,
+        "whole grid") when it holds every pixel or belongs to another grid."""
+        region = self.layer_tab.region
+        if region.shape != shape or region.all():
+            return None, "whole grid"
+        return region, "Layers region"
 
     def _on_optics_hover(self, y: int, x: int) -> None:
         self._optics_hovered = (y, x)

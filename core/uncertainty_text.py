@@ -36,3 +36,9 @@ def with_error(value: float, error: float | None) -> str:
     scale = 10.0 ** exponent
     decimals = max(0, exponent - last)
     return f"({value / scale + 0.0:.{decimals}f}±{error / scale:.{decimals}f})e{exponent:+03d}"
+
+
+def with_errors(values, errors, separator: str = " / ") -> str:
+    """Each of ``values`` with its standard error (:func:`with_error`), joined by ``separator``:
+    ``0.03228±0.00017 / 0.1709±0.0003 / 0.4794±0.0006`` for three channels."""
+    return separator.join(with_error(float(value), float(error)) for value, error in zip(values, errors))

@@ -203,10 +203,10 @@ class OpticsPanel(QWidget):
                 raise ValueError(f"{name} must be a number, got {text!r}") from None
         return values[0], values[1]
 
-    def set_busy(self, busy: bool, other_busy: bool = False) -> None:
-        """The maps' computation runs or not; Cancel is offered while it or ``other_busy`` (the
-        region fit) runs."""
-        self.cancel_button.setEnabled(busy or other_busy)
+    def set_busy(self, busy: bool) -> None:
+        """A computation runs (the maps or the region fit: Cancel offered) or not; the progress bar
+        starts again from 0."""
+        self.cancel_button.setEnabled(busy)
         self.progress_bar.setValue(0)
 
     def set_progress(self, fraction: float) -> None:
@@ -219,7 +219,7 @@ class OpticsPanel(QWidget):
                 title: str = "", whole: np.ndarray | None = None) -> None:
         """Show the (H, W) map ``values`` with a colour bar titled ``label``; None: no map, ``title``
         says why. Pixels not ``determined``, or not ``whole`` (H, W) (their rings cut by the grid's
-        edge: biased fits), are dimmed, and the levels are those of the others where there are any
+        edge or by unlit points: biased fits), are dimmed, and the levels are those of the others where there are any
         (an edge's biased pixels would otherwise set the colours of a nearly uniform map)."""
         self.export_button.setEnabled(values is not None)
         if values is None:

@@ -22,7 +22,7 @@ from ringlight.core.optics.maps import optical_maps, sample_optics
 from ringlight.core.optics.radial import radial_run
 from ringlight.core.optics.region import RegionOptics, region_optics
 from ringlight.core.optics.table import DEFAULT_PHOTONS, PHOTON_RANGE, check_photons
-from ringlight.core.uncertainty_text import with_error
+from ringlight.core.uncertainty_text import with_errors
 
 from .progress import progress_bar
 
@@ -143,8 +143,9 @@ def run_optics(args) -> int:
         write_text(args.json, json.dumps(region_document(result, frequencies_text, args.roi), indent=1) + "\n",
                    overwrite=args.force)
         units = result.units.replace("_", " ")
-        print(f"region: mua {_with_errors(result.mua, result.mua_se)}, musp "
-              f"{_with_errors(result.musp, result.musp_se)} {units} (R / G / B, ±1 SE){_undetermined(result)}")
+        missing = f"; not determined in {', '.join(result.undetermined())}" if result.undetermined() else ""
+        print(f"region: mua {with_errors(result.mua, result.mua_se)}, musp {with_errors(result.musp, result.musp_se)} "
+              f"{units} (R / G / B, ±1 SE){missing}")
         print(f"wrote {args.json}")
     return 0
 
@@ -171,13 +172,3 @@ def region_document(result: RegionOptics, frequencies_text: list[str], roi: str 
 def _number(value: float):
     return value if math.isfinite(value) else None
 
-
-def _with_errors(values, errors) -> str:
-    """``0.03228±0.00017 / 0.1709±0.0003 / ...``: each channel's value with its standard error."""
-    return " / ".join(with_error(float(v), float(e)) for v, e in zip(values, errors))
-
-
-def _undetermined(result: RegionOptics) -> str:
-    """``"; not determined in B"`` naming the channels whose fit is not determined, else ``""``."""
-    names = [name for name, determined in zip(result.channels, result.determined) if not determined]
-    return f"; not determined in {', '.join(names)}" if names else ""

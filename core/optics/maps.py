@@ -22,9 +22,9 @@ in one process on a two-core machine at load 4.5-8, CPU time): the map beyond th
 median over a run's rounds, 0.70-1.19 x the stack in eight runs (1.64-2.06 x for the two passes
 before, run alternately with three of them); the node fits 0.25-0.29 us each.
 
-A pixel whose rings are cut by the grid's edge (or by unlit points) is fitted with the whole rings' model and flagged
-(:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut ring's members are a biased
-subset of distances. A pixel's values are those of the medium its rings see: across an edge
+A pixel whose rings are cut by the grid's edge (or by unlit points) is fitted with the whole
+rings' model and flagged (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut
+ring's members are a biased subset of distances. A pixel's values are those of the medium its rings see: across an edge
 between two materials they come within 1 % (mu_s') and 3 % (mu_a) of each material's own at
 about max_radius from the edge, and mu_s' steps from 10 % to 90 % within 3 grid steps
 (``tools/evaluate_optics.py --scenes``, max_radius 8).

@@ -68,6 +68,10 @@ class RegionOptics:
     points: int
     layers: object = None
 
+    def undetermined(self) -> list[str]:
+        """The names of the channels whose fit is not determined."""
+        return [name for name, determined in zip(self.channels, self.determined) if not determined]
+
 
 def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n: float | None = None,
                   g: float | None = None, calibration=None, layers: int = 1, frequencies=(0.0,),
