@@ -9,7 +9,7 @@ response, max_radius 8), after the yardstick, the stack's own kernel on the same
   - the stack's sums (``_ring_sums``, as ``ring_stack`` runs it: its parallel loop's launch included);
   - the chunk's rings and their standard errors from the responses
     (:func:`~ringlight.core.rings.stack_spread.spread_row`);
-  - its node fits, 3 channels (:func:`~ringlight.core.optics.node_fit.node_fit_row`): the rings'
+  - its node fits, 3 channels (:func:`~ringlight.core.optics.chunk_fit.node_fit_chunk`): the rings'
     weights and the Gauss-Newton steps together;
 each called REPEATS times in a compiled loop per trial, one thread. A trial interrupted by other work
 only takes longer, so the minimum over TRIALS trials is printed (with the median), in ns a pixel
@@ -28,8 +28,8 @@ import numpy as np
 from bench_optics import model_kernel
 
 from ringlight.core.optics.maps import MODEL_FLOOR, error_freedom, t_inflation
-from ringlight.core.optics.node_fit import fine_nodes, node_fit_row
-from ringlight.core.optics.one_pass import CHUNK
+from ringlight.core.optics.chunk_fit import CHUNK, chunk_scratch, node_fit_chunk
+from ringlight.core.optics.node_fit import fine_nodes
 from ringlight.core.optics.pixel_fit import coarse_nodes, fit_outputs
 from ringlight.core.optics.synthetic import homogeneous_dataset
 from ringlight.core.optics.table import table_for
@@ -57,13 +57,14 @@ def spread_chunk_repeatedly(repeats, pixels, lit, dy, dx, first, stop, groups, r
 
 @numba.njit
 def fit_chunk_repeatedly(repeats, start, nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv,
-                         images, errors, scale, counts, floor, inflation, out):
-    """``node_fit_row`` of the chunk ``repeats`` times, each from the same ``start`` (C, 2)."""
+                         lanes, lane_errors, scale, counts, floor, inflation, out):
+    """``node_fit_chunk`` of the chunk ``repeats`` times, each from the same ``start`` (C, 2)."""
     u, v, cuu, cuv, cvv, chi2, rings, status, steps = out
+    scratch = chunk_scratch(3, lanes.shape[1])
     for _ in range(repeats):
-        node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, images, errors,
-                     scale, True, counts, floor, inflation, 0, 0, 0, start.copy(), u, v, cuu, cuv, cvv, chi2, rings,
-                     status, steps)
+        node_fit_chunk(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, lanes,
+                       lane_errors, CHUNK, scale, True, counts, floor, inflation, 0, 0, start.copy(), u, v, cuu, cuv,
+                       cvv, chi2, rings, status, steps, scratch)
 
 
 def fastest(trials: int, repeats: int, call) -> np.ndarray:
@@ -90,13 +91,15 @@ def main() -> None:
     row = np.ascontiguousarray(dataset.rows(ROW, ROW + 1)).reshape(1, dataset.grid_shape[1], -1)
     pixels = row[0, FIRST:FIRST + CHUNK]
     counts = np.ascontiguousarray(band_members(dataset, rings, ROW, ROW + 1)[:, :, FIRST:FIRST + CHUNK])
-    images = np.empty((len(radii), 1, CHUNK, 3), np.float32)
-    errors = np.empty((len(radii), 1, CHUNK, 3), np.float32)
-    spread = (pixels, *rings.kernel_arguments, counts[:, 0], images[:, 0], errors[:, 0])
+    # The pass's scratch: the rings channel by channel, (3, R, CHUNK), written through (R, CHUNK, 3) views.
+    lanes = np.empty((3, len(radii), CHUNK), np.float32)
+    lane_errors = np.empty((3, len(radii), CHUNK), np.float32)
+    images = lanes.transpose(1, 2, 0)
+    spread = (pixels, *rings.kernel_arguments, counts[:, 0], images, lane_errors.transpose(1, 2, 0))
     spread_chunk_repeatedly(1, *spread)
     out = fit_outputs(1, CHUNK, 3)
     fits = (*fine_nodes(table), table.log_profile, coarse_nodes(table.log_profile), table.u0, table.du, table.v0,
-            table.dv, images, errors, np.ones(3), counts, float(MODEL_FLOOR), inflation,
+            table.dv, lanes, lane_errors, np.ones(3), counts, float(MODEL_FLOOR), inflation,
             tuple(out[name] for name in ("u", "v", "cuu", "cuv", "cvv", "chi2", "rings", "status", "node_steps")))
     # Each channel starts where a fit of the chunk's first pixel ends, as a row's fits do after its first.
     fit_chunk_repeatedly(1, np.full((3, 2), np.nan), *fits)
@@ -109,9 +112,9 @@ def main() -> None:
                                    ROW, ROW + 1)
     window = slice(FIRST, FIRST + CHUNK)
     stack = (chunk, *rings.tables, rings.unweighted, np.ascontiguousarray(members[:, :, window]),
-             np.ascontiguousarray(totals[:, :, window]), np.empty_like(images))
+             np.ascontiguousarray(totals[:, :, window]), np.empty((len(radii), 1, CHUNK, 3), np.float32))
     stack_chunk_repeatedly(1, *stack)
-    assert np.allclose(stack[-1], images, rtol=1e-6, atol=0.0)  # the same rings as the pass's
+    assert np.allclose(stack[-1][:, 0], images, rtol=1e-6, atol=0.0)  # the same rings as the pass's
     halves = {"the stack's sums": lambda repeats: stack_chunk_repeatedly(repeats, *stack),
               "rings and errors": lambda repeats: spread_chunk_repeatedly(repeats, *spread),
               "node fits": lambda repeats: fit_chunk_repeatedly(repeats, start, *fits)}

@@ -7,7 +7,8 @@ mua 0.01 per grid step, 3 % noise on every response value, max_radius MAX_RADIUS
     computed from, the yardstick);
   - the map's pass (:func:`ringlight.core.optics.one_pass.fit_in_one_pass`, what ``optical_maps``
     runs): 64 pixels of a row at a time, their rings and standard errors (the members' spread),
-    then their fits (Gauss-Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`);
+    then their fits (Gauss-Newton steps from a fine table's nodes, :mod:`ringlight.core.optics.node_fit`,
+    the chunk's pixels as the lanes of vectorised loops, :mod:`ringlight.core.optics.chunk_fit`);
   - for comparison, the same in two passes as the maps took it before: the stack and its standard
     errors over the whole grid (``ring_stack_and_errors``), then the per-pixel fits of every pixel
     and channel (``fit_profiles`` on the cached table, each fit making its rings' standard

@@ -18,7 +18,7 @@ from ringlight.core.rings.stack_spread import ring_stack_and_errors
 @pytest.fixture(scope="module")
 def dataset():
     run = radial.radial_run(1.4, 0.0, TEST_PHOTONS, seed=0)
-    # Wider than a chunk (one_pass.CHUNK, 64 pixels): fits carry their start across chunks, and the
+    # Wider than a chunk (chunk_fit.CHUNK, 64 pixels): fits carry their start across chunks, and the
     # rings cut by the right edge are checked member by member in the second chunk.
     dataset = model_dataset(run, 0.5, 0.02, 70, 6, noise=np.full(7, 0.03), seed=4)
     observed = dataset.observed.copy()

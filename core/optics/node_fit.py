@@ -4,8 +4,8 @@ with no spline look-up and no exponential per fit.
 The look-up table (:mod:`.table`) is evaluated once, by its own splines, on a grid
 :data:`REFINE` times finer in ``u = log mus`` and ``v = log (mua / mus)`` (:func:`fine_nodes`:
 the model E, its Jacobian dE/d(u, v) and its Hessian at each node, cached with the table). A fit
-takes the node nearest its start (the previous fit's minimum in the row: neighbours are alike) and
-one Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring weights::
+takes the node nearest its start (where the row's previous fits ended, :mod:`.chunk_fit`: neighbours
+are alike) and one Gauss-Newton step from the node's model and Jacobian, with the pixel's own ring weights::
 
     theta = node + A^-1 b,   A = J^T W J,   b = J^T W (E - model)   (at the node)
 
@@ -29,9 +29,9 @@ Taylor expansion about the start node itself, whose values are known before the 
 was faster still (93 ns) but 4 times less exact (0.012 of a standard error; standard errors up to
 1.4 % off the full fit's at 5 % noise per ring).
 
-A fit whose steps do not settle, that nears the table's edge, or that has no start (a row's first
-fit, or after a pixel without data) is the full Levenberg-Marquardt fit of :mod:`.pixel_fit` (from
-its coarse search), whose minimum starts the next.
+A fit whose steps do not settle, that nears the table's edge, or that has no start (a row's first)
+is the full Levenberg-Marquardt fit of :mod:`.pixel_fit` (from its coarse search). The fits of a
+chunk of a row run together, its pixels as the lanes of vectorised loops (:mod:`.chunk_fit`).
 """
 
 from __future__ import annotations
@@ -42,8 +42,6 @@ import weakref
 import numba
 import numpy as np
 
-from .pixel_data import pixel_profile, row_scratch, write_fit
-from .pixel_fit import CONVERGED, MIN_RINGS, NO_DATA, fit_one_profile
 from .table import ProfileTable, catmull_rom
 
 REFINE = (4, 4)
@@ -126,20 +124,6 @@ def _fill_nodes(log_profile, fine_u, fine_v, du, dv, nodes):
                 nodes[i, j, 2, r] = model * slope_v / dv
 
 
-@numba.njit(parallel=True, cache=True, nogil=True)
-def node_fit_rows(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
-                  scale, errors_given, counts, floor, inflation, row0, row1, u_out, v_out, cuu, cuv, cvv, chi2_out,
-                  rings_out, status, steps):
-    """The node fits of grid rows ``row0 .. row1`` into the (H, W, C) outputs (as
-    :func:`.pixel_fit.fit_profiles` fills them), and ``steps`` (H, W, C) int8: the nodes each fit
-    stepped from (0: the full fit's)."""
-    for y in numba.prange(row0, row1):
-        starts = np.full((measured.shape[3], 2), np.nan)
-        node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured,
-                     sigma, scale, errors_given, counts, floor, inflation, y, y, 0, starts, u_out, v_out, cuu, cuv, cvv,
-                     chi2_out, rings_out, status, steps)
-
-
 @numba.njit(parallel=True, cache=True)
 def _fill_hessians(model, step_u, step_v, nodes):
     """``nodes`` (K', J', 6, R): the fine nodes' ``model`` (E, dE/du, dE/dv) and the Hessian of E
@@ -166,98 +150,62 @@ def _fill_hessians(model, step_u, step_v, nodes):
 # 0.42 -> 0.24 us a fit, within 5e-13 of a standard error of the strict order's (no nnan / ninf:
 # the fits test for NaN). The full fit it falls back on keeps the strict order by its own flags.
 @numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "arcp", "nsz"})
-def node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, measured, sigma,
-                 scale, errors_given, counts, floor, inflation, source, y, x0, starts, u_out, v_out, cuu, cuv, cvv,
-                 chi2_out, rings_out, status, steps):
-    """The fits of row ``y``'s pixels from column ``x0``, every channel, pixel after pixel, of the
-    profiles in row ``source`` of ``measured``, ``sigma`` and ``counts`` (the grid's row, or the
-    pixels just stacked, :mod:`.one_pass`; their column 0 is the grid's ``x0``). ``starts`` (C, 2)
-    holds each channel's start (u, v), NaN for none, and on return the start of the pixel after
-    these. Every output of every pixel and channel is written (NaN values where there is no data),
-    so the outputs need no fill beforehand. A function of its own outside the parallel loop, as
-    :func:`.pixel_fit._fit_row` is, for the same numba trap."""
-    width = measured.shape[2]
-    channels = measured.shape[3]
-    rings = measured.shape[0]
-    result, variance, data, weight, values, slopes = row_scratch(rings)
+def node_steps(nodes, node_u0, node_du, node_v0, node_dv, data, weight, c, x, scale, u, v, first, fitted):
+    """The node fit of pixel ``x``, channel ``c`` of ``data`` and ``weight`` (C, N, R) from the start
+    (``u``, ``v``): node steps until one lands within a node of the node it started from, then the
+    step at theta (module docstring); ``first`` steps were taken before (where the previous one
+    landed, 0 or 1). Returns the node steps taken (0: none settled, the fit is the full fit's), and
+    where they settle fills ``fitted`` (6,) with u, v, Cuu, Cuv, Cvv and chi2."""
     last_k = nodes.shape[0] - 1
     last_j = nodes.shape[1] - 1
-    for c in range(channels):
-        start_u = starts[c, 0]
-        start_v = starts[c, 1]
-        model_scale = scale[c]
-        for column in range(width):
-            x = x0 + column
-            count = pixel_profile(measured, sigma, errors_given, counts, inflation, floor, source, column, c, variance,
-                                  data, weight)
-            rings_out[y, x, c] = count
-            if count < MIN_RINGS:
-                status[y, x, c] = NO_DATA
-                steps[y, x, c] = 0
-                result[:6] = math.nan
-                write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
-                start_u = math.nan
-                continue
-            settled = False
-            u = start_u
-            v = start_v
-            if math.isfinite(u):
-                # Node indices are kept two from the fine grid's ends: a fit that nears them is the
-                # full fit's (whose status says whether its minimum is at the table's edge).
-                k = int(round((u - node_u0) / node_du))
-                j = int(round((v - node_v0) / node_dv))
-                for step in range(NODE_STEPS):
-                    if k < 2 or j < 2 or k > last_k - 2 or j > last_j - 2:
-                        break
-                    sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-                    for r in range(rings):
-                        sums = _add_ring(sums, weight[r], model_scale * nodes[k, j, 1, r],
-                                         model_scale * nodes[k, j, 2, r], data[r] - model_scale * nodes[k, j, 0, r])
-                    a_uu, a_uv, a_vv, b_u, b_v, _ = sums
-                    determinant, step_u, step_v = _normal_step(a_uu, a_uv, a_vv, b_u, b_v)
-                    if not determinant > 0.0:
-                        break
-                    u = node_u0 + k * node_du + step_u
-                    v = node_v0 + j * node_dv + step_v
-                    next_k = int(round((u - node_u0) / node_du))
-                    next_j = int(round((v - node_v0) / node_dv))
-                    if abs(next_k - k) <= 1 and abs(next_j - j) <= 1:
-                        a_uu, a_uv, a_vv, b_u, b_v, chi2 = _step_at(nodes, next_k, next_j,
-                                                                     u - (node_u0 + next_k * node_du),
-                                                                     v - (node_v0 + next_j * node_dv), data,
-                                                                     weight, model_scale)
-                        determinant, step_u, step_v = _normal_step(a_uu, a_uv, a_vv, b_u, b_v)
-                        if not determinant > 0.0:
-                            break
-                        u += step_u
-                        v += step_v
-                        u_out[y, x, c] = u
-                        v_out[y, x, c] = v
-                        chi2_out[y, x, c] = max(chi2 - (step_u * b_u + step_v * b_v), 0.0)
-                        cuu[y, x, c] = a_vv / determinant
-                        cuv[y, x, c] = -a_uv / determinant
-                        cvv[y, x, c] = a_uu / determinant
-                        status[y, x, c] = CONVERGED
-                        steps[y, x, c] = step + 1
-                        settled = True
-                        break
-                    k, j = next_k, next_j
-            if settled:
-                start_u, start_v = u, v
-                continue
-            fit_one_profile(log_profile, coarse, u0, du, v0, dv, data, weight, model_scale, result, values, slopes)
-            status[y, x, c] = int(result[7])
-            steps[y, x, c] = 0
-            write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
-            # The next fit starts from this minimum; from the coarse search where there is none.
-            start_u = result[0] if int(result[7]) == CONVERGED else math.nan
-            start_v = result[1]
-        starts[c, 0] = start_u
-        starts[c, 1] = start_v
+    # Node indices are kept two from the fine grid's ends: a fit that nears them is the full fit's
+    # (whose status says whether its minimum is at the table's edge).
+    k = int(round((u - node_u0) / node_du))
+    j = int(round((v - node_v0) / node_dv))
+    for step in range(first, NODE_STEPS):
+        if k < 2 or j < 2 or k > last_k - 2 or j > last_j - 2:
+            return 0
+        sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        for r in range(data.shape[2]):
+            sums = _add_ring(sums, weight[c, x, r], scale * nodes[k, j, 1, r], scale * nodes[k, j, 2, r],
+                             data[c, x, r] - scale * nodes[k, j, 0, r])
+        a_uu, a_uv, a_vv, b_u, b_v, _ = sums
+        determinant, step_u, step_v = normal_step(a_uu, a_uv, a_vv, b_u, b_v)
+        if not determinant > 0.0:
+            return 0
+        u = node_u0 + k * node_du + step_u
+        v = node_v0 + j * node_dv + step_v
+        next_k = int(round((u - node_u0) / node_du))
+        next_j = int(round((v - node_v0) / node_dv))
+        if abs(next_k - k) <= 1 and abs(next_j - j) <= 1:
+            return step + 1 if step_at_theta(nodes, node_u0, node_du, node_v0, node_dv, next_k, next_j, u, v, data,
+                                             weight, c, x, scale, fitted) else 0
+        k, j = next_k, next_j
+    return 0
 
 
 @numba.njit(cache=True, inline="always")
-def _normal_step(a_uu, a_uv, a_vv, b_u, b_v):
+def step_at_theta(nodes, node_u0, node_du, node_v0, node_dv, k, j, u, v, data, weight, c, x, scale, fitted):
+    """The last Gauss-Newton step, at theta = (``u``, ``v``) from node (``k``, ``j``) nearest it
+    (:func:`_step_at`), of pixel ``x``, channel ``c`` of ``data`` and ``weight`` (C, N, R): fills
+    ``fitted`` (6,) with u, v, Cuu, Cuv, Cvv and chi2 and returns True, or False where the
+    normal equations there are singular."""
+    a_uu, a_uv, a_vv, b_u, b_v, chi2 = _step_at(nodes, k, j, u - (node_u0 + k * node_du), v - (node_v0 + j * node_dv),
+                                                 data, weight, c, x, scale)
+    determinant, step_u, step_v = normal_step(a_uu, a_uv, a_vv, b_u, b_v)
+    if not determinant > 0.0:
+        return False
+    fitted[0] = u + step_u
+    fitted[1] = v + step_v
+    fitted[2] = a_vv / determinant
+    fitted[3] = -a_uv / determinant
+    fitted[4] = a_uu / determinant
+    fitted[5] = max(chi2 - (step_u * b_u + step_v * b_v), 0.0)
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def normal_step(a_uu, a_uv, a_vv, b_u, b_v):
     """``(det A, step_u, step_v)``: the Gauss-Newton step ``A^-1 b`` of the 2 x 2 normal equations
     ``A = [[a_uu, a_uv], [a_uv, a_vv]]``, ``b = (b_u, b_v)``; the step is meaningless unless
     ``det A > 0``."""
@@ -266,20 +214,20 @@ def _normal_step(a_uu, a_uv, a_vv, b_u, b_v):
 
 
 @numba.njit(cache=True, inline="always")
-def _step_at(nodes, k, j, step_u, step_v, data, weight, scale):
+def _step_at(nodes, k, j, step_u, step_v, data, weight, c, x, scale):
     """``(A_uu, A_uv, A_vv, b_u, b_v, chi2)`` at theta, offset ``step`` (u, v) from node (``k``,
-    ``j``): the Jacobian there the node's plus its Hessian times the offset, the model there the
-    node's plus the offset times the mean of the two Jacobians (the trapezoid rule: exact to second
-    order, where the node's tangent alone left errors of 6 d^2 in u, 0.16 of a standard error at
-    1 % noise)."""
+    ``j``), of pixel ``x``, channel ``c`` of ``data`` and ``weight`` (C, N, R): the Jacobian there
+    the node's plus its Hessian times the offset, the model there the node's plus the offset times
+    the mean of the two Jacobians (the trapezoid rule: exact to second order, where the node's
+    tangent alone left errors of 6 d^2 in u, 0.16 of a standard error at 1 % noise)."""
     sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    for r in range(weight.shape[0]):
+    for r in range(weight.shape[2]):
         node_u = nodes[k, j, 1, r]
         node_v = nodes[k, j, 2, r]
         j_u = node_u + nodes[k, j, 3, r] * step_u + nodes[k, j, 4, r] * step_v
         j_v = node_v + nodes[k, j, 4, r] * step_u + nodes[k, j, 5, r] * step_v
         model = scale * (nodes[k, j, 0, r] + 0.5 * ((node_u + j_u) * step_u + (node_v + j_v) * step_v))
-        sums = _add_ring(sums, weight[r], scale * j_u, scale * j_v, data[r] - model)
+        sums = _add_ring(sums, weight[c, x, r], scale * j_u, scale * j_v, data[c, x, r] - model)
     return sums
 
 

@@ -1,11 +1,12 @@
-"""The maps' fits inside the stack's pass: :data:`CHUNK` pixels of a grid row at a time, their
-rings and their spread (:func:`ringlight.core.rings.stack_spread.spread_row`), then at once those
-pixels' node fits (:func:`.node_fit.node_fit_row`) while their profiles are in the core's cache.
+"""The maps' fits inside the stack's pass: :data:`.chunk_fit.CHUNK` pixels of a grid row at a time,
+their rings and their spread (:func:`ringlight.core.rings.stack_spread.spread_row`), then at once
+those pixels' node fits (:func:`.chunk_fit.node_fit_chunk`) while their profiles are in the core's
+cache.
 
 The fits read the same float32 E_r and SE(E_r) as :func:`.pixel_fit.fit_profiles` reads from
 :func:`ringlight.core.rings.stack_spread.ring_stack_and_errors`, by the same compiled code, so the
 maps equal theirs but for the order in which the compiler sums (within 1e-9 of a standard error,
-``tests/test_optics_one_pass.py``; 4e-13 on the benchmark's map). What this saves is the
+``tests/test_optics_one_pass.py``). What this saves is the
 (R, H, W, 3) images and errors written to memory and read back by the fits (two 61 MB arrays at
 800 x 800, 8 rings), read by the fits across R planes per pixel.
 """
@@ -19,13 +20,10 @@ from ..dataset.impulse_dataset import ImpulseDataset
 from ..errors import Cancelled
 from ..kernel_cache import is_cached
 from ..rings.stack_spread import band_members, spread_rings, spread_row
-from .node_fit import fine_nodes, node_fit_row
+from .chunk_fit import CHUNK, chunk_scratch, node_fit_chunk
+from .node_fit import fine_nodes
 from .pixel_fit import coarse_nodes, fit_outputs
 from .table import ProfileTable
-
-CHUNK = 64
-"""Pixels of a row stacked, then fitted, at a time: their profiles and errors (8 rings: 12 KB)
-stay in the core's first-level cache between the two."""
 
 
 def fit_in_one_pass(dataset: ImpulseDataset, radii: np.ndarray, table: ProfileTable, scale: np.ndarray,
@@ -112,17 +110,20 @@ def _stack_fit_rows(responses, row0, lit, dy, dx, first, stop, groups, ring_grou
 def _stack_fit_row(pixels, py, lit, dy, dx, first, stop, groups, ring_groups, counts, nodes, node_u0, node_du, node_v0,
                    node_dv, log_profile, coarse, u0, du, v0, dv, scale, floor, inflation, u_out, v_out, cuu, cuv, cvv,
                    chi2_out, rings_out, status, steps):
-    """Grid row ``py``, :data:`CHUNK` pixels at a time: their rings into a (R, 1, CHUNK, 3) scratch,
-    then their fits (a function of its own outside the parallel loop: :func:`.node_fit.node_fit_row`'s
-    numba trap)."""
+    """Grid row ``py``, :data:`.chunk_fit.CHUNK` pixels at a time: their rings and errors into a
+    (3, R, CHUNK) scratch, channel by channel (as :func:`.chunk_fit.node_fit_chunk` reads them), then
+    their fits (a function of its own outside the parallel loop: numba's trap, :mod:`.chunk_fit`)."""
     rings, width = first.size, pixels.shape[0]
-    images = np.empty((rings, 1, CHUNK, 3), np.float32)
-    errors = np.empty((rings, 1, CHUNK, 3), np.float32)
-    starts = np.full((3, 2), np.nan)  # each channel's fit starts where its last ended
+    lanes = np.zeros((3, rings, CHUNK), np.float32)
+    lane_errors = np.zeros((3, rings, CHUNK), np.float32)
+    images = lanes.transpose(1, 2, 0)  # (R, CHUNK, 3): the same memory as spread_row writes it
+    errors = lane_errors.transpose(1, 2, 0)
+    scratch = chunk_scratch(3, rings)
+    starts = np.full((3, 2), np.nan)  # each channel's fits start where the last chunk's ended
     for x0 in range(0, width, CHUNK):
         x1 = min(width, x0 + CHUNK)
         spread_row(pixels[x0:x1], py, x0, lit, dy, dx, first, stop, groups, ring_groups, counts[:, 0, x0:x1],
-                   images[:, 0, :x1 - x0], errors[:, 0, :x1 - x0])
-        node_fit_row(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv,
-                     images[:, :, :x1 - x0], errors[:, :, :x1 - x0], scale, True, counts[:, :, x0:x1], floor,
-                     inflation, 0, py, x0, starts, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status, steps)
+                   images[:, :x1 - x0], errors[:, :x1 - x0])
+        node_fit_chunk(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0, dv, lanes,
+                       lane_errors, x1 - x0, scale, True, counts[:, :, x0:x1], floor, inflation, py, x0, starts, u_out,
+                       v_out, cuu, cuv, cvv, chi2_out, rings_out, status, steps, scratch)

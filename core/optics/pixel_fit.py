@@ -77,7 +77,8 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
     maps' estimator), the full fit where those steps do not settle.
     """
     from ..errors import Cancelled
-    from .node_fit import fine_nodes, node_fit_rows
+    from .chunk_fit import node_fit_rows
+    from .node_fit import fine_nodes
 
     if estimator not in ("full", "nodes"):
         raise ValueError(f"estimator must be 'full' or 'nodes', not {estimator!r}")
@@ -114,7 +115,7 @@ def fits_compiled(estimator: str = "nodes") -> bool:
     """Whether numba's cache holds the kernel :func:`fit_profiles` runs for ``estimator`` (false
     on a first run after an install or an update, when it compiles: about 20 s on two cores)."""
     if estimator == "nodes":
-        from .node_fit import node_fit_rows
+        from .chunk_fit import node_fit_rows
 
         return is_cached(node_fit_rows)
     return is_cached(_fit_rows)
