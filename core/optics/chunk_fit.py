@@ -42,13 +42,15 @@ def chunk_scratch(channels, rings):
     lane (C, R, CHUNK) and pixel by pixel (C, CHUNK, R), the rings ``used`` and ``irregular`` (C,
     CHUNK), the first step's sums (5, CHUNK), its landing (u, v, settled) (3, CHUNK) and nodes (2,
     CHUNK), one fit's result (6,), and one pixel's scratch for :func:`.pixel_data.pixel_profile`
-    and the full fit: ``result`` (10,), ``variance``, ``data``, ``weight``, ``values`` (R,) and
-    ``slopes`` (2, R)."""
+    and the full fit: ``result`` (10,), ``variance``, ``data``, ``weight``, ``values`` (R,),
+    ``slopes`` (2, R), and the pixel's E, errors (R, 1, 1, C) and members (R, 1, 1)."""
     return (np.empty((channels, rings, CHUNK)), np.empty((channels, rings, CHUNK)),
             np.empty((channels, CHUNK, rings)), np.empty((channels, CHUNK, rings)),
             np.empty((channels, CHUNK), np.int64), np.empty((channels, CHUNK), np.int64), np.empty((5, CHUNK)),
             np.empty((3, CHUNK)), np.empty((2, CHUNK), np.int64), np.empty(6),
-            (np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings), np.empty((2, rings))))
+            (np.empty(10), np.empty(rings), np.empty(rings), np.empty(rings), np.empty(rings), np.empty((2, rings)),
+             np.empty((rings, 1, 1, channels), np.float32), np.empty((rings, 1, 1, channels), np.float32),
+             np.empty((rings, 1, 1), np.int64)))
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -207,19 +209,24 @@ def _fit_alone(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u
     (``start_u``, ``start_v``), node step ``first`` on: its rings' weights by
     :func:`.pixel_data.pixel_profile` where they are irregular, node steps, else the full fit.
     Returns the next fit's start: this fit's minimum, or NaN where it did not converge."""
-    result, variance, one_data, one_weight, values, slopes = profile
+    result, variance, one_data, one_weight, values, slopes, pixel, pixel_errors, members = profile
     rings = lanes.shape[1]
     if irregular[c, x] != 0:
-        shape = (lanes.shape[0], rings, 1, lanes.shape[2])
-        used[c, x] = pixel_profile(lanes.reshape(shape).transpose(1, 2, 3, 0),
-                                   lane_errors.reshape(shape).transpose(1, 2, 3, 0), errors_given, counts, inflation,
-                                   floor, 0, x, c, variance, one_data, one_weight)
+        # The pixel's rings as pixel_profile reads a grid's, (R, 1, 1, C) and (R, 1, 1): a copy, where
+        # views of the lanes made its compilation 3 s longer (reshape's error messages).
+        for r in range(rings):
+            pixel[r, 0, 0, c] = lanes[c, r, x]
+            pixel_errors[r, 0, 0, c] = lane_errors[c, r, x]
+            members[r, 0, 0] = counts[r, 0, x] if errors_given else 0
+        used[c, x] = pixel_profile(pixel, pixel_errors, errors_given, members, inflation, floor, 0, 0, c, variance,
+                                   one_data, one_weight)
         for r in range(rings):
             data[c, x, r] = one_data[r]
             weight[c, x, r] = one_weight[r]
     rings_out[y, column, c] = used[c, x]
     if used[c, x] < MIN_RINGS:
-        fitted[:] = math.nan
+        for m in range(6):
+            fitted[m] = math.nan
         _write(fitted, 0, used[c, x], y, column, c, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status, steps)
         status[y, column, c] = NO_DATA
         return math.nan, math.nan
@@ -244,12 +251,7 @@ def _fit_alone(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u
 def _write(fitted, taken, count, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out, rings_out, status, steps):
     """A node fit's ``fitted`` (u, v, Cuu, Cuv, Cvv, chi2) into the maps' (H, W, C) outputs at pixel
     (y, x), channel c: converged after ``taken`` node steps, ``count`` rings used."""
-    u_out[y, x, c] = fitted[0]
-    v_out[y, x, c] = fitted[1]
-    cuu[y, x, c] = fitted[2]
-    cuv[y, x, c] = fitted[3]
-    cvv[y, x, c] = fitted[4]
-    chi2_out[y, x, c] = fitted[5]
+    write_fit(fitted, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out)
     rings_out[y, x, c] = count
     status[y, x, c] = CONVERGED
     steps[y, x, c] = taken

@@ -52,7 +52,7 @@ from .table import DEFAULT_PHOTONS, ProfileTable, check_photons, table_for
 MODEL_FLOOR = 0.005
 """Relative standard deviation added to every ring's: the table's own noise (at its default
 10^6 photons, 0.03-0.3 % per ring, from four independent runs) and what else the model leaves out."""
-FIRST_RUN = " (first run after an install or update: compiling them, about 20 s)"
+FIRST_RUN = " (first run after an install or update: compiling them, about half a minute)"
 """Said after the fits' phase where numba's cache lacks their kernel: the bar stays where it is
 meanwhile (20-24 s at 60 % on the skin1 sample)."""
 DETERMINED_RELATIVE_ERROR = 0.5

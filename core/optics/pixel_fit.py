@@ -113,7 +113,7 @@ def fit_profiles(table: ProfileTable, measured: np.ndarray, sigma: np.ndarray, s
 
 def fits_compiled(estimator: str = "nodes") -> bool:
     """Whether numba's cache holds the kernel :func:`fit_profiles` runs for ``estimator`` (false
-    on a first run after an install or an update, when it compiles: about 20 s on two cores)."""
+    on a first run after an install or an update, when it compiles: about half a minute on two cores)."""
     if estimator == "nodes":
         from .chunk_fit import node_fit_rows
 
