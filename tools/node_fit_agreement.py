@@ -48,7 +48,8 @@ def main() -> None:
         difference = (nodes[name] - full[name])[done] / np.sqrt(full[variance][done])
         error_ratio = np.sqrt(nodes[variance][done] / full[variance][done]) - 1
         print(f"{name}: within {np.abs(difference).max():.4f} of a standard error (RMS "
-              f"{np.sqrt(np.mean(difference ** 2)):.4f}); standard errors within {100 * np.abs(error_ratio).max():.2f} %")
+              f"{np.sqrt(np.mean(difference ** 2)):.4f}); standard errors within "
+              f"{100 * np.abs(error_ratio).max():.2f} %")
     correlation = (nodes["cuv"] - full["cuv"])[done] / np.sqrt(full["cuu"] * full["cvv"])[done]
     print(f"correlation within {np.abs(correlation).max():.4f}")
     shares = np.bincount(nodes["node_steps"].ravel(), minlength=3) / nodes["node_steps"].size
