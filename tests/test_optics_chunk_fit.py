@@ -136,3 +136,17 @@ def test_a_chunk_without_a_start_fits_its_first_pixels_alone_until_one_converges
     assert (steps[3:, 0] >= 1).all() and (steps[1:, 1:] >= 1).all()
     np.testing.assert_array_equal(out["status"][0, :2, 0], [1, 1])  # NO_DATA
     assert np.isfinite(after).all()
+
+
+def test_a_start_at_the_tables_edge_gives_one_full_fit_and_the_rest_node_steps(table):
+    # A start within two fine nodes of the table's edge takes no chunk step: the first pixel is the
+    # full fit, and each next pixel steps from the last one's minimum (not the edge's start again,
+    # which made every pixel of the chunk a full fit).
+    lanes, errors, counts = chunk(table, 0.03, seed=11)
+    _, node_u0, node_du, node_v0, node_dv = fine_nodes(table)
+    edge = np.array([[node_u0 + node_du, node_v0 + 40 * node_dv]] * 3)
+    out, _ = fit_chunk(table, lanes, errors, counts, edge)
+    steps = out["node_steps"][0]
+    assert (out["status"] == CONVERGED).all()
+    np.testing.assert_array_equal(steps[0], [0, 0, 0])
+    assert (steps[1:] >= 1).all()

@@ -12,7 +12,8 @@ one :func:`.node_fit.node_steps` makes from the chunk's start, which ``tests/tes
 checks lane by lane. A pixel whose rings borrow an error other than ring 0's from ring 1 is fitted
 alone from that start (its weights by :func:`.pixel_data.pixel_profile`), and where node steps do
 not settle, a pixel's fit is the full fit. Where the row's previous chunk gives no start, pixels are
-fitted alone, each from the last one's minimum, until one converges. A cache-resident chunk's fits
+fitted alone, each from the last one's minimum, until one converges; where the start's node is at
+the fine table's edge, every pixel of the chunk is. A cache-resident chunk's fits
 took 44 ns a pixel channel this way, 84 pixel by pixel (``benchmarks/bench_chunk.py``, one thread).
 """
 
@@ -130,7 +131,9 @@ def node_fit_chunk(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coars
                        steps)
                 start_u, start_v = fitted[0], fitted[1]
                 continue
-            begin_u, begin_v, taken = start_u, start_v, 0  # before the chunk has a start: from the last fit's
+            # Where the chunk took no first step (no start yet, or its node at the table's edge), from
+            # the last fit's minimum, pixel after pixel.
+            begin_u, begin_v, taken = start_u, start_v, 0
             if onward == LANDED:
                 # A lane that landed beyond the chunk's node goes on from there, as its own fit would.
                 taken = node_steps(nodes, node_u0, node_du, node_v0, node_dv, data, weight, c, x, scale[c],
@@ -141,7 +144,7 @@ def node_fit_chunk(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coars
                     start_u, start_v = fitted[0], fitted[1]
                     continue
                 taken = NODE_STEPS  # they did not settle: the full fit's
-            if math.isfinite(chunk_u):
+            if stepped:
                 begin_u, begin_v = chunk_u, chunk_v
             start_u, start_v = _fit_alone(nodes, node_u0, node_du, node_v0, node_dv, log_profile, coarse, u0, du, v0,
                                           dv, lanes, lane_errors, errors_given, counts, floor, inflation, data, weight,
