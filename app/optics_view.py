@@ -86,11 +86,10 @@ def region_fit_text(result: RegionOptics, where: str) -> str:
     """The region fit's values with their standard errors, per channel, its chi-square and the
     channels it did not determine."""
     chi2 = " / ".join(f"{c:.3g}" for c in result.chi2)
-    missing = f"; not determined in {', '.join(result.undetermined())}" if result.undetermined() else ""
     return (f"{where}, fit of its mean E(r) over {result.points} lit points (n {result.n:g}, g {result.g:g}): mu_a "
             f"{with_errors(result.mua, result.mua_se)}, mu_s' {with_errors(result.musp, result.musp_se)} "
             f"{UNITS[result.units]} (R / G / B, ±1 SE); chi2 {chi2} on {len(result.radii) - 2} degrees of "
-            f"freedom{missing}")
+            f"freedom{result.undetermined_note()}")
 
 
 def describe_optics(maps: OpticalMaps, y: int, x: int, channel: int) -> str:

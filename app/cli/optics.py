@@ -143,9 +143,8 @@ def run_optics(args) -> int:
         write_text(args.json, json.dumps(region_document(result, frequencies_text, args.roi), indent=1) + "\n",
                    overwrite=args.force)
         units = result.units.replace("_", " ")
-        missing = f"; not determined in {', '.join(result.undetermined())}" if result.undetermined() else ""
         print(f"region: mua {with_errors(result.mua, result.mua_se)}, musp {with_errors(result.musp, result.musp_se)} "
-              f"{units} (R / G / B, ±1 SE){missing}")
+              f"{units} (R / G / B, ±1 SE){result.undetermined_note()}")
         print(f"wrote {args.json}")
     return 0
 

@@ -15,17 +15,17 @@ Each pixel is fitted by Gauss-Newton steps from a finer table's nodes (:mod:`.no
 Levenberg-Marquardt fit on the table's splines (:mod:`.pixel_fit`, ``estimator="full"``), which
 fits the steps do not settle and region fits use. Without replicates, a stack or errors given,
 pixels are fitted as soon as their rings and their spread are stacked, 64 of a row at a time
-(:mod:`.one_pass`): no (R, H, W, 3) stack or errors are written.
+(:mod:`.one_pass`, their fits as the lanes of vectorised loops: :mod:`.chunk_fit`): no
+(R, H, W, 3) stack or errors are written.
 
-Cost (``benchmarks/bench_optics.py --repeats 5``, 800 x 800, max_radius 8, the rounds alternated
-in one process on a two-core machine at load 4.5-8, CPU time): the map beyond the stack, the
-median over a run's rounds, 0.70-1.19 x the stack in eight runs (1.64-2.06 x for the two passes
-before, run alternately with three of them); the node fits 0.25-0.29 us each.
+Cost (``benchmarks/bench_optics.py --repeats 7``, 800 x 800, max_radius 8, a two-core machine):
+the map beyond the stack, the median over a run's rounds, 0.75-0.88 x the stack; the node fits
+0.07-0.09 us CPU each (docs/guide/optics.md, Speed).
 
 A pixel whose rings are cut by the grid's edge (or by unlit points) is fitted with the whole
 rings' model and flagged (:attr:`OpticalMaps.complete` False): on a homogeneous surface a cut
-ring's members are a biased subset of distances. A pixel's values are those of the medium its rings see: across an edge
-between two materials they come within 1 % (mu_s') and 3 % (mu_a) of each material's own at
+ring's members are a biased subset of distances. A pixel's values are those of the medium its
+rings see: across an edge between two materials they come within 1 % (mu_s') and 3 % (mu_a) of each material's own at
 about max_radius from the edge, and mu_s' steps from 10 % to 90 % within 3 grid steps
 (``tools/evaluate_optics.py --scenes``, max_radius 8).
 """
@@ -54,7 +54,7 @@ MODEL_FLOOR = 0.005
 10^6 photons, 0.03-0.3 % per ring, from four independent runs) and what else the model leaves out."""
 FIRST_RUN = " (first run after an install or update: compiling them, about half a minute)"
 """Said after the fits' phase where numba's cache lacks their kernel: the bar stays where it is
-meanwhile (20-24 s at 60 % on the skin1 sample)."""
+meanwhile (a 40 x 40 map's first run compiled for 32 s on a two-core machine)."""
 DETERMINED_RELATIVE_ERROR = 0.5
 """A value is *determined* where its fit converged inside the table and its standard error is
 below this fraction of it."""

@@ -21,7 +21,8 @@ def row_scratch(rings):
 
 @numba.njit(cache=True, inline="always")
 def write_fit(result, y, x, c, u_out, v_out, cuu, cuv, cvv, chi2_out):
-    """A fit's ``result`` (:func:`.pixel_fit._fit_one`'s layout) into the maps' (H, W, C) outputs at pixel (y, x), channel c."""
+    """A fit's ``result`` (:func:`.pixel_fit._fit_one`'s layout) into the maps' (H, W, C) outputs at
+    pixel (y, x), channel c."""
     u_out[y, x, c] = result[0]
     v_out[y, x, c] = result[1]
     cuu[y, x, c] = result[2]
@@ -108,10 +109,14 @@ def chunk_profiles(lanes, lane_errors, errors_given, counts, inflation, floor, p
         for x in range(pixels):
             borrowed[x] = math.sqrt(counts[1, 0, x] / max(counts[0, 0, x], 1))
     for c in range(channels):
-        if errors_given and rings > 1:
+        if not errors_given:
+            _given_deviations(lanes, lane_errors, c, data, weight, used, irregular)
+        elif rings > 1:
             _given_errors(lanes, lane_errors, inflation, floor, borrowed, c, data, weight, used, irregular)
-        else:
-            _given_deviations(lanes, lane_errors, errors_given, inflation, floor, c, data, weight, used, irregular)
+        else:  # one ring with an error: none can lend ring 0 one, pixel_profile's search says so
+            for x in range(width):
+                used[c, x] = 0
+                irregular[c, x] = 1
 
 
 # Each case a function of its own, its loops without a test of their case inside: with the tests
@@ -143,25 +148,16 @@ def _given_errors(lanes, lane_errors, inflation, floor, borrowed, c, data, weigh
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False)
-def _given_deviations(lanes, lane_errors, errors_given, inflation, floor, c, data, weight, used, irregular):
-    """:func:`chunk_profiles` of channel c where ``lane_errors`` are standard deviations (or
-    standard errors of a single ring, whose error none can lend)."""
+def _given_deviations(lanes, lane_errors, c, data, weight, used, irregular):
+    """:func:`chunk_profiles` of channel c where ``lane_errors`` are standard deviations."""
     for x in range(lanes.shape[2]):
         used[c, x] = 0
         irregular[c, x] = 0
     for r in range(lanes.shape[1]):
         for x in range(lanes.shape[2]):
-            image = np.float64(lanes[c, r, x])
             deviation = np.float64(lane_errors[c, r, x])
-            if errors_given:
-                deviation *= inflation[r]
-                value = deviation * deviation
-                irregular[c, x] += 1 if (not math.isfinite(value) or image == 0.0) and math.isfinite(image) else 0
-                scaled = floor * image
-                value += scaled * scaled
-            else:
-                value = deviation * deviation if deviation > 0.0 else math.nan
-            used[c, x] += _store_ring(image, value, c, r, x, data, weight)
+            value = deviation * deviation if deviation > 0.0 else math.nan
+            used[c, x] += _store_ring(np.float64(lanes[c, r, x]), value, c, r, x, data, weight)
 
 
 @numba.njit(cache=True, inline="always")

@@ -124,10 +124,11 @@ def fits_compiled(estimator: str = "nodes") -> bool:
 def fit_outputs(height: int, width: int, channels: int, filled: bool = True) -> dict[str, np.ndarray]:
     """The (H, W, C) outputs of :func:`fit_profiles` before any fit: NaN values, no rings used,
     status :data:`NO_DATA`; with ``filled`` False, not initialised (for a kernel that writes every
-    output of every pixel, :func:`.node_fit.node_fit_row`: the fills cost the maps' pass about 10 ms
+    output of every pixel, :func:`.chunk_fit.node_fit_chunk`: the fills cost the maps' pass about 10 ms
     at 800 x 800, a thread's serial work)."""
     def make(dtype, value):
-        return np.full((height, width, channels), value, dtype) if filled else np.empty((height, width, channels), dtype)
+        shape = (height, width, channels)
+        return np.full(shape, value, dtype) if filled else np.empty(shape, dtype)
     out = {name: make(np.float64, np.nan) for name in ("u", "v", "cuu", "cuv", "cvv", "chi2")}
     out["rings"] = make(np.int32, 0)
     out["status"] = make(np.int8, NO_DATA)

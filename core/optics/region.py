@@ -72,6 +72,12 @@ class RegionOptics:
         """The names of the channels whose fit is not determined."""
         return [name for name, determined in zip(self.channels, self.determined) if not determined]
 
+    def undetermined_note(self) -> str:
+        """``"; not determined in B"`` naming :meth:`undetermined`, or ``""``: the end of a line of
+        the region's values."""
+        names = self.undetermined()
+        return f"; not determined in {', '.join(names)}" if names else ""
+
 
 def region_optics(dataset: ImpulseDataset, mask: np.ndarray | None = None, *, n: float | None = None,
                   g: float | None = None, calibration=None, layers: int = 1, frequencies=(0.0,),
